@@ -1,0 +1,96 @@
+"""The Python API: ``load``/``loads`` give a :class:`Mechanism`, which compiles and simulates.
+
+>>> import mechdsl
+>>> mech = mechdsl.load("examples/slider_crank.mech")
+>>> res = mech.simulate(span=(0, 0.5), step=0.01, l=3.0)
+>>> res["t"], res["slider.x"]
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Iterable, Mapping, Sequence
+
+from . import expr as E
+from .compile import Overrides, System, compile_model
+from .model import Model
+from .parse import parse
+from .plugins.manager import build_registry
+from .plugins.registry import Registry
+from .results import Results
+from .solve import SolverOptions, simulate
+
+
+class Mechanism:
+    """A parsed model (``.model``, plain data) and the plugin registry it is run with.
+
+    The registry is built on first use from the entry points (importing only the plugins of
+    the types the model uses), plus ``plugins`` given here; pass ``registry`` to share one.
+    """
+
+    def __init__(self, model: Model, *, registry: Registry | None = None,
+                 plugins: Iterable[object | str] = ()) -> None:
+        self.model = model
+        self._registry = registry
+        self._plugins = tuple(plugins)
+
+    @property
+    def registry(self) -> Registry:
+        if self._registry is None:
+            wanted = {c.type_name for c in (*self.model.joints, *self.model.drives)}
+            self._registry = build_registry(self._plugins, wanted=wanted)
+        return self._registry
+
+    def compile(self, overrides: Overrides | None = None, *, need_times: bool = True) -> System:
+        """Resolve the model against the registry (see :func:`mechdsl.compile.compile_model`)."""
+        return compile_model(self.model, self.registry, overrides, need_times=need_times)
+
+    def simulate(
+        self,
+        *,
+        span: tuple[float, float] | None = None,
+        step: float | None = None,
+        sweep: Mapping[str, Sequence[float]] | None = None,
+        params: Mapping[str, float] | None = None,
+        options: SolverOptions | None = None,
+        **param_values: float,
+    ) -> Results:
+        """Compile with the given overrides and solve.
+
+        ``span = (t0, t1)`` and ``step`` replace the file's ``simulate`` line. Params are
+        overridden by keyword (``l=2.5``) or through ``params`` (for names that clash with
+        the keywords here); ``sweep`` maps param names to lists of values.
+        """
+        values: dict[str, E.Expr | float] = {**(params or {}), **param_values}
+        t0, t1 = span if span is not None else (None, None)
+        ov = Overrides(params=values, sweeps=dict(sweep or {}), t0=t0, t1=t1, step=step)
+        return simulate(self.compile(ov), options)
+
+
+def loads(text: str, name: str = "<string>", **kwargs) -> Mechanism:
+    """Parse ``.mech`` text; keyword arguments go to :class:`Mechanism`."""
+    return Mechanism(parse(text, name), **kwargs)
+
+
+def load(path: str | os.PathLike, **kwargs) -> Mechanism:
+    """Read and parse a ``.mech`` file; keyword arguments go to :class:`Mechanism`."""
+    from .errors import MechError, Source
+
+    path = os.fspath(path)
+    try:
+        with open(path, "rb") as f:
+            raw = f.read()
+    except OSError as err:
+        raise MechError(f"cannot read {path}: {err.strerror}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        before = raw[: err.start]
+        line = before.count(b"\n") + 1
+        col = err.start - (before.rfind(b"\n") + 1) + 1
+        from .errors import Span
+
+        raise MechError(f"the file is not valid UTF-8 (byte 0x{raw[err.start]:02x})",
+                        Span(line, col, line, col + 1),
+                        Source(path, raw.decode("utf-8", "replace"))) from None
+    return loads(text, path, **kwargs)

@@ -1,0 +1,116 @@
+"""The ``mechdsl`` command: ``run``, ``check`` and ``plugins``.
+
+Exit status (:class:`ExitCode`): 0 success; 1 the input is wrong (printed as
+``FILE:LINE:COL: error: ...`` with the source line and a caret); 2 a numerical failure (no
+assembly, lock-up, singular Jacobian), after writing every instant solved before it;
+130 interrupted (Ctrl-C), after writing the instants solved so far; 3 an internal error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import enum
+import os
+import sys
+from typing import Sequence
+
+from .errors import MechError, format_error
+
+
+class ExitCode(enum.IntEnum):
+    OK = 0
+    USER_ERROR = 1
+    NUMERICAL_FAILURE = 2
+    INTERNAL_ERROR = 3
+    INTERRUPTED = 130
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse exits with status 2 on a usage error; here 2 means a numerical failure."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.print_usage(sys.stderr)
+        self.exit(ExitCode.USER_ERROR, f"{self.prog}: error: {message}\n")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="mechdsl", description="Kinematics of planar mechanisms from .mech files.")
+    p.add_argument("--version", action="store_true", help="print the version and exit")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    def model_options(sp: argparse.ArgumentParser) -> None:
+        sp.add_argument("file", metavar="FILE", help="the .mech file")
+        sp.add_argument("--set", metavar="NAME=VALUE", action="append", default=[],
+                        help="override a param (VALUE may be an expression of other params)")
+        sp.add_argument("--sweep", metavar="NAME=V1,V2,...", action="append", default=[],
+                        help="run once per value of a param (several: every combination)")
+        sp.add_argument("--plugin", metavar="MODULE", action="append", default=[],
+                        help="also load the plugin module MODULE")
+
+    run = sub.add_parser("run", help="solve a mechanism over time; write CSV and plots")
+    model_options(run)
+    run.add_argument("-o", "--output", metavar="OUT.csv",
+                     help="write the results as CSV ('-' for standard output)")
+    run.add_argument("--plot", metavar="OUT.png", help="draw the time histories")
+    run.add_argument("--t0", type=float, help="start time (overrides the file)")
+    run.add_argument("--t1", type=float, help="end time (overrides the file)")
+    run.add_argument("--step", type=float, help="time step (overrides the file)")
+    run.add_argument("--newton-tol", type=float, metavar="TOL",
+                     help="Newton-Raphson step tolerance, relative to the model's size "
+                          "(default 1e-10)")
+    run.add_argument("--max-instants", type=int, metavar="N",
+                     help="refuse grids with more instants than this (default 50,000,000)")
+    run.add_argument("-q", "--quiet", action="store_true", help="print only errors")
+
+    check = sub.add_parser("check", help="parse, compile and assemble; print the structure")
+    model_options(check)
+
+    sub.add_parser("plugins", help="list the installed joint and drive types")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line with ``argv`` (default: ``sys.argv[1:]``); return the exit status."""
+    args = _parser().parse_args(argv)
+    if args.version:
+        from . import __version__
+
+        print(f"mechdsl {__version__}")
+        return ExitCode.OK
+    if args.command is None:
+        _parser().print_help()
+        return ExitCode.USER_ERROR
+    try:
+        if args.command == "plugins":
+            from .commands import plugins_command
+
+            return plugins_command()
+        from . import commands
+
+        return getattr(commands, f"{args.command}_command")(args)
+    except MechError as err:
+        print(format_error(err), file=sys.stderr)
+        from .errors import NumericalError
+
+        return ExitCode.NUMERICAL_FAILURE if isinstance(err, NumericalError) else ExitCode.USER_ERROR
+    except KeyboardInterrupt:
+        print("mechdsl: interrupted", file=sys.stderr)
+        return ExitCode.INTERRUPTED
+    except BrokenPipeError:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return ExitCode.OK
+    except Exception as err:  # noqa: BLE001 - a bug: say so plainly, with the details
+        import traceback
+
+        print(f"mechdsl: internal error: {type(err).__name__}: {err}", file=sys.stderr)
+        if os.environ.get("MECHDSL_TRACEBACK"):
+            traceback.print_exc()
+        else:
+            print("  (set MECHDSL_TRACEBACK=1 for the traceback; please report it)",
+                  file=sys.stderr)
+        return ExitCode.INTERNAL_ERROR
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,163 @@
+"""The subcommands behind :mod:`mechdsl.cli`: each takes parsed arguments, prints, and
+returns an exit status. Errors are raised as MechError and formatted by the caller."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+
+from .api import Mechanism, load
+from .compile import Overrides, System
+from .errors import MechError, NumericalError, Source, format_error
+from .parse import parse_expr, parse_expr_list
+
+
+def _overrides(mech: Mechanism, args) -> Overrides:
+    names = [p.name for p in mech.model.params]
+    ov = Overrides()
+    for opt, target, parse_value in (("--set", ov.params, parse_expr),
+                                     ("--sweep", ov.sweeps, parse_expr_list)):
+        for item in getattr(args, opt.lstrip("-")):
+            name, eq_sign, value = item.partition("=")
+            name = name.strip()
+            if not eq_sign or not name.isidentifier():
+                raise MechError(f"{opt} takes NAME=VALUE, not '{item}'")
+            target[name] = parse_value(value, f"{opt} {name}", names)
+    for attr in ("t0", "t1", "step", "max_instants"):
+        value = getattr(args, attr, None)
+        if value is not None:
+            setattr(ov, attr, value)
+    return ov
+
+
+def _options(args):
+    from .solve import SolverOptions
+
+    if getattr(args, "newton_tol", None) is None:
+        return SolverOptions()
+    if not args.newton_tol > 0:
+        raise MechError("--newton-tol must be positive")
+    return SolverOptions(newton_tol=args.newton_tol)
+
+
+def run_command(args) -> int:
+    """``mechdsl run``: solve, write the CSV and the plot (also after a numerical failure,
+    with the instants solved before it), print a summary or the failure."""
+    from .results import summary, write_csv
+    from .solve import simulate
+
+    mech = load(args.file, plugins=args.plugin)
+    system = mech.compile(_overrides(mech, args))
+    results = simulate(system, _options(args))
+    if args.output:
+        write_csv(results, args.output)
+    if args.plot:
+        from .plot import plot_results
+
+        title = os.path.basename(args.file)
+        if args.set:
+            title += " (" + ", ".join(s.replace("=", " = ", 1) for s in args.set) + ")"
+        plot_results(results, args.plot, title=title)
+    if not args.output and results.ok:
+        print(summary(results))
+    elif args.output and args.output != "-" and not args.quiet and results.ok:
+        print(f"{args.output}: {len(results.table()[1])} rows "
+              f"({results.solve_time * 1e3:.1f} ms)", file=sys.stderr)
+    if results.status == "interrupted":
+        saved = f"; the {int(results.n_solved.max())} instants solved so far are in {args.output}" \
+            if args.output else ""
+        print(f"mechdsl: interrupted{saved}", file=sys.stderr)
+        return 130
+    if not results.ok:
+        source = Source(args.file, "")
+        for message in results.messages:
+            print(format_error(NumericalError(message, source=source)), file=sys.stderr)
+        solved = int(results.n_solved.max(initial=0))
+        if args.output and args.output != "-":
+            print(f"  note: the {solved} instants solved before the failure are in "
+                  f"{args.output}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def check_command(args) -> int:
+    """``mechdsl check``: structure, equation count, degrees of freedom, assembly at t0."""
+    from .solve import assemble, check_mobility, singularity
+
+    mech = load(args.file, plugins=args.plugin)
+    system = mech.compile(_overrides(mech, args), need_times=mech.model.simulate is not None)
+    print(_structure(mech, system))
+    check_mobility(system)
+    t0 = float(system.times[0]) if system.times is not None else 0.0
+    asm = assemble(system, t0)
+    if not asm.ok.all():
+        raise NumericalError(asm.messages[0], source=system.source)
+    print(f"assembled at t = {t0:g}:")
+    width = max(len(b) for b in system.body_names)
+    for i, b in enumerate(system.body_names):
+        x, y, phi = asm.q[0, 3 * i : 3 * i + 3]
+        print(f"  {b:<{width}}  x = {x:< 12.6g} y = {y:< 12.6g} phi = {phi:.6g}")
+    for v in range(system.n_variants):
+        cond, names = singularity(system, asm.q[v], v)
+        if not cond * 1e-12 < 1:
+            raise NumericalError(f"the Jacobian is singular at the assembled configuration "
+                                 f"(condition number {cond:.3g}); dependent equations "
+                                 f"involve {names}", source=system.source)
+    variants = f" (all {system.n_variants} sweep variants)" if system.n_variants > 1 else ""
+    print(f"ok: fully driven, assembles at t = {t0:g}{variants}; Jacobian condition number "
+          f"{cond:.3g}")
+    return 0
+
+
+def _structure(mech: Mechanism, system: System) -> str:
+    dof = system.n - system.m
+    lines = [f"{system.source.name}: {len(system.body_names)} moving bodies, {system.n} "
+             f"coordinates, {system.m} equations, {dof} degree{'s' if dof != 1 else ''} "
+             "of freedom"]
+    lines.append("bodies:")
+    model = mech.model
+    for b in (model.ground, *model.bodies):
+        pts = ", ".join(p.name for p in b.points)
+        guess = "fixed" if b.is_ground else ("guess " + _fmt(system.guess[0][
+            3 * system.body_names.index(b.name): 3 * system.body_names.index(b.name) + 3]))
+        lines.append(f"  {b.name:<12} {guess:<28} points: origin{', ' + pts if pts else ''}")
+    lines.append("joints and drives:")
+    from .expr import to_text
+
+    drives = {d.name: d for d in model.drives}
+    for c in system.constraints:
+        neq = c.rows[1] - c.rows[0]
+        extra = f"  = {to_text(drives[c.name].function)}" if c.name in drives else ""
+        lines.append(f"  {c.kind:<5} {c.name:<14} {c.type_name:<10} {', '.join(c.bodies):<22} "
+                     f"{neq} equation{'s' if neq != 1 else ''}{extra}")
+    return "\n".join(lines)
+
+
+def _fmt(v: np.ndarray) -> str:
+    return "(" + ", ".join(f"{x:g}" for x in v) + ")"
+
+
+def plugins_command() -> int:
+    """``mechdsl plugins``: every installed type with its signature and distribution."""
+    from .plugins.manager import build_registry
+
+    registry = build_registry()
+    for kind in ("joint", "drive"):
+        names = registry.names(kind)
+        print(f"{kind} types:")
+        if not names:
+            print("  (none installed)")
+        for name in names:
+            ctype = registry.get(kind, name)
+            provider = registry.provider(kind, name)
+            print(f"  {ctype.describe()}")
+            print(f"      {ctype.n_eq} equation{'s' if ctype.n_eq != 1 else ''}; "
+                  f"{ctype.doc or ''}  [{provider}]")
+    if registry.broken:
+        print("broken plugins:")
+        for b in registry.broken:
+            print(f"  {b.provider.plugin} ({b.provider}): {b.reason}")
+    return 0
+

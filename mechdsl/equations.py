@@ -1,0 +1,153 @@
+"""Haug's kinematic equations of a compiled system, evaluated for a batch of states.
+
+With q the coordinates of the moving bodies and t the time (Haug 1989, ch. 3):
+
+* position:      Phi(q, t) = 0
+* velocity:      Phi_q qd = nu,           nu = -Phi_t
+* acceleration:  Phi_q qdd = gamma,       gamma = -(Phi_q qd)_q qd - 2 Phi_qt qd - Phi_tt
+
+Joints are time-independent; a drive is g(q) - f(t), so nu has f'(t) in the drive rows and
+gamma has f''(t) added there. Every function takes states of shape ``(V, b, n)`` (variants,
+instants) and times broadcastable to ``(V, b)``, and calls each constraint type once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .compile import Group, System
+from .errors import MechError
+
+
+class PluginError(MechError):
+    """A plugin raised or returned a malformed array while the system was evaluated."""
+
+
+def _poses(system: System, q: np.ndarray) -> np.ndarray:
+    """(V, b, n) -> (V, b, bodies + 1, 3), the ground's pose (all zero) appended last."""
+    nb = system.n_bodies
+    ext = np.zeros(q.shape[:-1] + (nb + 1, 3))
+    ext[..., :nb, :] = q.reshape(q.shape[:-1] + (nb, 3))
+    return ext
+
+
+def _slots(group: Group, poses: np.ndarray) -> tuple[np.ndarray, ...]:
+    return tuple(poses[..., group.slots[:, k], :] for k in range(group.slots.shape[1]))
+
+
+def _call(system: System, group: Group, method: str, *args):
+    """Call a plugin method; turn its exceptions and wrong shapes into a located error."""
+    ctype = group.ctype
+    try:
+        with np.errstate(all="ignore"):
+            out = getattr(ctype, method)(*args)
+        expect = (ctype.n_eq,) if method != "jacobian" else (ctype.n_eq, 3)
+        arrays = out if method == "jacobian" else (out,)
+        if method == "jacobian" and len(out) != group.slots.shape[1]:
+            raise ValueError(f"returned {len(out)} Jacobian blocks for "
+                             f"{group.slots.shape[1]} attached bodies")
+        for a in arrays:
+            if np.shape(a)[-len(expect):] != expect:
+                raise ValueError(f"returned shape {np.shape(a)}, expected (..., "
+                                 f"{', '.join(map(str, expect))})")
+        return out
+    except MechError:
+        raise
+    except Exception as err:  # noqa: BLE001 - any plugin failure is reported as the plugin's
+        first = system.constraints[group.members[0]]
+        names = ", ".join(system.constraints[i].name for i in group.members[:4])
+        raise PluginError(
+            f"the {ctype.kind} type '{ctype.name}' failed in {method}(): "
+            f"{type(err).__name__}: {err}", first.span,
+            notes=[f"constraints of this type: {names}"
+                   + (" ..." if len(group.members) > 4 else ""),
+                   f"the type comes from the plugin {type(ctype).__module__}"]) from None
+
+
+def _drive_values(system: System, t: np.ndarray, which: str, shape) -> np.ndarray:
+    env = dict(system.env)
+    env["t"] = t
+    with np.errstate(all="ignore"):
+        cols = [np.broadcast_to(getattr(d, which)(env), shape) for d in system.drive_functions]
+    return np.stack(cols, axis=-1)
+
+
+def constraint_values(system: System, q: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Phi(q, t), shape ``(V, b, m)``."""
+    poses = _poses(system, q)
+    phi = np.empty(q.shape[:-1] + (system.m,))
+    for g in system.groups:
+        phi[..., g.rows] = _call(system, g, "phi", _slots(g, poses), g.params)
+    if system.drive_functions:
+        phi[..., system.drive_rows] -= _drive_values(system, t, "f", q.shape[:-1])
+    return phi
+
+
+def jacobian(system: System, q: np.ndarray) -> np.ndarray:
+    """Phi_q, shape ``(V, b, m, n)`` (a view; copy before writing)."""
+    poses = _poses(system, q)
+    jac = np.zeros(q.shape[:-1] + (system.m, system.n + 3))
+    for g in system.groups:
+        blocks = _call(system, g, "jacobian", _slots(g, poses), g.params)
+        rows = g.rows[:, :, None]
+        for k, blk in enumerate(blocks):
+            jac[..., rows, g.cols[k]] += blk
+    return jac[..., : system.n]
+
+
+def velocity_rhs(system: System, t: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """nu = -Phi_t, shape ``shape + (m,)``: f'(t) in the drive rows, zero elsewhere."""
+    nu = np.zeros(tuple(shape) + (system.m,))
+    if system.drive_functions:
+        nu[..., system.drive_rows] = _drive_values(system, t, "fd", tuple(shape))
+    return nu
+
+
+def acceleration_rhs(system: System, q: np.ndarray, qd: np.ndarray,
+                     t: np.ndarray) -> np.ndarray:
+    """gamma = -(Phi_q qd)_q qd + f''(t) in the drive rows, shape ``(V, b, m)``."""
+    poses, rates = _poses(system, q), _poses(system, qd)
+    gamma = np.empty(q.shape[:-1] + (system.m,))
+    for g in system.groups:
+        gamma[..., g.rows] = _call(system, g, "gamma", _slots(g, poses), _slots(g, rates),
+                                   g.params)
+    if system.drive_functions:
+        gamma[..., system.drive_rows] += _drive_values(system, t, "fdd", q.shape[:-1])
+    return gamma
+
+
+def output_values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
+                  qdd: np.ndarray | None) -> np.ndarray:
+    """One output quantity for states ``(V, b, n)``: shape ``(V, b)``.
+
+    A point P with body coordinates s' (Haug eqs. 2.6.4 and their derivatives):
+    r^P = r + A s', rd^P = rd + B s' phid, rdd^P = rdd + B s' phidd - A s' phid^2.
+    """
+    i = spec.body
+    k = 3 * i
+    shape = q.shape[:-1]
+
+    def part(a: np.ndarray | None) -> np.ndarray:
+        if i == system.n_bodies or a is None:  # the ground does not move
+            return np.zeros(shape + (3,))
+        return a[..., k : k + 3]
+
+    pose = part(q)
+    name = spec.quantity
+    if spec.point is None:
+        source = {0: pose, 1: part(qd), 2: part(qdd)}[spec.order]
+        return source[..., {"x": 0, "y": 1, "phi": 2, "vx": 0, "vy": 1, "omega": 2,
+                            "ax": 0, "ay": 1, "alpha": 2}[name]].copy()
+    c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
+    sx, sy = spec.point[..., 0], spec.point[..., 1]
+    asx, asy = c * sx - s * sy, s * sx + c * sy
+    axis = 0 if name[-1] == "x" else 1
+    if spec.order == 0:
+        return pose[..., axis] + (asx, asy)[axis]
+    rate = part(qd)
+    w = rate[..., 2]
+    bs = (-asy, asx)[axis]  # B s' = perp(A s')
+    if spec.order == 1:
+        return rate[..., axis] + bs * w
+    acc = part(qdd)
+    return acc[..., axis] + bs * acc[..., 2] - (asx, asy)[axis] * w**2

@@ -1,0 +1,131 @@
+"""The model: what the user wrote, as frozen dataclasses, resolved to names, nothing solved.
+
+Every node keeps the :class:`~mechdsl.errors.Span` it came from so that any later stage can
+point at the source. Numbers stay expressions here (a point may be ``(-r/2, 0)``); they become
+numbers per sweep variant when the model is compiled.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .errors import Source, Span
+from .expr import Expr
+
+GROUND = "ground"
+ORIGIN = "origin"
+
+#: Output quantities of a body ``B.q`` and of a point ``B.P.q``; angles in radians.
+BODY_QUANTITIES = ("x", "y", "phi", "vx", "vy", "omega", "ax", "ay", "alpha")
+POINT_QUANTITIES = ("x", "y", "vx", "vy", "ax", "ay")
+
+
+@dataclass(frozen=True)
+class Vector:
+    """A parenthesised tuple of expressions, ``(x, y)`` or ``(x, y, phi)``."""
+
+    items: tuple[Expr, ...]
+    span: Span
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str
+    value: Expr
+    span: Span
+
+
+@dataclass(frozen=True)
+class Point:
+    """A point fixed in its body, at ``coords`` in body coordinates."""
+
+    name: str
+    coords: Vector
+    span: Span
+
+
+@dataclass(frozen=True)
+class Body:
+    """A rigid body with q = (x, y, phi) of its frame; the ground is a body with ``is_ground``."""
+
+    name: str
+    points: tuple[Point, ...]
+    guess: Vector | None
+    span: Span
+    is_ground: bool = False
+
+
+@dataclass(frozen=True)
+class Arg:
+    """One argument of a joint or drive: positional (``name`` None) or ``name = value``."""
+
+    name: str | None
+    value: Expr | Vector
+    span: Span
+
+
+@dataclass(frozen=True)
+class Joint:
+    name: str
+    type_name: str
+    args: tuple[Arg, ...]
+    span: Span
+    type_span: Span
+
+
+@dataclass(frozen=True)
+class Drive:
+    """``drive NAME: TYPE(args) = f(t)``: the measure that TYPE computes from q equals f(t)."""
+
+    name: str
+    type_name: str
+    args: tuple[Arg, ...]
+    function: Expr
+    span: Span
+    type_span: Span
+
+
+@dataclass(frozen=True)
+class Simulate:
+    """``simulate t = t0 .. t1 step h``: the instants t0 + k h, both ends included."""
+
+    t0: Expr
+    t1: Expr
+    step: Expr
+    span: Span
+
+
+@dataclass(frozen=True)
+class OutputRef:
+    """A quantity or a group of quantities: ``B.x``, ``B.P.vy``, ``B`` (nine) or ``B.P`` (six)."""
+
+    parts: tuple[str, ...]
+    span: Span
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """``sweep NAME = [v1, v2, ...]`` or ``sweep NAME = a .. b step h | count n``."""
+
+    name: str
+    values: tuple[Expr, ...] | None
+    start: Expr | None
+    stop: Expr | None
+    step: Expr | None
+    count: Expr | None
+    span: Span
+
+
+@dataclass(frozen=True)
+class Model:
+    """A whole ``.mech`` file. ``ground`` is always present (implicit when not declared)."""
+
+    source: Source
+    params: tuple[Param, ...]
+    ground: Body
+    bodies: tuple[Body, ...]
+    joints: tuple[Joint, ...]
+    drives: tuple[Drive, ...]
+    simulate: Simulate | None
+    outputs: tuple[OutputRef, ...]
+    sweeps: tuple[Sweep, ...]

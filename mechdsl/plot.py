@@ -1,0 +1,60 @@
+"""Time-history figures of results. matplotlib is imported here and nowhere else, and only
+when a figure is drawn."""
+
+from __future__ import annotations
+
+import math
+import os
+
+from .results import Results
+
+
+def _variant_label(results: Results, v: int) -> str:
+    return ", ".join(f"{k} = {a[v]:g}" for k, a in results.sweep.items())
+
+
+def plot_results(results: Results, path: str | os.PathLike, title: str | None = None,
+                 labels: list[str] | None = None) -> None:
+    """One panel per output quantity against time, sweep variants overlaid with a legend.
+
+    The format follows the file name's extension (png, pdf, svg); the file is written under a
+    temporary name and renamed when complete.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    labels = list(labels or results.labels)
+    n = max(1, len(labels))
+    ncols = 1 if n <= 4 else 3
+    nrows = math.ceil(n / ncols)
+    fig = Figure(figsize=(5.2 * ncols if ncols > 1 else 7.0, 1.1 + 2.1 * nrows),
+                 layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(nrows, ncols, sharex=True, squeeze=False).ravel()
+    t = results.times
+    for ax, label in zip(axes, labels):
+        for v in range(results.n_variants):
+            k = int(results.n_solved[v])
+            ax.plot(t[:k], results.data[label][v, :k], lw=1.4,
+                    label=_variant_label(results, v) if results.sweep else None)
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+        ax.margins(x=0)
+    for ax in axes[len(labels):]:
+        ax.set_visible(False)
+    for ax in axes[max(0, len(labels) - ncols): len(labels)]:
+        ax.set_xlabel("t")
+    if results.sweep:
+        axes[0].legend(fontsize="small", loc="best")
+    fig.suptitle(title or os.path.basename(results.source_name))
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lstrip(".").lower() or "png"
+    tmp = os.path.join(os.path.dirname(os.path.abspath(path)),
+                       f".{os.path.basename(path)}.{os.getpid()}.tmp")
+    try:
+        fig.savefig(tmp, format=ext, dpi=110)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+

@@ -1,0 +1,17 @@
+"""The plugin API: everything a joint or drive plugin imports from mechdsl.
+
+>>> from mechdsl.plugins import ConstraintType, Arg, hookimpl, geometry
+
+See ``docs/plugins.md`` for the contract and a worked example.
+"""
+
+from . import geometry
+from .contract import REQUIRED, Arg, ArgError, ConstraintType
+from .hookspecs import hookimpl
+from .manager import ENTRY_POINT_GROUP, build_registry
+from .registry import BrokenPlugin, Provider, Registry
+
+__all__ = [
+    "REQUIRED", "Arg", "ArgError", "ConstraintType", "hookimpl", "geometry",
+    "ENTRY_POINT_GROUP", "build_registry", "BrokenPlugin", "Provider", "Registry",
+]

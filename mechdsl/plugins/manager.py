@@ -1,0 +1,132 @@
+"""Plugin discovery: entry points -> pluggy -> a :class:`~mechdsl.plugins.registry.Registry`.
+
+Plugins are found through the ``mechdsl`` entry-point group, built-in joints included. By
+convention each entry point is named after a type its module provides (a module providing
+several types has one entry point per type, all naming the module), so that a run imports
+only the plugins of the types its model uses; when a wanted type is not found that way, every
+entry point is loaded. Nothing here runs at import time: the caller builds a registry once and
+passes it on.
+
+Set ``MECHDSL_DISABLE_PLUGIN_AUTOLOAD=1`` to ignore entry points (only plugins given
+explicitly are registered), as pytest does for its own plugins.
+"""
+
+from __future__ import annotations
+
+import os
+from importlib import import_module, metadata
+from typing import Collection, Iterable
+
+import pluggy
+
+from . import hookspecs
+from .registry import BrokenPlugin, PluginConflict, Provider, Registry
+
+ENTRY_POINT_GROUP = "mechdsl"
+AUTOLOAD_ENV = "MECHDSL_DISABLE_PLUGIN_AUTOLOAD"
+
+
+def plugin_manager() -> pluggy.PluginManager:
+    """A fresh plugin manager that knows mechdsl's hook specifications."""
+    pm = pluggy.PluginManager(hookspecs.PROJECT)
+    pm.add_hookspecs(hookspecs)
+    return pm
+
+
+def build_registry(
+    plugins: Iterable[object | str] = (),
+    *,
+    entry_points: bool | None = None,
+    wanted: Collection[str] | None = None,
+) -> Registry:
+    """Register ``plugins`` (modules, or module names to import) and, unless disabled, the
+    entry-point plugins; collect their constraint types into a new :class:`Registry`.
+
+    ``wanted`` names the types a run needs: entry points named after other types are then not
+    imported. A plugin that fails to import, to register or to declare its types is recorded
+    in ``registry.broken`` with the reason and does not stop the others.
+    """
+    if entry_points is None:
+        entry_points = not os.environ.get(AUTOLOAD_ENV)
+    pm = plugin_manager()
+    registry = Registry()
+    providers: dict[str, Provider] = {}
+
+    for plugin in plugins:
+        if isinstance(plugin, str):
+            try:
+                plugin = import_module(plugin)
+            except Exception as err:  # noqa: BLE001 - any failure of a plugin is contained
+                registry.broken.append(BrokenPlugin(Provider(str(plugin)), _reason(err)))
+                continue
+        name = getattr(plugin, "__name__", repr(plugin))
+        _register(pm, registry, plugin, Provider(name), providers)
+
+    if entry_points:
+        eps = list(metadata.entry_points(group=ENTRY_POINT_GROUP))
+        if wanted is not None:
+            first = [ep for ep in eps if ep.name in wanted]
+            _load_entry_points(pm, registry, first, providers)
+            _collect(pm, registry, providers)
+            found = {n for (_k, n) in registry.types}
+            if set(wanted) <= found:
+                return registry
+            eps = [ep for ep in eps if ep not in first]
+        _load_entry_points(pm, registry, eps, providers)
+    _collect(pm, registry, providers)
+    return registry
+
+
+def _reason(err: BaseException) -> str:
+    return f"{type(err).__name__}: {err}"
+
+
+def _register(pm, registry: Registry, plugin: object, provider: Provider,
+              providers: dict[str, Provider]) -> None:
+    if pm.is_registered(plugin):
+        return
+    try:
+        pm.register(plugin, name=provider.plugin)
+        pm.check_pending()
+    except Exception as err:  # noqa: BLE001
+        if pm.is_registered(plugin):
+            pm.unregister(plugin)
+        registry.broken.append(BrokenPlugin(provider, _reason(err)))
+        return
+    providers[provider.plugin] = provider
+
+
+def _load_entry_points(pm, registry: Registry, eps: list, providers: dict[str, Provider]) -> None:
+    for ep in eps:
+        dist = getattr(ep, "dist", None)
+        module_name = ep.value.split(":")[0].strip()
+        provider = Provider(module_name, dist.name if dist else None,
+                            dist.version if dist else None)
+        if module_name in providers or pm.has_plugin(module_name):
+            continue
+        try:
+            plugin = ep.load()
+        except Exception as err:  # noqa: BLE001
+            registry.broken.append(BrokenPlugin(provider, _reason(err)))
+            continue
+        _register(pm, registry, plugin, provider, providers)
+
+
+def _collect(pm, registry: Registry, providers: dict[str, Provider]) -> None:
+    """Ask each registered plugin, one by one, for its types (so each is attributed)."""
+    done = {p for (_c, p) in registry.types.values()}
+    for impl in pm.hook.mechdsl_constraint_types.get_hookimpls():
+        provider = providers.get(impl.plugin_name, Provider(impl.plugin_name))
+        if provider in done:
+            continue
+        try:
+            types = list(impl.function())
+        except Exception as err:  # noqa: BLE001
+            registry.broken.append(BrokenPlugin(provider, _reason(err)))
+            continue
+        for ctype in types:
+            try:
+                registry.add(ctype, provider)
+            except (ValueError, PluginConflict) as err:
+                registry.broken.append(BrokenPlugin(provider, str(err)))
+        done.add(provider)

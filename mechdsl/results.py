@@ -1,0 +1,133 @@
+"""Results of a run: arrays keyed by quantity name, how the run ended, and the CSV writer."""
+
+from __future__ import annotations
+
+import io
+import os
+import sys
+import tempfile
+from dataclasses import dataclass
+from typing import IO, Mapping
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Results:
+    """Outputs of a run.
+
+    ``data[label]`` has shape ``(V, K)`` (variants, instants); values after a variant's
+    ``n_solved[v]`` instants are NaN. ``status`` is ``"ok"``, ``"failed"`` (a numerical
+    failure; ``messages`` says where and why) or ``"interrupted"``.
+    """
+
+    times: np.ndarray
+    data: Mapping[str, np.ndarray]
+    sweep: Mapping[str, np.ndarray]
+    n_solved: np.ndarray
+    status: str
+    messages: tuple[str, ...]
+    solve_time: float
+    residual: float
+    source_name: str
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    @property
+    def labels(self) -> tuple[str, ...]:
+        """The output quantities, in the order requested."""
+        return tuple(self.data)
+
+    @property
+    def n_variants(self) -> int:
+        return len(self.n_solved)
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        """``res["t"]``: the solved instants; ``res["slider.x"]``: that quantity, shape
+        ``(K,)`` without a sweep and ``(V, K)`` with one; ``res["l"]``: a swept param's
+        values ``(V,)``. Arrays end at the last instant solved by any variant."""
+        last = int(self.n_solved.max(initial=0))
+        if key == "t":
+            return self.times[:last]
+        if key in self.sweep:
+            return np.asarray(self.sweep[key])
+        if key not in self.data:
+            raise KeyError(f"no output '{key}'; outputs: {', '.join(self.data)}")
+        a = self.data[key][:, :last]
+        return a[0] if not self.sweep else a
+
+    def __contains__(self, key: str) -> bool:
+        return key == "t" or key in self.data or key in self.sweep
+
+    def table(self) -> tuple[list[str], np.ndarray]:
+        """The CSV's header and rows: swept params, ``t``, then the outputs; one row per
+        solved instant of each variant."""
+        header = [*self.sweep, "t", *self.data]
+        blocks = []
+        for v in range(self.n_variants):
+            k = int(self.n_solved[v])
+            cols = [np.full(k, self.sweep[s][v]) for s in self.sweep]
+            cols.append(self.times[:k])
+            cols.extend(self.data[label][v, :k] for label in self.data)
+            blocks.append(np.column_stack(cols) if cols else np.empty((k, 0)))
+        rows = np.concatenate(blocks) if blocks else np.empty((0, len(header)))
+        return header, rows
+
+
+def write_csv(results: Results, target: str | os.PathLike | IO[str]) -> None:
+    """Write the results as CSV (17 significant digits). ``"-"`` writes to standard output;
+    a path is written to a temporary file first and renamed when complete, so that a reader
+    never sees a half-written file."""
+    header, rows = results.table()
+    if target == "-":
+        _write(sys.stdout, header, rows)
+        sys.stdout.flush()
+        return
+    if hasattr(target, "write"):
+        _write(target, header, rows)  # type: ignore[arg-type]
+        return
+    atomic_write_text(os.fspath(target), lambda f: _write(f, header, rows))
+
+
+def _write(f: IO[str], header: list[str], rows: np.ndarray) -> None:
+    f.write(",".join(header) + "\n")
+    if rows.size:
+        buf = io.StringIO()
+        np.savetxt(buf, rows, fmt="%.17g", delimiter=",")
+        f.write(buf.getvalue())
+
+
+def atomic_write_text(path: str, writer) -> None:
+    """Call ``writer(file)`` on a temporary file beside ``path``, then rename it to ``path``."""
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".mechdsl-", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "w", newline="") as f:
+            writer(f)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def summary(results: Results) -> str:
+    """A few lines for the terminal: instants, time, residual, range of each output."""
+    k = int(results.n_solved.max(initial=0))
+    t = results.times
+    lines = [
+        f"{results.source_name}: {k} of {len(t)} instants (t = {t[0]:g} .. {t[-1]:g})"
+        + (f" x {results.n_variants} variants" if results.sweep else "")
+        + f", solved in {results.solve_time * 1e3:.1f} ms",
+        f"largest constraint residual: {results.residual:.3g}",
+    ]
+    if results.data:
+        width = max(len(label) for label in results.data)
+        lines.append(f"{'quantity':<{width}}  {'min':>14}  {'max':>14}")
+        for label, a in results.data.items():
+            finite = a[np.isfinite(a)]
+            lo, hi = (finite.min(), finite.max()) if finite.size else (np.nan, np.nan)
+            lines.append(f"{label:<{width}}  {lo:>14.6g}  {hi:>14.6g}")
+    return "\n".join(lines)

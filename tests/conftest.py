@@ -1,0 +1,44 @@
+"""Shared fixtures. Unit tests register the built-in plugins directly, so that they do not
+depend on what happens to be installed; tests/test_cli.py checks real entry-point discovery."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+import mechdsl
+from mechdsl.plugins import build_registry
+
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLES = ROOT / "examples"
+
+
+@pytest.fixture(scope="session")
+def registry():
+    import mechdsl_drives
+    import mechdsl_prismatic
+    import mechdsl_revolute
+
+    reg = build_registry([mechdsl_revolute, mechdsl_prismatic, mechdsl_drives],
+                         entry_points=False)
+    assert not reg.broken, reg.broken
+    return reg
+
+
+@pytest.fixture
+def loads(registry):
+    """Parse .mech text with the built-in plugins."""
+
+    def _loads(text: str, name: str = "test.mech"):
+        return mechdsl.loads(text, name, registry=registry)
+
+    return _loads
+
+
+@pytest.fixture
+def load_example(registry):
+    def _load(name: str):
+        return mechdsl.load(EXAMPLES / name, registry=registry)
+
+    return _load
