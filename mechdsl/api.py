@@ -12,13 +12,17 @@ import os
 from typing import Iterable, Mapping, Sequence
 
 from . import expr as E
-from .compile import Overrides, System, compile_model
+from .compile import compile_model
+from .errors import MechError, Source, Span
 from .model import Model
 from .parse import parse
 from .plugins.manager import build_registry
 from .plugins.registry import Registry
 from .results import Results
-from .solve import SolverOptions, simulate
+from .system import System
+from .variants import Overrides
+from .options import SolverOptions
+from .solve import simulate
 
 
 class Mechanism:
@@ -38,7 +42,13 @@ class Mechanism:
     def registry(self) -> Registry:
         if self._registry is None:
             wanted = {c.type_name for c in (*self.model.joints, *self.model.drives)}
-            self._registry = build_registry(self._plugins, wanted=wanted)
+            registry = build_registry(self._plugins, wanted=wanted)
+            asked = {p if isinstance(p, str) else getattr(p, "__name__", "") for p in self._plugins}
+            for broken in registry.broken:
+                if broken.provider.plugin in asked:
+                    raise MechError(f"cannot load the plugin '{broken.provider.plugin}': "
+                                    f"{broken.reason}")
+            self._registry = registry
         return self._registry
 
     def compile(self, overrides: Overrides | None = None, *, need_times: bool = True) -> System:
@@ -74,8 +84,6 @@ def loads(text: str, name: str = "<string>", **kwargs) -> Mechanism:
 
 def load(path: str | os.PathLike, **kwargs) -> Mechanism:
     """Read and parse a ``.mech`` file; keyword arguments go to :class:`Mechanism`."""
-    from .errors import MechError, Source
-
     path = os.fspath(path)
     try:
         with open(path, "rb") as f:
@@ -88,8 +96,6 @@ def load(path: str | os.PathLike, **kwargs) -> Mechanism:
         before = raw[: err.start]
         line = before.count(b"\n") + 1
         col = err.start - (before.rfind(b"\n") + 1) + 1
-        from .errors import Span
-
         raise MechError(f"the file is not valid UTF-8 (byte 0x{raw[err.start]:02x})",
                         Span(line, col, line, col + 1),
                         Source(path, raw.decode("utf-8", "replace"))) from None

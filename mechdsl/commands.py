@@ -9,7 +9,8 @@ import sys
 import numpy as np
 
 from .api import Mechanism, load
-from .compile import Overrides, System
+from .system import System
+from .variants import Overrides
 from .errors import MechError, NumericalError, Source, format_error
 from .parse import parse_expr, parse_expr_list
 
@@ -33,13 +34,33 @@ def _overrides(mech: Mechanism, args) -> Overrides:
 
 
 def _options(args):
-    from .solve import SolverOptions
+    from .options import SolverOptions
 
     if getattr(args, "newton_tol", None) is None:
         return SolverOptions()
-    if not args.newton_tol > 0:
-        raise MechError("--newton-tol must be positive")
-    return SolverOptions(newton_tol=args.newton_tol)
+    try:
+        return SolverOptions(newton_tol=args.newton_tol)
+    except ValueError as err:
+        raise MechError(f"--newton-tol: {err}") from None
+
+
+def _check_targets(args) -> None:
+    """Refuse unwritable output paths and unknown plot formats before solving anything."""
+    from .plot import FORMATS
+
+    for option, path in (("-o", args.output), ("--plot", args.plot)):
+        if not path or path == "-":
+            continue
+        folder = os.path.dirname(os.path.abspath(path))
+        if not os.path.isdir(folder):
+            raise MechError(f"{option} {path}: the folder {folder} does not exist")
+        if not os.access(folder, os.W_OK):
+            raise MechError(f"{option} {path}: the folder {folder} is not writable")
+    if args.plot:
+        ext = os.path.splitext(args.plot)[1].lstrip(".").lower()
+        if ext not in FORMATS:
+            raise MechError(f"--plot {args.plot}: unknown image format '{ext}'; use one of "
+                            + ", ".join(sorted(FORMATS)))
 
 
 def run_command(args) -> int:
@@ -48,43 +69,55 @@ def run_command(args) -> int:
     from .results import summary, write_csv
     from .solve import simulate
 
+    _check_targets(args)
     mech = load(args.file, plugins=args.plugin)
     system = mech.compile(_overrides(mech, args))
     results = simulate(system, _options(args))
-    if args.output:
-        write_csv(results, args.output)
-    if args.plot:
-        from .plot import plot_results
+    try:
+        if args.output:
+            write_csv(results, args.output)
+        if args.plot:
+            from .plot import plot_results
 
-        title = os.path.basename(args.file)
-        if args.set:
-            title += " (" + ", ".join(s.replace("=", " = ", 1) for s in args.set) + ")"
-        plot_results(results, args.plot, title=title)
-    if not args.output and results.ok:
-        print(summary(results))
-    elif args.output and args.output != "-" and not args.quiet and results.ok:
-        print(f"{args.output}: {len(results.table()[1])} rows "
-              f"({results.solve_time * 1e3:.1f} ms)", file=sys.stderr)
+            title = os.path.basename(args.file)
+            if args.set:
+                title += " (" + ", ".join(s.replace("=", " = ", 1) for s in args.set) + ")"
+            plot_results(results, args.plot, title=title)
+    except OSError as err:
+        raise MechError(f"cannot write {err.filename or 'the output'}: {err.strerror}") from None
+    written = args.output and args.output != "-"
+    if not args.quiet and results.ok:
+        if not args.output:
+            print(summary(results))
+        elif written:
+            print(f"{args.output}: {len(results.table()[1])} rows "
+                  f"({results.solve_time * 1e3:.1f} ms)", file=sys.stderr)
     if results.status == "interrupted":
-        saved = f"; the {int(results.n_solved.max())} instants solved so far are in {args.output}" \
-            if args.output else ""
+        saved = (f"; the {int(results.n_solved.max())} instants solved so far are in "
+                 f"{args.output}" if written else "")
         print(f"mechdsl: interrupted{saved}", file=sys.stderr)
         return 130
     if not results.ok:
         source = Source(args.file, "")
         for message in results.messages:
             print(format_error(NumericalError(message, source=source)), file=sys.stderr)
-        solved = int(results.n_solved.max(initial=0))
-        if args.output and args.output != "-":
-            print(f"  note: the {solved} instants solved before the failure are in "
-                  f"{args.output}", file=sys.stderr)
+        if written:
+            if results.sweep:
+                note = "the instants each variant solved before it failed are in"
+            else:
+                note = f"the {int(results.n_solved[0])} instants solved before the failure are in"
+            print(f"  note: {note} {args.output}", file=sys.stderr)
         return 2
     return 0
 
 
 def check_command(args) -> int:
     """``mechdsl check``: structure, equation count, degrees of freedom, assembly at t0."""
-    from .solve import assemble, check_mobility, singularity
+    from . import equations as eq
+    from .assembly import assemble, check_mobility
+    from .diagnose import col_scale, singularity
+    from .linalg import factor
+    from .options import SolverOptions
 
     mech = load(args.file, plugins=args.plugin)
     system = mech.compile(_overrides(mech, args), need_times=mech.model.simulate is not None)
@@ -97,17 +130,20 @@ def check_command(args) -> int:
     print(f"assembled at t = {t0:g}:")
     width = max(len(b) for b in system.body_names)
     for i, b in enumerate(system.body_names):
-        x, y, phi = asm.q[0, 3 * i : 3 * i + 3]
+        x, y, phi = (0.0 if abs(c) < 1e-14 * s else c for c, s in
+                     zip(asm.q[0, 3 * i : 3 * i + 3], (system.scale[0], system.scale[0], 1)))
         print(f"  {b:<{width}}  x = {x:< 12.6g} y = {y:< 12.6g} phi = {phi:.6g}")
-    for v in range(system.n_variants):
+    rcond = factor(eq.jacobian(system, asm.q[:, None]), col_scale(system)).rcond[:, 0]
+    bad = np.flatnonzero(~(rcond >= SolverOptions().singular_rcond))
+    if bad.size:
+        v = int(bad[0])
         cond, names = singularity(system, asm.q[v], v)
-        if not cond * 1e-12 < 1:
-            raise NumericalError(f"the Jacobian is singular at the assembled configuration "
-                                 f"(condition number {cond:.3g}); dependent equations "
-                                 f"involve {names}", source=system.source)
+        raise NumericalError(f"the Jacobian is singular at the assembled configuration "
+                             f"(condition number {cond:.3g}); dependent equations involve "
+                             f"{names}", source=system.source)
     variants = f" (all {system.n_variants} sweep variants)" if system.n_variants > 1 else ""
-    print(f"ok: fully driven, assembles at t = {t0:g}{variants}; Jacobian condition number "
-          f"{cond:.3g}")
+    print(f"ok: fully driven, assembles at t = {t0:g}{variants}; scaled Jacobian condition "
+          f"number {1 / rcond.min():.3g}")
     return 0
 
 

@@ -1,143 +1,33 @@
-"""Model + registry -> :class:`System`: everything the solver needs, as index maps and arrays.
+"""Model + registry -> :class:`~mechdsl.system.System`: names resolved, numbers evaluated.
 
-Compiling resolves names (bodies, points, types, arguments, outputs) and evaluates every
-number for every sweep variant. Constraints are grouped by type, so that the solver evaluates
-each type with one call for all of its constraints, all instants of a block and all variants.
-
-Shapes: V sweep variants (1 without a sweep), J constraints of a group, n = 3 * (number of
-moving bodies) coordinates, m equations. Per-variant values are stored with a singleton axis
-after V -- params ``(V, 1)``, group values ``(V, 1, J, ...)`` -- so that they broadcast against
-solver arrays of shape ``(V, b, ...)`` for a block of b instants.
+Compiling resolves names (bodies, points, types, arguments, outputs) against the model and
+the plugin registry, evaluates every number for every sweep variant (:mod:`.variants`), and
+packs the constraints by type, so that the solver evaluates each type with one call for all
+of its constraints, all instants of a block and all variants.
 """
 
 from __future__ import annotations
 
-import itertools
-import math
-from dataclasses import dataclass, field
-from typing import Callable, Mapping, Sequence
-
 import numpy as np
 
 from . import expr as E
-from .errors import MechError, Source, Span, suggest
+from .errors import MechError, Span, suggest
 from .model import (
     BODY_QUANTITIES, GROUND, ORIGIN, POINT_QUANTITIES, Body, Drive, Joint, Model, Vector,
 )
-from .parse import TIME, check_expr
+from .checks import TIME, check_expr
 from .plugins.contract import REQUIRED, ArgError, ConstraintType
 from .plugins.registry import Registry
+from .system import Constraint, DriveFunction, Group, OutputSpec, System
+from .variants import Overrides, evaluate, time_grid
 
-#: Largest number of instants a run may have unless the caller raises it.
-MAX_INSTANTS = 50_000_000
-#: Relative slack when deciding whether (t1 - t0) / step is a whole number of steps.
-GRID_SLACK = 1e-9
-
-
-@dataclass(frozen=True)
-class Constraint:
-    """One joint or drive: what the user called it, where, and which rows of Phi it owns."""
-
-    name: str
-    kind: str
-    type_name: str
-    span: Span
-    rows: tuple[int, int]
-    bodies: tuple[str, ...]
-
-
-@dataclass(frozen=True)
-class Group:
-    """All constraints of one type, packed: the solver evaluates them with one call."""
-
-    ctype: ConstraintType
-    members: tuple[int, ...]
-    slots: np.ndarray
-    params: Mapping[str, np.ndarray]
-    rows: np.ndarray
-    cols: tuple[np.ndarray, ...]
-
-
-@dataclass(frozen=True)
-class DriveFunction:
-    """f(t), f'(t), f''(t) of one drive, compiled, with the trees they came from."""
-
-    f: Callable
-    fd: Callable
-    fdd: Callable
-    exprs: tuple[E.Expr, E.Expr, E.Expr]
-
-
-@dataclass(frozen=True)
-class OutputSpec:
-    """One output column: quantity ``quantity`` of ``body`` or of a point fixed in it."""
-
-    label: str
-    body: int
-    point: np.ndarray | None
-    quantity: str
-    order: int
-
-
-@dataclass(frozen=True)
-class System:
-    """A compiled mechanism. Arrays are read-only; nothing here changes during a solve."""
-
-    source: Source
-    body_names: tuple[str, ...]
-    n: int
-    m: int
-    constraints: tuple[Constraint, ...]
-    groups: tuple[Group, ...]
-    drive_rows: np.ndarray
-    drive_functions: tuple[DriveFunction, ...]
-    env: Mapping[str, np.ndarray]
-    sweep: Mapping[str, np.ndarray]
-    n_variants: int
-    guess: np.ndarray
-    scale: np.ndarray
-    times: np.ndarray | None
-    outputs: tuple[OutputSpec, ...]
-    order: int = field(default=0)
-
-    @property
-    def n_bodies(self) -> int:
-        return len(self.body_names)
-
-    def row_owner(self, row: int) -> Constraint:
-        """The joint or drive that owns equation ``row``."""
-        for c in self.constraints:
-            if c.rows[0] <= row < c.rows[1]:
-                return c
-        raise IndexError(row)
-
-
-@dataclass
-class Overrides:
-    """Values that replace what the file says: params, sweeps, and the simulated span.
-
-    Values are expressions or plain numbers; ``params`` entries remove a sweep of that name.
-    """
-
-    params: dict[str, E.Expr | float] = field(default_factory=dict)
-    sweeps: dict[str, Sequence[E.Expr | float]] = field(default_factory=dict)
-    t0: E.Expr | float | None = None
-    t1: E.Expr | float | None = None
-    step: E.Expr | float | None = None
-    max_instants: int = MAX_INSTANTS
-
-
-def _as_expr(v: E.Expr | float) -> E.Expr:
-    return E.Num(float(v)) if isinstance(v, (int, float, np.number)) else v
+__all__ = ["compile_model", "Overrides", "System"]
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
     a = np.ascontiguousarray(a)
     a.flags.writeable = False
     return a
-
-
-# ---------------------------------------------------------------------------------------------
 
 
 def compile_model(model: Model, registry: Registry, overrides: Overrides | None = None,
@@ -159,15 +49,14 @@ class _Compiler:
         self.param_names = [p.name for p in model.params]
 
     def run(self, need_times: bool) -> System:
-        sweep = self._sweep_table()
-        self.V = len(next(iter(sweep.values()))) if sweep else 1
-        self.env = self._params(sweep)
+        self.var = evaluate(self.model, self.ov)
+        self.V = self.var.count
         self._bodies()
         constraints, groups, drive_rows, drive_fns = self._constraints()
         outputs = self._outputs()
-        times = self._times() if need_times else None
+        times = time_grid(self.model, self.ov, self.var) if need_times else None
         order = max((o.order for o in outputs), default=0)
-        env = {k: _readonly(v[:, None]) for k, v in self.env.items()}
+        env = {k: _readonly(v[:, None]) for k, v in self.var.env.items()}
         return System(
             source=self.model.source,
             body_names=tuple(b.name for b in self.bodies),
@@ -178,7 +67,7 @@ class _Compiler:
             drive_rows=_readonly(np.asarray(drive_rows, dtype=np.intp)),
             drive_functions=tuple(drive_fns),
             env=env,
-            sweep={k: _readonly(v) for k, v in sweep.items()},
+            sweep={k: _readonly(v) for k, v in self.var.sweep.items()},
             n_variants=self.V,
             guess=_readonly(self._guess()),
             scale=_readonly(self._scale()),
@@ -188,102 +77,6 @@ class _Compiler:
         )
 
     # -- params and sweeps ---------------------------------------------------------------------
-    def _check_override_name(self, name: str, what: str) -> None:
-        if name not in self.param_names:
-            raise MechError(f"{what} '{name}': there is no param of that name"
-                            + suggest(name, self.param_names))
-
-    def _sweep_table(self) -> dict[str, np.ndarray]:
-        ov = self.ov
-        for name in ov.params:
-            self._check_override_name(name, "cannot set")
-        for name in ov.sweeps:
-            self._check_override_name(name, "cannot sweep")
-        base = self._params({}, keep_sweeps=False)
-        lists: dict[str, tuple[np.ndarray, Span | None]] = {}
-        for sw in self.model.sweeps:
-            if sw.name in ov.params or sw.name in ov.sweeps:
-                continue
-            lists[sw.name] = (self._sweep_values(sw, base), sw.span)
-        for name, values in ov.sweeps.items():
-            vals = [self._scalar(_as_expr(v), base, f"--sweep {name}", None) for v in values]
-            lists[name] = (np.array(vals, dtype=float), None)
-        if not lists:
-            return {}
-        combos = list(itertools.product(*(v for v, _ in lists.values())))
-        table = np.array(combos, dtype=float).reshape(len(combos), len(lists))
-        return {name: table[:, i].copy() for i, name in enumerate(lists)}
-
-    def _sweep_values(self, sw, base: dict[str, np.ndarray]) -> np.ndarray:
-        swept = {s.name for s in self.model.sweeps} | set(self.ov.sweeps)
-        exprs = [e for e in (sw.values or (sw.start, sw.stop, sw.step, sw.count)) if e is not None]
-        for e in exprs:
-            dep = E.free_names(e) & swept
-            if dep:
-                raise MechError(f"sweep values cannot depend on the swept param '{dep.pop()}'",
-                                e.span)
-        if sw.values is not None:
-            return np.array([self._scalar(e, base, "a sweep value", e.span) for e in sw.values])
-        a = self._scalar(sw.start, base, "a sweep bound", sw.start.span)
-        b = self._scalar(sw.stop, base, "a sweep bound", sw.stop.span)
-        if sw.count is not None:
-            c = self._scalar(sw.count, base, "a sweep count", sw.count.span)
-            if c != int(c) or c < 1:
-                raise MechError(f"a sweep count must be a whole number >= 1, not {c:g}",
-                                sw.count.span)
-            return np.linspace(a, b, int(c))
-        h = self._scalar(sw.step, base, "a sweep step", sw.step.span)
-        return _grid(a, b, h, sw.span, "sweep", self.ov.max_instants)
-
-    def _scalar(self, e: E.Expr, env, what: str, span: Span | None) -> float:
-        v = np.asarray(E.evaluate(e, {k: x[0] for k, x in env.items()}), dtype=float)
-        if v.ndim or not math.isfinite(float(v)):
-            raise MechError(f"{what} must be a finite number, not {float(v)!r}", span)
-        return float(v)
-
-    def _params(self, sweep: dict[str, np.ndarray], keep_sweeps: bool = True) -> dict:
-        V = len(next(iter(sweep.values()))) if sweep else 1
-        env: dict[str, np.ndarray] = {}
-        for p in self.model.params:
-            if p.name in sweep:
-                value = sweep[p.name]
-            elif p.name in self.ov.params:
-                e = _as_expr(self.ov.params[p.name])
-                where = f"--set {p.name}"
-                late = E.free_names(e) - env.keys()
-                if late:
-                    raise MechError(f"{where}: '{sorted(late)[0]}' is not a param defined "
-                                    f"before '{p.name}'")
-                value = E.evaluate(e, env)
-                if not np.all(np.isfinite(value)):
-                    raise MechError(f"{where} gives {_first_bad(value)}")
-            else:
-                value = E.evaluate(p.value, env)
-            value = np.broadcast_to(np.asarray(value, dtype=float), (V,)).copy()
-            if not np.all(np.isfinite(value)):
-                raise MechError(f"param '{p.name}' is {_first_bad(value)}"
-                                + self._variant_note(sweep, value), p.span)
-            env[p.name] = value
-        return env
-
-    @staticmethod
-    def _variant_note(sweep, value) -> str:
-        if not sweep:
-            return ""
-        i = int(np.flatnonzero(~np.isfinite(value))[0])
-        return " for " + ", ".join(f"{k} = {v[i]:g}" for k, v in sweep.items())
-
-    def _values(self, e: E.Expr, what: str, span: Span | None) -> np.ndarray:
-        """An expression of params, evaluated for every variant: shape (V,)."""
-        value = np.broadcast_to(np.asarray(E.evaluate(e, self.env), dtype=float), (self.V,))
-        if not np.all(np.isfinite(value)):
-            raise MechError(f"{what} is {_first_bad(value)}", span)
-        return value
-
-    def _vector(self, v: Vector, what: str) -> np.ndarray:
-        """A vector of expressions: shape (V, len)."""
-        return np.stack([self._values(e, what, e.span) for e in v.items], axis=-1)
-
     # -- bodies --------------------------------------------------------------------------------
     def _bodies(self) -> None:
         self.bodies: list[Body] = list(self.model.bodies)
@@ -293,14 +86,14 @@ class _Compiler:
         for b in [*self.bodies, self.model.ground]:
             pts = {ORIGIN: np.zeros((self.V, 2))}
             for pt in b.points:
-                pts[pt.name] = self._vector(pt.coords, f"point {b.name}.{pt.name}")
+                pts[pt.name] = self.var.vector(pt.coords, f"point {b.name}.{pt.name}")
             self.points[b.name] = pts
 
     def _guess(self) -> np.ndarray:
         g = np.zeros((self.V, 3 * len(self.bodies)))
         for i, b in enumerate(self.bodies):
             if b.guess is not None:
-                g[:, 3 * i : 3 * i + 3] = self._vector(b.guess, f"the guess of {b.name}")
+                g[:, 3 * i : 3 * i + 3] = self.var.vector(b.guess, f"the guess of {b.name}")
         return g
 
     def _scale(self) -> np.ndarray:
@@ -372,11 +165,13 @@ class _Compiler:
             other = "joint" if kind == "drive" else "drive"
             if self.registry.get(other, name) is not None:
                 raise MechError(f"'{name}' is a {other} type, not a {kind} type", span)
-            raise MechError(f"unknown {kind} type '{name}'"
-                            + suggest(name, self.registry.names(kind)), span,
-                            notes=[f"{kind} types: " + ", ".join(self.registry.names(kind))
-                                   if self.registry.names(kind) else
-                                   f"no {kind} types are installed (see 'mechdsl plugins')"])
+            names = self.registry.names(kind)
+            notes = [f"{kind} types: " + ", ".join(names) if names else
+                     f"no {kind} types are installed (see 'mechdsl plugins')"]
+            notes += [f"the plugin {b.provider.plugin} ({b.provider}) failed to load: "
+                      f"{b.reason}" for b in self.registry.broken]
+            raise MechError(f"unknown {kind} type '{name}'" + suggest(name, names), span,
+                            notes=notes)
         return ctype
 
     def _bind(self, c: Joint | Drive, ctype: ConstraintType):
@@ -435,7 +230,7 @@ class _Compiler:
             elif arg.kind == "vector":
                 if not isinstance(v, Vector) or len(v.items) != 2:
                     raise MechError(f"argument '{arg.name}' must be a vector (x, y)", a.span)
-                params[arg.name] = self._vector(v, f"argument '{arg.name}'")
+                params[arg.name] = self.var.vector(v, f"argument '{arg.name}'")
             else:
                 if isinstance(v, Vector):
                     raise MechError(f"argument '{arg.name}' must be a number", a.span)
@@ -443,7 +238,7 @@ class _Compiler:
                     raise MechError(f"argument '{arg.name}' must be a number, not a reference",
                                     a.span)
                 check_expr(v, set(self.param_names), f"argument '{arg.name}'")
-                params[arg.name] = self._values(v, f"argument '{arg.name}'", a.span)
+                params[arg.name] = self.var.values(v, f"argument '{arg.name}'", a.span)
         try:
             with np.errstate(all="ignore"):
                 ctype.validate(params)
@@ -526,27 +321,6 @@ class _Compiler:
                         "body.point.quantity", span)
 
     # -- time ----------------------------------------------------------------------------------
-    def _times(self) -> np.ndarray:
-        sim = self.model.simulate
-        ov = self.ov
-        if sim is None and (ov.t1 is None or ov.step is None):
-            raise MechError("nothing to simulate: add a line such as "
-                            "'simulate t = 0 .. 1 step 0.001'")
-        def pick(o, e, what):
-            if o is not None:
-                return self._values(_as_expr(o), what, None)
-            return self._values(e, what, e.span)
-        t0 = pick(ov.t0, sim.t0 if sim else E.Num(0.0), "the start time")
-        t1 = pick(ov.t1, sim.t1 if sim else None, "the end time")
-        h = pick(ov.step, sim.step if sim else None, "the step")
-        span = sim.span if sim else None
-        for v, what in ((t0, "start time"), (t1, "end time"), (h, "step")):
-            if np.ptp(v) != 0:
-                raise MechError(f"the {what} differs between sweep variants; the time grid "
-                                "cannot depend on a swept param", span)
-        return _grid(float(t0[0]), float(t1[0]), float(h[0]), span, "simulate",
-                     ov.max_instants)
-
 
 def _order(quantity: str) -> int:
     if quantity in ("x", "y", "phi"):
@@ -555,27 +329,3 @@ def _order(quantity: str) -> int:
         return 1
     return 2
 
-
-def _first_bad(value) -> str:
-    v = np.asarray(value, dtype=float).ravel()
-    bad = v[~np.isfinite(v)]
-    return repr(float(bad[0])) if bad.size else "not finite"
-
-
-def _grid(a: float, b: float, h: float, span: Span | None, what: str, limit: int) -> np.ndarray:
-    """a + k h for k = 0, 1, ... up to b, and b itself: both ends included."""
-    if not h > 0:
-        raise MechError(f"the {what} step must be positive, not {h:g}", span)
-    if b < a:
-        raise MechError(f"the {what} range ends ({b:g}) before it starts ({a:g})", span)
-    steps = (b - a) / h
-    n = math.floor(steps + GRID_SLACK)
-    if n + 2 > limit:
-        raise MechError(f"the {what} has {n + 1:,} instants, more than the limit of {limit:,}",
-                        span, notes=["raise the limit with --max-instants if this is intended"])
-    grid = a + h * np.arange(n + 1, dtype=float)
-    if steps - n > GRID_SLACK:
-        grid = np.append(grid, b)
-    else:
-        grid[-1] = b if n > 0 else a
-    return grid

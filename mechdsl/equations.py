@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .compile import Group, System
+from .system import Group, System
 from .errors import MechError
 
 

@@ -35,9 +35,11 @@ class Source:
     text: str
 
     def line(self, number: int) -> str:
-        """The text of line ``number`` (1-based), without its newline; '' if out of range."""
-        lines = self.text.splitlines()
-        return lines[number - 1] if 1 <= number <= len(lines) else ""
+        """The text of line ``number`` (1-based), without its newline; '' if out of range.
+
+        Lines end at '\n' only, as the parser counts them (not at form feeds or U+2028)."""
+        lines = self.text.split("\n")
+        return lines[number - 1].rstrip("\r") if 1 <= number <= len(lines) else ""
 
 
 class MechError(Exception):

@@ -238,8 +238,8 @@ def derivative(e: Expr, var: str = "t") -> Expr:
 
     Piecewise expressions differentiate branch by branch: d/dt (if C then A else B) =
     if C then A' else B' (the derivative where it exists; at a switch point the branch the
-    condition selects). ``min``/``max`` become such conditionals, ``abs(u)'`` is
-    ``sign(u) u'``.
+    condition selects). ``min``, ``max`` and ``abs`` become such conditionals
+    (``abs(u)' = if u >= 0 then u' else -u'``).
     """
     if isinstance(e, Num) or isinstance(e, Ref):
         return Num(0.0)
@@ -308,7 +308,9 @@ def _call_derivative(e: Call, d: Callable[[Expr], Expr]) -> Expr:
     elif f == "log":
         outer = div(Num(1.0), u)
     elif f == "abs":
-        outer = call("sign", u)
+        # branch by branch, as a conditional: sign(u) would give 0 at u = 0 even where
+        # abs(u)^2 and the like are smooth
+        return cond(Compare(">=", u, Num(0.0)), du, neg(du))
     elif f == "sign":
         outer = Num(0.0)
     else:  # pragma: no cover - FUNCTIONS and this table are kept in step by the tests

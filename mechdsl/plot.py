@@ -8,6 +8,10 @@ import os
 
 from .results import Results
 
+#: Image formats matplotlib writes without extra software, by file extension.
+FORMATS = frozenset({"png", "pdf", "svg", "svgz", "eps", "ps", "jpg", "jpeg", "tif", "tiff",
+                     "webp", "pgf"})
+
 
 def _variant_label(results: Results, v: int) -> str:
     return ", ".join(f"{k} = {a[v]:g}" for k, a in results.sweep.items())

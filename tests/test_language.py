@@ -156,7 +156,7 @@ def where(err):
     ("param a = (2", "unexpected end of file", (1, 13)),
     ("param a = 2 3", "unexpected number 3", (1, 13)),
     ("param a = 2 $", "unexpected character '$'", (1, 13)),
-    ("param a = 2\nbody b { point P = (1, 2) ", "unexpected end of file", (2, 27)),
+    ("param a = 2\nbody b { point P = (1, 2) \n\n", "unexpected end of file", (2, 26)),
     ("param a = 2*\nsimulate t = 0 .. 1 step 0.1", "unexpected 'simulate'", (2, 1)),
     ("param body = 1", "unexpected 'body'; expected a name", (1, 7)),
     ("param a = .5", "unexpected '.'; expected '(', '+', '-', 'if', 'not', a name", (1, 11)),

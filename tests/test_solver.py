@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from closed_forms import angle_error, four_bar, slider_crank, start_from_rest
-from mechdsl.solve import SolverOptions, assemble
+from mechdsl.assembly import assemble
+from mechdsl.options import SolverOptions
 
 
 def rel_err(got, want):

@@ -106,21 +106,26 @@ class Distance(ConstraintType):
     def _d(self, q, p):
         return position(q[1], p["p2"]) - position(q[0], p["p1"])
 
+    @staticmethod
+    def _unit(d):
+        """d / |d|; where the points coincide the gradient of |d| is undefined and any unit
+        vector is a subgradient: take (1, 0), so that an assembly can pull them apart."""
+        length = np.linalg.norm(d, axis=-1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(length > 0, d / length, np.array([1.0, 0.0])), length[..., 0]
+
     def phi(self, q, p):
         return np.linalg.norm(self._d(q, p), axis=-1, keepdims=True)
 
     def jacobian(self, q, p):
-        d = self._d(q, p)
-        e = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        e, _ = self._unit(self._d(q, p))
         bs1 = perp(rotate(q[0][..., 2], p["p1"]))
         bs2 = perp(rotate(q[1][..., 2], p["p2"]))
         return (block(-e[..., None, :], -dot(e, bs1)[..., None]),
                 block(e[..., None, :], dot(e, bs2)[..., None]))
 
     def gamma(self, q, qd, p):
-        d = self._d(q, p)
-        length = np.linalg.norm(d, axis=-1)
-        e = d / length[..., None]
+        e, length = self._unit(self._d(q, p))
         as1 = rotate(q[0][..., 2], p["p1"])
         as2 = rotate(q[1][..., 2], p["p2"])
         w1, w2 = qd[0][..., 2:3], qd[1][..., 2:3]

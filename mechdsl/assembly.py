@@ -1,0 +1,209 @@
+"""Before the run: the count of equations against coordinates, and the assembly at t0."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import equations as eq
+from .system import System
+from .diagnose import col_scale, constraint_names, variant_label
+from .errors import MechError
+from .linalg import factor
+from .newton import correction_ratio, newton
+from .options import SolverOptions
+
+
+def check_mobility(system: System) -> None:
+    """Raise MechError unless there are as many equations as coordinates (a fully driven
+    kinematic model), naming the bodies that no constraint attaches."""
+    n, m = system.n, system.m
+    src = system.source
+    if n == 0:
+        raise MechError("the model has no moving body", source=src)
+    attached = {b for c in system.constraints for b in c.bodies}
+    notes = [f"body '{b}' is attached to nothing" for b in system.body_names
+             if b not in attached]
+    if m < n:
+        dof = n - m
+        s = "s" if dof > 1 else ""
+        raise MechError(
+            f"the mechanism is not fully driven: {n} coordinates and {m} equations leave "
+            f"{dof} degree{s} of freedom; add {dof} drive{s} or joint equation{s}",
+            source=src, notes=notes)
+    if m > n:
+        raise MechError(f"the mechanism is over-constrained: {m} equations for {n} "
+                        f"coordinates ({m - n} too many); remove a joint or a drive",
+                        source=src, notes=notes)
+
+
+@dataclass(frozen=True)
+class Assembly:
+    """The configuration at t0 of every variant; ``ok[v]`` False where it was not found."""
+
+    q: np.ndarray
+    ok: np.ndarray
+    messages: tuple[str, ...]
+    iterations: int
+
+
+def _min_norm_step(a: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """dz minimising |a dz + r| with the least |dz| (SVD, small singular values cut)."""
+    a = np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
+    try:
+        u, s, vt = np.linalg.svd(a, full_matrices=False)
+    except np.linalg.LinAlgError:  # rare: fall back to one variant at a time
+        out = np.zeros(a.shape[:-2] + a.shape[-1:])
+        for i in np.ndindex(*a.shape[:-2]):
+            try:
+                out[i] = -np.linalg.lstsq(a[i], r[i], rcond=1e-12)[0]
+            except np.linalg.LinAlgError:
+                pass
+        return out
+    cut = s > s[..., :1] * 1e-12
+    inv = np.where(cut, 1.0 / np.where(cut, s, 1.0), 0.0)
+    return -np.einsum("...ji,...j,...j->...i", vt, inv, np.einsum("...ji,...j->...i", u, r))
+
+
+def assemble(system: System, t0: float, options: SolverOptions | None = None) -> Assembly:
+    """Find q with Phi(q, t0) = 0 in the assembly mode nearest the guesses.
+
+    1. The joints alone, by damped Gauss-Newton from the guesses (see :func:`_gauss_newton`):
+       with the drives left out the system is under-determined, and minimum-norm steps keep
+       the configuration nearest the guess.
+    2. The drives, by continuation from the values g(q1) they have there to f(t0): Newton on
+       Phi(q, t0) + (1 - s)(f(t0) - g(q1)) = 0 for s from 0 to 1, each step started from the
+       tangent Phi_q dq/ds = f(t0) - g(q1), shortened when Newton struggles, refused where the
+       Jacobian turns singular or changes sign (the path would cross a dead point and could
+       come out in another assembly mode).
+    3. Where that fails, Gauss-Newton on all equations at once, as a last resort.
+    """
+    opts = options or SolverOptions()
+    V, n = system.n_variants, system.n
+    D = col_scale(system)
+    t = np.full((V, 1), float(t0))
+    joint_rows = np.setdiff1d(np.arange(system.m), system.drive_rows)
+    guess = system.guess.reshape(V, 1, n)
+    q1, ok1, it1 = _gauss_newton(system, guess, t, D, joint_rows, opts)
+    q, ok, it2 = _continue_drives(system, q1, t, D, ok1, opts)
+    retry = ok1 & ~ok
+    if retry.any():
+        q2, ok2, it3 = _gauss_newton(system, q1, t, D, np.arange(system.m), opts)
+        q = np.where((retry & ok2)[:, None, None], q2, q)
+        ok = ok | (retry & ok2)
+        it2 += it3
+    messages = []
+    with np.errstate(all="ignore"):
+        phi = eq.constraint_values(system, np.where(ok1[:, None, None], q, q1), t)[:, 0]
+        weights = _row_weights(system, q, D)[:, 0]
+    for v in np.flatnonzero(~ok):
+        rows = joint_rows if not ok1[v] else np.arange(system.m)
+        resid = np.nan_to_num(np.abs(weights[v, rows] * phi[v, rows]), nan=np.inf)
+        worst = rows[np.argsort(-resid)[:3]]
+        what = ("the joints cannot be closed near the guesses" if not ok1[v] else
+                "the drives cannot reach their values at t0 from the guessed configuration")
+        messages.append(
+            f"the mechanism cannot be assembled at t = {t0:g}{variant_label(system, v)}: "
+            f"{what}; the closest configuration found leaves equations of "
+            f"{constraint_names(system, worst)} unsatisfied (scaled residual "
+            f"{resid.max():.3g}); check the dimensions, or give guesses nearer the intended "
+            "configuration")
+    return Assembly(q[:, 0], ok, tuple(messages), it1 + it2)
+
+
+def _row_weights(system: System, q: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """1 / norm of each row of Phi_q D (1 for an empty row): makes equations comparable."""
+    with np.errstate(all="ignore"):
+        norms = np.linalg.norm(np.nan_to_num(eq.jacobian(system, q) * D[..., None, :]), axis=-1)
+    return np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
+
+
+def _gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
+                  rows: np.ndarray, opts: SolverOptions) -> tuple[np.ndarray, np.ndarray, int]:
+    """Damped Gauss-Newton on the equations ``rows`` from ``q`` (V, 1, n).
+
+    With W the row weights at the start, each step solves min || W (Phi + Phi_q D dz) || in
+    the least-squares, minimum-norm sense (SVD) and is halved until || W Phi || decreases;
+    this goes through configurations where the Jacobian is singular. Returns q, a (V,) mask
+    of the converged variants (step and scaled residual small) and the iterations used.
+    """
+    V = q.shape[0]
+    if rows.size == 0:
+        return q.copy(), np.ones(V, bool), 0
+    W = _row_weights(system, q, D)[..., rows]
+    with np.errstate(all="ignore"):
+        phi = eq.constraint_values(system, q, t)[..., rows]
+    merit = 0.5 * np.sum((W * phi) ** 2, axis=-1)
+    merit = np.where(np.isfinite(merit), merit, np.inf)
+    done = np.zeros((V, 1), bool)
+    stuck = np.zeros((V, 1), bool)
+    it = 0
+    for it in range(1, opts.assembly_max_iterations + 1):
+        with np.errstate(all="ignore"):
+            A = eq.jacobian(system, q)[..., rows, :] * D[..., None, :] * W[..., None]
+        dz = _min_norm_step(A, np.nan_to_num(W * phi))
+        alpha = np.ones((V, 1))
+        todo = ~(done | stuck)
+        accepted = np.zeros((V, 1), bool)
+        for _ in range(30):
+            q_try = q + (alpha * todo)[..., None] * D * dz
+            with np.errstate(all="ignore"):
+                phi_try = eq.constraint_values(system, q_try, t)[..., rows]
+                merit_try = 0.5 * np.sum((W * phi_try) ** 2, axis=-1)
+            better = todo & ~accepted & (merit_try < merit) & np.isfinite(merit_try)
+            q = np.where(better[..., None], q_try, q)
+            phi = np.where(better[..., None], phi_try, phi)
+            merit = np.where(better, merit_try, merit)
+            step = np.abs(alpha[..., None] * dz).max(axis=-1)
+            small_r = np.abs(W * phi).max(axis=-1) <= opts.assembly_residual
+            done |= better & (step <= opts.assembly_tol) & small_r
+            accepted |= better
+            alpha = np.where(accepted, alpha, alpha * 0.5)
+            if (accepted | ~todo).all():
+                break
+        # no decrease along the Gauss-Newton direction: converged if the residual is nil
+        small_r = np.abs(W * phi).max(axis=-1) <= opts.assembly_residual
+        done |= todo & ~accepted & small_r
+        stuck |= todo & ~accepted & ~small_r
+        if (done | stuck).all():
+            break
+    return q, done[:, 0], it
+
+
+def _continue_drives(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
+                     active: np.ndarray, opts: SolverOptions
+                     ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Carry the drives from their values at ``q`` to f(t0) (step 2 of :func:`assemble`)."""
+    ok = active.copy()
+    if system.drive_rows.size == 0 or not ok.any():
+        return q, ok, 0
+    with np.errstate(all="ignore"):
+        delta = np.zeros(q.shape[:-1] + (system.m,))
+        delta[..., system.drive_rows] = -eq.constraint_values(system, q, t)[..., system.drive_rows]
+    delta = np.where(ok[:, None, None], np.nan_to_num(delta), 0.0)
+    fac = factor(eq.jacobian(system, q), D)
+    floor = np.sqrt(opts.newton_tol)
+    s, ds, iterations = 0.0, 1.0, 0
+    while s < 1.0 and ok.any():
+        s_new = min(1.0, s + ds)
+        with np.errstate(all="ignore"):
+            pred = q + (s_new - s) * fac.solve(delta)
+        pred = np.where(np.isfinite(pred), pred, q)
+        qn, conv, it = newton(system, pred, t, D, ok, opts, shift=(1.0 - s_new) * delta)
+        iterations += it
+        fn = factor(eq.jacobian(system, qn), D)
+        good = (conv & (fn.rcond >= opts.singular_rcond) & (fn.sign == fac.sign)
+                & (correction_ratio(qn, pred, q, D, floor) <= opts.branch_ratio))
+        good |= ~ok[:, None]
+        if not good.all():
+            if ds > 2.0 ** -opts.max_bisections:
+                ds /= 2
+                continue
+            ok &= good[:, 0]
+        q = np.where(ok[:, None, None], qn, q)
+        fac = fn
+        s = s_new
+        if it <= 3:
+            ds = min(1.0, 2 * ds)
+    return q, ok, iterations

@@ -1,0 +1,217 @@
+"""The checks of a model that need no plugin, and the assembly of the model's statements.
+
+Duplicate names, params used before they are defined, unknown functions and their arity,
+time ``t`` where only constants may appear, truth values where numbers are expected: each is
+a :class:`~mechdsl.errors.MechError` located at the offending text.
+"""
+
+from __future__ import annotations
+
+from . import expr as E
+from .errors import MechError, Source, Span, suggest
+from .model import (
+    BODY_QUANTITIES, GROUND, ORIGIN, Arg, Body, Drive, Joint, Model, OutputRef, Param, Point,
+    Simulate, Sweep, Vector,
+)
+
+TIME = "t"
+RESERVED = {TIME, *E.CONSTANTS, *E.FUNCTIONS}
+
+
+def check_expr(e: E.Expr, allowed: set[str], context: str, numeric: bool = True) -> None:
+    """Raise a MechError if ``e`` uses an undefined name, a reference, an unknown function, a
+    wrong number of arguments, or mixes truth values and numbers.
+
+    ``allowed`` holds the names that may appear (params so far, plus ``t`` in a drive).
+    ``numeric`` says whether ``e`` must be a number (True) or a condition (False).
+    """
+    if numeric and E.is_boolean(e):
+        raise MechError("a comparison is not a number; use it as the condition of an 'if'",
+                        e.span)
+    if not numeric and not E.is_boolean(e):
+        raise MechError("the condition of an 'if' must be a comparison (< <= > >=)", e.span)
+    if isinstance(e, E.Name):
+        if e.id not in allowed:
+            if e.id == TIME:
+                raise MechError(f"time 't' cannot appear in {context}; only a drive's function "
+                                "may depend on time", e.span)
+            raise MechError(f"unknown name '{e.id}' in {context}"
+                            + suggest(e.id, allowed - {TIME}), e.span)
+    elif isinstance(e, E.Ref):
+        raise MechError(f"'{'.'.join(e.parts)}' is a reference, not a number; "
+                        "references can only be joint or drive arguments", e.span)
+    elif isinstance(e, E.Call):
+        if e.func not in E.FUNCTIONS:
+            raise MechError(f"unknown function '{e.func}'" + suggest(e.func, E.FUNCTIONS), e.span)
+        lo, hi = E.FUNCTIONS[e.func]
+        n = len(e.args)
+        if n < lo or (hi is not None and n > hi):
+            want = f"{lo}" if lo == hi else f"at least {lo}"
+            raise MechError(f"{e.func}() takes {want} argument{'s' if lo > 1 else ''}, "
+                            f"got {n}", e.span)
+        for a in e.args:
+            check_expr(a, allowed, context)
+    elif isinstance(e, E.Cond):
+        check_expr(e.test, allowed, context, numeric=False)
+        check_expr(e.then, allowed, context)
+        check_expr(e.orelse, allowed, context)
+    elif isinstance(e, E.Compare):
+        check_expr(e.left, allowed, context)
+        check_expr(e.right, allowed, context)
+    elif isinstance(e, E.Logic):
+        check_expr(e.left, allowed, context, numeric=False)
+        check_expr(e.right, allowed, context, numeric=False)
+    elif isinstance(e, E.Unary):
+        check_expr(e.operand, allowed, context, numeric=(e.op == "-"))
+    elif isinstance(e, E.Binary):
+        check_expr(e.left, allowed, context)
+        check_expr(e.right, allowed, context)
+
+
+def _check_vector(v: Vector, size: int, what: str, allowed: set[str]) -> None:
+    if len(v.items) != size:
+        raise MechError(f"{what} takes {size} numbers, got {len(v.items)}", v.span)
+    for item in v.items:
+        check_expr(item, allowed, what)
+
+
+class _Names:
+    """Detects a name declared twice and points at both places."""
+
+    def __init__(self, what: str) -> None:
+        self.what = what
+        self.seen: dict[str, Span] = {}
+
+    def add(self, name: str, span: Span) -> None:
+        if name in self.seen:
+            first = self.seen[name]
+            raise MechError(f"{self.what} '{name}' is declared twice", span,
+                            notes=[f"first declared at line {first.line}"])
+        self.seen[name] = span
+
+
+def _build_body(name: str, name_span: Span, items: list, span: Span, is_ground: bool,
+                params: set[str]) -> Body:
+    points: list[Point] = []
+    names = _Names(f"point of {name}")
+    guess = None
+    for item in items:
+        if isinstance(item, tuple) and item and item[0] == "guess":
+            if is_ground:
+                raise MechError("the ground is fixed at (0, 0, 0); it takes no guess", item[2])
+            if guess is not None:
+                raise MechError(f"body '{name}' has two guesses", item[2])
+            guess = item[1]
+            _check_vector(guess, 3, "a guess (x, y, phi)", params)
+        elif isinstance(item, tuple):
+            point, pspan = item
+            if point.name == ORIGIN:
+                raise MechError("'origin' is implicit: every body has the point origin = (0, 0)",
+                                pspan)
+            if point.name in BODY_QUANTITIES:
+                raise MechError(f"a point cannot be named '{point.name}': {name}.{point.name} is "
+                                "an output quantity of the body", pspan)
+            names.add(point.name, pspan)
+            _check_vector(point.coords, 2, "a point (x, y)", params)
+            points.append(point)
+    return Body(name, tuple(points), guess, span, is_ground)
+
+
+def build_model(source: Source, statements: list) -> Model:
+    params: list[Param] = []
+    param_names = _Names("param")
+    bodies: list[Body] = []
+    body_names = _Names("body")
+    body_names.add(GROUND, Span(1, 1, 1, 1))
+    constraint_names = _Names("joint or drive")
+    joints: list[Joint] = []
+    drives: list[Drive] = []
+    outputs: list[OutputRef] = []
+    sweeps: list[Sweep] = []
+    sweep_names = _Names("sweep of")
+    ground: Body | None = None
+    simulate: Simulate | None = None
+    defined: set[str] = set()
+    pending_sweeps: list[tuple[Sweep, Span]] = []
+
+    for st in statements:
+        if isinstance(st, tuple) and isinstance(st[0], Param):
+            p, nspan = st
+            if p.name in RESERVED:
+                raise MechError(f"'{p.name}' is reserved and cannot name a param", nspan)
+            param_names.add(p.name, nspan)
+            check_expr(p.value, defined, f"param '{p.name}'")
+            defined.add(p.name)
+            params.append(p)
+        elif isinstance(st, tuple) and st[0] == "ground":
+            _, items, span = st
+            if ground is not None:
+                raise MechError("the ground is declared twice", span,
+                                notes=[f"first declared at line {ground.span.line}"])
+            ground = _build_body(GROUND, span, items, span, True, defined)
+        elif isinstance(st, tuple) and st[0] == "body":
+            _, (name, nspan), items, span = st
+            if name == GROUND:
+                raise MechError("the ground is declared with 'ground { ... }'", nspan)
+            body_names.add(name, nspan)
+            bodies.append(_build_body(name, nspan, items, span, False, defined))
+        elif isinstance(st, tuple) and isinstance(st[0], (Joint, Drive)):
+            c, nspan = st
+            constraint_names.add(c.name, nspan)
+            kw = _Names(f"argument of {c.name}")
+            for a in c.args:
+                if a.name is not None:
+                    kw.add(a.name, a.span)
+                _check_arg(a, defined)
+            if isinstance(c, Drive):
+                check_expr(c.function, defined | {TIME}, f"the function of drive '{c.name}'")
+                drives.append(c)
+            else:
+                joints.append(c)
+        elif isinstance(st, Simulate):
+            if simulate is not None:
+                raise MechError("a second 'simulate' statement", st.span,
+                                notes=[f"the first is at line {simulate.span.line}"])
+            for e in (st.t0, st.t1, st.step):
+                check_expr(e, defined, "the simulated span")
+            simulate = st
+        elif isinstance(st, tuple) and st[0] == "output":
+            outputs.extend(st[1])
+        elif isinstance(st, tuple) and isinstance(st[0], Sweep):
+            sw, nspan = st
+            sweep_names.add(sw.name, nspan)
+            pending_sweeps.append((sw, nspan))
+            for e in _sweep_exprs(sw):
+                check_expr(e, defined, f"the sweep of '{sw.name}'")
+            sweeps.append(sw)
+        else:  # pragma: no cover - the transformer returns only the kinds above
+            raise TypeError(f"unexpected statement {st!r}")
+
+    for sw, nspan in pending_sweeps:
+        if sw.name not in param_names.seen:
+            raise MechError(f"'{sw.name}' is not a param; only params can be swept"
+                            + suggest(sw.name, param_names.seen), nspan)
+    if ground is None:
+        ground = Body(GROUND, (), None, Span(1, 1, 1, 1), True)
+    return Model(source, tuple(params), ground, tuple(bodies), tuple(joints), tuple(drives),
+                 simulate, tuple(outputs), tuple(sweeps))
+
+
+def _sweep_exprs(sw: Sweep) -> list[E.Expr]:
+    if sw.values is not None:
+        return list(sw.values)
+    return [e for e in (sw.start, sw.stop, sw.step, sw.count) if e is not None]
+
+
+def _check_arg(a: Arg, params: set[str]) -> None:
+    """Arguments may be references (checked at compile time, against the type's signature)."""
+    v = a.value
+    if isinstance(v, (E.Ref, E.Name)):
+        return
+    if isinstance(v, Vector):
+        for item in v.items:
+            check_expr(item, params, "an argument")
+    else:
+        check_expr(v, params, "an argument")
+
+

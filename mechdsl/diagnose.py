@@ -1,0 +1,96 @@
+"""Messages for numerical failures: which variant, which instant, which joints and drives."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from . import equations as eq
+from .system import System
+
+
+#: A condition number above which a state next to a failure is called near-singular.
+NEAR_SINGULAR = 1e6
+
+
+def variant_label(system: System, v: int) -> str:
+    """' (l = 2.1, r = 2)' for sweep variant ``v``; '' without a sweep."""
+    if not system.sweep:
+        return ""
+    return " (" + ", ".join(f"{k} = {a[v]:g}" for k, a in system.sweep.items()) + ")"
+
+
+def constraint_names(system: System, rows) -> str:
+    """'joint B (revolute, line 24), ...' for the owners of equation ``rows``, in order."""
+    seen: list[str] = []
+    for r in rows:
+        c = system.row_owner(int(r))
+        label = f"{c.kind} {c.name} ({c.type_name}, line {c.span.line})"
+        if label not in seen:
+            seen.append(label)
+    return ", ".join(seen)
+
+
+def col_scale(system: System) -> np.ndarray:
+    """(V, 1, n): the model's length scale L for x and y, 1 for phi."""
+    d = np.ones((system.n_variants, 1, system.n))
+    d[..., 0::3] = system.scale[:, None, None]
+    d[..., 1::3] = system.scale[:, None, None]
+    return d
+
+
+def singularity(system: System, q: np.ndarray, v: int) -> tuple[float, str]:
+    """Condition number of the scaled Jacobian at ``q`` (n,) of variant ``v``, and the joints
+    and drives whose equations take part in its near-dependency: the largest components of
+    the left singular vector of the smallest singular value."""
+    one = _single(system, v)
+    jac = eq.jacobian(one, q.reshape(1, 1, -1))[0, 0] * col_scale(one)[0]
+    rn = np.linalg.norm(jac, axis=-1)
+    jac = jac / np.where(rn > 0, rn, 1.0)[:, None]
+    try:
+        u, s, _ = np.linalg.svd(np.nan_to_num(jac))
+    except np.linalg.LinAlgError:
+        return float("inf"), "(the Jacobian could not be analysed)"
+    cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+    weights = np.abs(u[:, -1])
+    rows = [i for i in np.argsort(-weights) if weights[i] > 0.2 * weights.max()]
+    return cond, constraint_names(system, rows)
+
+
+def _single(system: System, v: int) -> System:
+    """The system restricted to variant ``v``."""
+    groups = tuple(replace(g, params={k: a[v : v + 1] for k, a in g.params.items()})
+                   for g in system.groups)
+    return replace(system, groups=groups, env={k: a[v : v + 1] for k, a in system.env.items()},
+                   n_variants=1, scale=system.scale[v : v + 1], guess=system.guess[v : v + 1])
+
+
+def failure(system: System, q_last: np.ndarray, t_last: float, v: int, target: float,
+            k: int, why: str) -> str:
+    """The message for variant ``v`` failing on its way from ``t_last`` to ``target``, before
+    recorded instant ``k``. ``why``: 'diverged', 'singular', 'crossing' or 'jump'."""
+    times = system.times
+    cond, names = singularity(system, q_last, v)
+    if why == "diverged" and cond > NEAR_SINGULAR:
+        why = "singular"  # Newton stalls right at a dead point: say what it is
+    at = f"t = {times[k]:.10g} (instant {k} of {len(times) - 1}){variant_label(system, v)}"
+    between = f"between t = {t_last:.10g} and t = {target:.10g}"
+    if why == "singular":
+        where = at if target == times[k] else f"t = {target:.10g}, before {at}"
+        what = (f"the mechanism reaches a singular position at {where}: the Jacobian loses "
+                "rank (a dead point, a change point or a lock-up), where velocities are not "
+                "determined and the motion may continue on more than one branch")
+    elif why == "crossing":
+        what = (f"the mechanism passes through a singular position {between}, before {at}: "
+                "the Jacobian loses rank there (a dead point or a change point), where the "
+                "motion could continue on more than one branch")
+    elif why == "jump":
+        what = (f"the solution jumps to another assembly branch {between}, before {at}: "
+                "the mechanism passes close to a singular position")
+    else:
+        what = (f"no configuration satisfies the constraints at {at}; tracking stopped "
+                f"{between}: the mechanism locks up (a loop can no longer close) or reaches a "
+                "singular position")
+    return (f"{what}. At t = {t_last:.10g}, the last solved state, the Jacobian's condition "
+            f"number is {cond:.3g}; the equations involved belong to {names}")

@@ -1,0 +1,79 @@
+"""Batched dense linear algebra for the solver: many small systems at once.
+
+The Jacobian of a solved state is factorised once (as the inverse of its scaled form) and
+that factorisation serves the velocity solve, the acceleration solve, the condition estimate
+and, with the determinant's sign, the detection of singular positions between states.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def solve(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Batched a x = b; ``ok`` is False (and x NaN) where a is singular or x not finite."""
+    with np.errstate(all="ignore"):
+        try:
+            x = np.linalg.solve(a, b[..., None])[..., 0]
+        except np.linalg.LinAlgError:  # one singular matrix fails the whole batch
+            x = _each(lambda i: np.linalg.solve(a[i], b[i]), b.shape, core=1)
+    return x, np.isfinite(x).all(axis=-1)
+
+
+def inverse(a: np.ndarray) -> np.ndarray:
+    """Batched inverse; NaN where a matrix is singular."""
+    with np.errstate(all="ignore"):
+        try:
+            return np.linalg.inv(a)
+        except np.linalg.LinAlgError:
+            return _each(lambda i: np.linalg.inv(a[i]), a.shape, core=2)
+
+
+def _each(fn, shape: tuple[int, ...], core: int) -> np.ndarray:
+    """Call ``fn(index)`` for every batch index of ``shape`` (whose last ``core`` axes belong
+    to one result); NaN where it raises LinAlgError."""
+    out = np.full(shape, np.nan)
+    for i in np.ndindex(*shape[: len(shape) - core]):
+        try:
+            out[i] = fn(i)
+        except np.linalg.LinAlgError:
+            pass
+    return out
+
+
+@dataclass(frozen=True)
+class Factor:
+    """The factorised Jacobian of a batch of states.
+
+    With column scale D (L for lengths, 1 for angles) and row scale R (1 / norm of each row
+    of Phi_q D), A = R Phi_q D is the scaled Jacobian; ``inverse`` is Phi_q^-1 = D A^-1 R,
+    ``rcond`` the reciprocal 1-norm condition number of A and ``sign`` the sign of det Phi_q
+    (0 where singular).
+    """
+
+    inverse: np.ndarray
+    rcond: np.ndarray
+    sign: np.ndarray
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """Phi_q^-1 rhs for right-hand sides ``(..., m)``."""
+        return np.einsum("...ij,...j->...i", self.inverse, rhs)
+
+
+def factor(jac: np.ndarray, col_scale: np.ndarray) -> Factor:
+    """Factorise ``jac`` (..., m, n) with ``col_scale`` broadcastable to (..., n); square."""
+    with np.errstate(all="ignore"):
+        a = jac * col_scale[..., None, :]
+        norms = np.linalg.norm(a, axis=-1)
+        r = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
+        a = a * r[..., :, None]
+        sign = np.linalg.slogdet(np.nan_to_num(a))[0]
+        ainv = inverse(a)
+        norm_a = np.abs(a).sum(axis=-2).max(axis=-1)
+        norm_inv = np.abs(ainv).sum(axis=-2).max(axis=-1)
+        rcond = 1.0 / (norm_a * norm_inv)
+    rcond = np.where(np.isfinite(rcond), rcond, 0.0)
+    phi_q_inv = col_scale[..., :, None] * ainv * r[..., None, :]
+    return Factor(phi_q_inv, rcond, np.where(rcond > 0, sign, 0.0))

@@ -1,0 +1,97 @@
+"""The compiled system: what the solver needs, as frozen dataclasses of index arrays.
+
+Shapes: V sweep variants (1 without a sweep), J constraints of a group, n = 3 * (number of
+moving bodies) coordinates, m equations. Per-variant values are stored with a singleton axis
+after V -- params ``(V, 1)``, group values ``(V, 1, J, ...)`` -- so that they broadcast against
+solver arrays of shape ``(V, b, ...)`` for a block of b instants.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+import numpy as np
+
+from . import expr as E
+from .errors import Source, Span
+from .plugins.contract import ConstraintType
+
+
+@dataclass(frozen=True)
+class Constraint:
+    """One joint or drive: what the user called it, where, and which rows of Phi it owns."""
+
+    name: str
+    kind: str
+    type_name: str
+    span: Span
+    rows: tuple[int, int]
+    bodies: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Group:
+    """All constraints of one type, packed: the solver evaluates them with one call."""
+
+    ctype: ConstraintType
+    members: tuple[int, ...]
+    slots: np.ndarray
+    params: Mapping[str, np.ndarray]
+    rows: np.ndarray
+    cols: tuple[np.ndarray, ...]
+
+
+@dataclass(frozen=True)
+class DriveFunction:
+    """f(t), f'(t), f''(t) of one drive, compiled, with the trees they came from."""
+
+    f: Callable
+    fd: Callable
+    fdd: Callable
+    exprs: tuple[E.Expr, E.Expr, E.Expr]
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    """One output column: quantity ``quantity`` of ``body`` or of a point fixed in it."""
+
+    label: str
+    body: int
+    point: np.ndarray | None
+    quantity: str
+    order: int
+
+
+@dataclass(frozen=True)
+class System:
+    """A compiled mechanism. Arrays are read-only; nothing here changes during a solve."""
+
+    source: Source
+    body_names: tuple[str, ...]
+    n: int
+    m: int
+    constraints: tuple[Constraint, ...]
+    groups: tuple[Group, ...]
+    drive_rows: np.ndarray
+    drive_functions: tuple[DriveFunction, ...]
+    env: Mapping[str, np.ndarray]
+    sweep: Mapping[str, np.ndarray]
+    n_variants: int
+    guess: np.ndarray
+    scale: np.ndarray
+    times: np.ndarray | None
+    outputs: tuple[OutputSpec, ...]
+    order: int = field(default=0)
+
+    @property
+    def n_bodies(self) -> int:
+        return len(self.body_names)
+
+    def row_owner(self, row: int) -> Constraint:
+        """The joint or drive that owns equation ``row``."""
+        for c in self.constraints:
+            if c.rows[0] <= row < c.rows[1]:
+                return c
+        raise IndexError(row)
+

@@ -1,0 +1,240 @@
+"""Params, sweeps and the time grid, evaluated for every sweep variant.
+
+A sweep runs every combination of the swept values (the first sweep varies slowest); params
+defined from a swept param follow it. Every value is checked to be finite, every list to be
+within its limit, and the time grid to be the same for all variants.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from . import expr as E
+from .errors import MechError, Span, suggest
+from .model import Model, Sweep, Vector
+
+#: Largest number of instants a run may have unless the caller raises it.
+MAX_INSTANTS = 50_000_000
+#: Largest number of sweep variants unless the caller raises it.
+MAX_VARIANTS = 1_000_000
+#: Relative slack when deciding whether (t1 - t0) / step is a whole number of steps.
+GRID_SLACK = 1e-9
+
+
+@dataclass
+class Overrides:
+    """Values that replace what the file says: params, sweeps, and the simulated span.
+
+    Values are expressions or plain numbers; ``params`` entries replace a file's sweep of the
+    same name (giving both a value and a sweep for one name is an error).
+    """
+
+    params: dict[str, E.Expr | float] = field(default_factory=dict)
+    sweeps: dict[str, Sequence[E.Expr | float]] = field(default_factory=dict)
+    t0: E.Expr | float | None = None
+    t1: E.Expr | float | None = None
+    step: E.Expr | float | None = None
+    max_instants: int = MAX_INSTANTS
+    max_variants: int = MAX_VARIANTS
+
+
+def as_expr(v: E.Expr | float) -> E.Expr:
+    """A plain number as an expression; expressions unchanged."""
+    return E.Num(float(v)) if isinstance(v, (int, float, np.number)) else v
+
+
+@dataclass(frozen=True)
+class Variants:
+    """The swept values ``sweep[name]`` and every param's value ``env[name]``, each (V,)."""
+
+    sweep: dict[str, np.ndarray]
+    env: dict[str, np.ndarray]
+
+    @property
+    def count(self) -> int:
+        return len(next(iter(self.sweep.values()))) if self.sweep else 1
+
+    def values(self, e: E.Expr, what: str, span: Span | None) -> np.ndarray:
+        """An expression of params, for every variant: shape (V,); finite or an error."""
+        value = np.broadcast_to(np.asarray(E.evaluate(e, self.env), dtype=float), (self.count,))
+        if not np.all(np.isfinite(value)):
+            raise MechError(f"{what} is {_first_bad(value)}", span)
+        return value
+
+    def vector(self, v: Vector, what: str) -> np.ndarray:
+        """A vector of expressions: shape (V, len)."""
+        return np.stack([self.values(e, what, e.span) for e in v.items], axis=-1)
+
+
+def evaluate(model: Model, ov: Overrides) -> Variants:
+    """Every param for every combination of the sweeps (after overrides)."""
+    names = [p.name for p in model.params]
+    for name in ov.params:
+        _known(name, names, "cannot set")
+    for name in ov.sweeps:
+        _known(name, names, "cannot sweep")
+        if name in ov.params:
+            raise MechError(f"param '{name}' is given both a value and a sweep; give one")
+        if len(ov.sweeps[name]) == 0:
+            raise MechError(f"the sweep of '{name}' has no values")
+    sweep = _sweep_table(model, ov)
+    return Variants(sweep, _params(model, ov, sweep))
+
+
+def _known(name: str, names: list[str], what: str) -> None:
+    if name not in names:
+        raise MechError(f"{what} '{name}': there is no param of that name"
+                        + suggest(name, names))
+
+
+def _sweep_table(model: Model, ov: Overrides) -> dict[str, np.ndarray]:
+    base = _params(model, ov, {})
+    swept = {s.name for s in model.sweeps if s.name not in ov.params} | set(ov.sweeps)
+    tainted = _dependents(model, ov, swept)
+    lists: dict[str, np.ndarray] = {}
+    for sw in model.sweeps:
+        if sw.name in ov.params or sw.name in ov.sweeps:
+            continue
+        lists[sw.name] = _sweep_values(sw, base, tainted, ov.max_variants)
+    for name, values in ov.sweeps.items():
+        lists[name] = np.array([_scalar(as_expr(v), base, f"a value of the sweep of '{name}'",
+                                        None) for v in values], dtype=float)
+    if not lists:
+        return {}
+    total = math.prod(len(v) for v in lists.values())
+    if total > ov.max_variants:
+        raise MechError(f"the sweeps make {total:,} variants, more than the limit of "
+                        f"{ov.max_variants:,}")
+    table = np.array(list(itertools.product(*lists.values())), dtype=float)
+    table = table.reshape(total, len(lists))
+    return {name: table[:, i].copy() for i, name in enumerate(lists)}
+
+
+def _dependents(model: Model, ov: Overrides, swept: set[str]) -> set[str]:
+    """The params whose values follow a swept param, directly or through others."""
+    out = set(swept)
+    for p in model.params:
+        if p.name not in ov.params and E.free_names(p.value) & out:
+            out.add(p.name)
+    return out
+
+
+def _sweep_values(sw: Sweep, base: dict[str, np.ndarray], tainted: set[str],
+                  limit: int) -> np.ndarray:
+    exprs = [e for e in (sw.values or (sw.start, sw.stop, sw.step, sw.count)) if e is not None]
+    for e in exprs:
+        dep = E.free_names(e) & tainted
+        if dep:
+            raise MechError(f"sweep values cannot depend on '{sorted(dep)[0]}', which follows "
+                            "a swept param", e.span)
+    if sw.values is not None:
+        return np.array([_scalar(e, base, "a sweep value", e.span) for e in sw.values])
+    a = _scalar(sw.start, base, "a sweep bound", sw.start.span)
+    b = _scalar(sw.stop, base, "a sweep bound", sw.stop.span)
+    if sw.count is not None:
+        c = _scalar(sw.count, base, "a sweep count", sw.count.span)
+        if c != int(c) or c < 1 or (c == 1 and a != b):
+            raise MechError("a sweep count must be a whole number, at least 2 when the ends "
+                            f"differ, not {c:g}", sw.count.span)
+        if c > limit:
+            raise MechError(f"a sweep of {c:,.0f} values is more than the limit of {limit:,}",
+                            sw.count.span)
+        return np.linspace(a, b, int(c))
+    h = _scalar(sw.step, base, "a sweep step", sw.step.span)
+    return grid(a, b, h, sw.span, "sweep", "values", limit)
+
+
+def _scalar(e: E.Expr, env: dict[str, np.ndarray], what: str, span: Span | None) -> float:
+    v = np.asarray(E.evaluate(e, {k: x[0] for k, x in env.items()}), dtype=float)
+    if v.ndim or not math.isfinite(float(v)):
+        raise MechError(f"{what} must be a finite number, not {float(v)!r}", span)
+    return float(v)
+
+
+def _params(model: Model, ov: Overrides, sweep: dict[str, np.ndarray]) -> dict:
+    V = len(next(iter(sweep.values()))) if sweep else 1
+    env: dict[str, np.ndarray] = {}
+    for p in model.params:
+        if p.name in sweep:
+            value = sweep[p.name]
+        elif p.name in ov.params:
+            e = as_expr(ov.params[p.name])
+            where = f"the value given for param '{p.name}'"
+            late = E.free_names(e) - env.keys()
+            if late:
+                raise MechError(f"{where}: '{sorted(late)[0]}' is not a param defined before "
+                                f"'{p.name}'")
+            value = E.evaluate(e, env)
+            if not np.all(np.isfinite(value)):
+                raise MechError(f"{where} gives {_first_bad(value)}")
+        else:
+            value = E.evaluate(p.value, env)
+        value = np.broadcast_to(np.asarray(value, dtype=float), (V,)).copy()
+        if not np.all(np.isfinite(value)):
+            raise MechError(f"param '{p.name}' is {_first_bad(value)}"
+                            + _variant_note(sweep, value), p.span)
+        env[p.name] = value
+    return env
+
+
+def _variant_note(sweep: dict[str, np.ndarray], value: np.ndarray) -> str:
+    if not sweep:
+        return ""
+    i = int(np.flatnonzero(~np.isfinite(value))[0])
+    return " for " + ", ".join(f"{k} = {v[i]:g}" for k, v in sweep.items())
+
+
+def _first_bad(value) -> str:
+    v = np.asarray(value, dtype=float).ravel()
+    bad = v[~np.isfinite(v)]
+    return repr(float(bad[0])) if bad.size else "not finite"
+
+
+def time_grid(model: Model, ov: Overrides, variants: Variants) -> np.ndarray:
+    """The instants of the run: the file's ``simulate`` line, after overrides."""
+    sim = model.simulate
+    if sim is None and (ov.t1 is None or ov.step is None):
+        raise MechError("nothing to simulate: add a line such as "
+                        "'simulate t = 0 .. 1 step 0.001'")
+
+    def pick(o, e, what):
+        if o is not None:
+            return variants.values(as_expr(o), what, None)
+        return variants.values(e, what, e.span)
+
+    t0 = pick(ov.t0, sim.t0 if sim else E.Num(0.0), "the start time")
+    t1 = pick(ov.t1, sim.t1 if sim else None, "the end time")
+    h = pick(ov.step, sim.step if sim else None, "the step")
+    span = sim.span if sim else None
+    for v, what in ((t0, "start time"), (t1, "end time"), (h, "step")):
+        if np.ptp(v) != 0:
+            raise MechError(f"the {what} differs between sweep variants; the time grid "
+                            "cannot depend on a swept param", span)
+    return grid(float(t0[0]), float(t1[0]), float(h[0]), span, "simulate", "instants",
+                ov.max_instants)
+
+
+def grid(a: float, b: float, h: float, span: Span | None, what: str, items: str,
+         limit: int) -> np.ndarray:
+    """a + k h for k = 0, 1, ... up to b, and b itself: both ends included."""
+    if not h > 0:
+        raise MechError(f"the {what} step must be positive, not {h:g}", span)
+    if b < a:
+        raise MechError(f"the {what} range ends ({b:g}) before it starts ({a:g})", span)
+    steps = (b - a) / h
+    n = math.floor(steps + GRID_SLACK)
+    if n + 2 > limit:
+        option = "--max-instants" if items == "instants" else "the limit"
+        raise MechError(f"the {what} has {n + 1:,} {items}, more than the limit of {limit:,}",
+                        span, notes=[f"raise {option} if this is intended"])
+    out = a + h * np.arange(n + 1, dtype=float)
+    if b - out[-1] > GRID_SLACK * min(h, b - a):
+        out = np.append(out, b)
+    elif n > 0:
+        out[-1] = b  # a whole number of steps, up to round-off: end exactly at b
+    return out

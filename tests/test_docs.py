@@ -1,0 +1,74 @@
+"""The README and the language reference say what the code does."""
+
+import re
+import subprocess
+import sys
+
+import numpy as np
+
+import mechdsl
+from closed_forms import slider_crank
+from conftest import ROOT
+
+README = (ROOT / "README.md").read_text()
+LANGUAGE = (ROOT / "docs" / "language.md").read_text()
+
+
+def code_blocks(text):
+    """The fenced code blocks of a markdown text, in order."""
+    blocks, current = [], None
+    for line in text.splitlines():
+        if line.lstrip().startswith("```"):
+            if current is None:
+                current = []
+            else:
+                blocks.append("\n".join(current))
+                current = None
+        elif current is not None:
+            current.append(line)
+    return blocks
+
+
+def test_the_readme_mechanism_is_the_validation_case(registry):
+    block = next(b for b in code_blocks(README) if b.lstrip().startswith("param r = 2"))
+    res = mechdsl.loads(block, registry=registry).simulate()
+    t = res["t"]
+    x, v, a = slider_crank(2.0, 3.5, np.pi / 4 + 4 * np.pi * t, 4 * np.pi, 0.0)
+    np.testing.assert_allclose(res["slider.x"], x, rtol=1e-13)
+    np.testing.assert_allclose(res["slider.ax"], a, atol=1e-12 * np.abs(a).max())
+
+
+def test_the_readme_install_and_test_commands_are_marked_for_ci():
+    for marker in ("install", "test"):
+        assert f"<!-- {marker} -->\n```sh\n" in README
+    assert "readme_command install" in (ROOT / ".ci" / "run").read_text()
+
+
+def test_the_builtin_type_table_matches_the_plugins(registry):
+    section = LANGUAGE.split("## Arguments")[1].split("## Expressions")[0]
+    rows = re.findall(r"^\| (`.*?`) \| (joint|drive) \|", section, flags=re.M)
+    documented = {(kind, name) for names, kind in rows
+                  for name in re.findall(r"`([a-z_]+)\(", names)}
+    assert documented == set(registry.types)
+    for names, kind in rows:
+        if kind == "joint":  # joint rows spell the signature: names and defaults
+            for call in re.findall(r"`([a-z_]+\(.*?\))`", names):
+                name = call.split("(")[0]
+                assert call == registry.get(kind, name).describe().replace(": point", "") \
+                    .replace(": vector", "").replace(": scalar", "")
+
+
+def test_every_documented_run_option_exists():
+    usage = subprocess.run([sys.executable, "-m", "mechdsl", "run", "--help"],
+                           capture_output=True, text=True).stdout
+    block = next(b for b in code_blocks(README) if b.startswith("mechdsl run FILE"))
+    for option in re.findall(r"(--?[a-z][a-z0-9-]*)", block):
+        assert option in usage, option
+
+
+def test_documented_functions_are_the_functions():
+    from mechdsl.expr import FUNCTIONS
+
+    line = re.search(r"functions `(.*?)`", LANGUAGE, flags=re.S).group(1)
+    names = set(re.findall(r"[a-z][a-z0-9]*", line)) - {"a", "b", "x", "y"}
+    assert names == set(FUNCTIONS)
