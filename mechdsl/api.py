@@ -37,18 +37,30 @@ class Mechanism:
         self.model = model
         self._registry = registry
         self._plugins = tuple(plugins)
+        # a registry given by the caller still needs the model's own plugin lines
+        self._pending_model_plugins = registry is not None and bool(model.plugins)
 
     @property
     def registry(self) -> Registry:
-        if self._registry is None:
-            wanted = {c.type_name for c in (*self.model.joints, *self.model.drives)}
-            registry = build_registry(self._plugins, wanted=wanted)
-            asked = {p if isinstance(p, str) else getattr(p, "__name__", "") for p in self._plugins}
+        """The plugin registry: entry points (only the plugins of the types the model uses),
+        the plugins given to the constructor and the model's ``plugin "module"`` lines."""
+        if self._registry is None or self._pending_model_plugins:
+            asked = list(self._plugins) + [m for m, _ in self.model.plugins]
+            if self._registry is None:
+                wanted = {c.type_name for c in (*self.model.joints, *self.model.drives)}
+                registry = build_registry(asked, wanted=wanted)
+            else:
+                registry = self._registry.merged(
+                    build_registry([m for m, _ in self.model.plugins], entry_points=False))
+            spans = {m: span for m, span in self.model.plugins}
+            names = {p if isinstance(p, str) else getattr(p, "__name__", "") for p in asked}
             for broken in registry.broken:
-                if broken.provider.plugin in asked:
+                if broken.provider.plugin in names:
                     raise MechError(f"cannot load the plugin '{broken.provider.plugin}': "
-                                    f"{broken.reason}")
+                                    f"{broken.reason}", spans.get(broken.provider.plugin),
+                                    self.model.source)
             self._registry = registry
+            self._pending_model_plugins = False
         return self._registry
 
     def compile(self, overrides: Overrides | None = None, *, need_times: bool = True) -> System:

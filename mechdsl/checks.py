@@ -10,12 +10,12 @@ from __future__ import annotations
 from . import expr as E
 from .errors import MechError, Source, Span, suggest
 from .model import (
-    BODY_QUANTITIES, GROUND, ORIGIN, Arg, Body, Drive, Joint, Model, OutputRef, Param, Point,
+    BODY_QUANTITIES, GROUND, ORIGIN, Body, Drive, Joint, Model, OutputRef, Param, Point,
     Simulate, Sweep, Vector,
 )
 
 TIME = "t"
-RESERVED = {TIME, *E.CONSTANTS, *E.FUNCTIONS}
+RESERVED = {TIME, "table", *E.CONSTANTS, *E.FUNCTIONS}
 
 
 def check_expr(e: E.Expr, allowed: set[str], context: str, numeric: bool = True) -> None:
@@ -63,6 +63,8 @@ def check_expr(e: E.Expr, allowed: set[str], context: str, numeric: bool = True)
         check_expr(e.right, allowed, context, numeric=False)
     elif isinstance(e, E.Unary):
         check_expr(e.operand, allowed, context, numeric=(e.op == "-"))
+    elif isinstance(e, E.Table):
+        check_expr(e.arg, allowed, context)
     elif isinstance(e, E.Binary):
         check_expr(e.left, allowed, context)
         check_expr(e.right, allowed, context)
@@ -133,6 +135,7 @@ def build_model(source: Source, statements: list) -> Model:
     simulate: Simulate | None = None
     defined: set[str] = set()
     pending_sweeps: list[tuple[Sweep, Span]] = []
+    plugins: list[tuple[str, Span]] = []
 
     for st in statements:
         if isinstance(st, tuple) and isinstance(st[0], Param):
@@ -162,7 +165,6 @@ def build_model(source: Source, statements: list) -> Model:
             for a in c.args:
                 if a.name is not None:
                     kw.add(a.name, a.span)
-                _check_arg(a, defined)
             if isinstance(c, Drive):
                 check_expr(c.function, defined | {TIME}, f"the function of drive '{c.name}'")
                 drives.append(c)
@@ -175,6 +177,11 @@ def build_model(source: Source, statements: list) -> Model:
             for e in (st.t0, st.t1, st.step):
                 check_expr(e, defined, "the simulated span")
             simulate = st
+        elif isinstance(st, tuple) and st[0] == "plugin":
+            _, module, span = st
+            if not all(part.isidentifier() for part in module.split(".")):
+                raise MechError(f"'{module}' is not a module name", span)
+            plugins.append((module, span))
         elif isinstance(st, tuple) and st[0] == "output":
             outputs.extend(st[1])
         elif isinstance(st, tuple) and isinstance(st[0], Sweep):
@@ -194,24 +201,12 @@ def build_model(source: Source, statements: list) -> Model:
     if ground is None:
         ground = Body(GROUND, (), None, Span(1, 1, 1, 1), True)
     return Model(source, tuple(params), ground, tuple(bodies), tuple(joints), tuple(drives),
-                 simulate, tuple(outputs), tuple(sweeps))
+                 simulate, tuple(outputs), tuple(sweeps), tuple(plugins))
 
 
 def _sweep_exprs(sw: Sweep) -> list[E.Expr]:
     if sw.values is not None:
         return list(sw.values)
     return [e for e in (sw.start, sw.stop, sw.step, sw.count) if e is not None]
-
-
-def _check_arg(a: Arg, params: set[str]) -> None:
-    """Arguments may be references (checked at compile time, against the type's signature)."""
-    v = a.value
-    if isinstance(v, (E.Ref, E.Name)):
-        return
-    if isinstance(v, Vector):
-        for item in v.items:
-            check_expr(item, params, "an argument")
-    else:
-        check_expr(v, params, "an argument")
 
 

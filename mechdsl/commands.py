@@ -51,6 +51,8 @@ def _check_targets(args) -> None:
     for option, path in (("-o", args.output), ("--plot", args.plot)):
         if not path or path == "-":
             continue
+        if os.path.exists(path) and not os.path.isfile(path):
+            continue  # a device or a pipe: written directly
         folder = os.path.dirname(os.path.abspath(path))
         if not os.path.isdir(folder):
             raise MechError(f"{option} {path}: the folder {folder} does not exist")

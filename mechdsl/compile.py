@@ -12,6 +12,7 @@ import numpy as np
 
 from . import expr as E
 from .errors import MechError, Span, suggest
+from .functions import ExprFunction
 from .model import (
     BODY_QUANTITIES, GROUND, ORIGIN, POINT_QUANTITIES, Body, Drive, Joint, Model, Vector,
 )
@@ -230,7 +231,16 @@ class _Compiler:
             elif arg.kind == "vector":
                 if not isinstance(v, Vector) or len(v.items) != 2:
                     raise MechError(f"argument '{arg.name}' must be a vector (x, y)", a.span)
+                for item in v.items:
+                    check_expr(item, set(self.param_names), f"argument '{arg.name}'")
                 params[arg.name] = self.var.vector(v, f"argument '{arg.name}'")
+            elif arg.kind == "function":
+                if isinstance(v, (Vector, E.Ref)):
+                    raise MechError(f"argument '{arg.name}' must be an expression of "
+                                    f"'{arg.var}'", a.span)
+                check_expr(v, {*self.param_names, arg.var},
+                           f"argument '{arg.name}' (a function of '{arg.var}')")
+                params[arg.name] = v
             else:
                 if isinstance(v, Vector):
                     raise MechError(f"argument '{arg.name}' must be a number", a.span)
@@ -241,7 +251,8 @@ class _Compiler:
                 params[arg.name] = self.var.values(v, f"argument '{arg.name}'", a.span)
         try:
             with np.errstate(all="ignore"):
-                ctype.validate(params)
+                ctype.validate({k: self._function(ctype, k, [v]) if isinstance(v, E.Expr) else v
+                                for k, v in params.items()})
         except ArgError as err:
             raise MechError(f"{ctype.name}: {err.message}", spans.get(err.arg, c.span)) from None
         return slots, params
@@ -251,13 +262,23 @@ class _Compiler:
         slots = np.array([m[1] for m in members], dtype=np.intp).reshape(len(members), -1)
         rows = np.array([np.arange(*m[3]) for m in members], dtype=np.intp)
         params = {}
-        for name in members[0][2]:
+        for name, first in members[0][2].items():
+            if isinstance(first, E.Expr):
+                params[name] = self._function(ctype, name, [m[2][name] for m in members])
+                continue
             stacked = np.stack([m[2][name] for m in members], axis=1)  # (V, J, ...)
             params[name] = _readonly(stacked[:, None])
         # Jacobian columns in the extended matrix whose last 3 columns belong to the ground
         cols = tuple(_readonly((3 * slots[:, k])[:, None, None] + np.arange(3)[None, None, :])
                      for k in range(slots.shape[1]))
         return Group(ctype, idx, _readonly(slots), params, _readonly(rows), cols)
+
+    def _function(self, ctype: ConstraintType, name: str, exprs: list) -> ExprFunction:
+        """The function argument ``name`` of a group: member j's expression on x[..., j];
+        params (V, 1) broadcast against x[..., j] of shape (V, b)."""
+        var = next(a.var for a in ctype.signature if a.name == name)
+        env = {k: v[:, None] for k, v in self.var.env.items()}
+        return ExprFunction(exprs, var, env)
 
     def _drive_function(self, d: Drive) -> DriveFunction:
         f = d.function

@@ -60,7 +60,8 @@ def singularity(system: System, q: np.ndarray, v: int) -> tuple[float, str]:
 
 def _single(system: System, v: int) -> System:
     """The system restricted to variant ``v``."""
-    groups = tuple(replace(g, params={k: a[v : v + 1] for k, a in g.params.items()})
+    groups = tuple(replace(g, params={k: a.variant(v) if hasattr(a, "variant") else a[v : v + 1]
+                                      for k, a in g.params.items()})
                    for g in system.groups)
     return replace(system, groups=groups, env={k: a[v : v + 1] for k, a in system.env.items()},
                    n_variants=1, scale=system.scale[v : v + 1], guess=system.guess[v : v + 1])

@@ -37,34 +37,57 @@ def _slots(group: Group, poses: np.ndarray) -> tuple[np.ndarray, ...]:
 
 def _call(system: System, group: Group, method: str, *args):
     """Call a plugin method; turn its exceptions and wrong shapes into a located error."""
-    ctype = group.ctype
     try:
-        with np.errstate(all="ignore"):
-            out = getattr(ctype, method)(*args)
-        expect = (ctype.n_eq,) if method != "jacobian" else (ctype.n_eq, 3)
-        arrays = out if method == "jacobian" else (out,)
-        if method == "jacobian" and len(out) != group.slots.shape[1]:
-            raise ValueError(f"returned {len(out)} Jacobian blocks for "
-                             f"{group.slots.shape[1]} attached bodies")
-        for a in arrays:
-            if np.shape(a)[-len(expect):] != expect:
-                raise ValueError(f"returned shape {np.shape(a)}, expected (..., "
-                                 f"{', '.join(map(str, expect))})")
-        return out
-    except MechError:
-        raise
+        return _checked(group, method, args)
     except Exception as err:  # noqa: BLE001 - any plugin failure is reported as the plugin's
-        first = system.constraints[group.members[0]]
-        names = ", ".join(system.constraints[i].name for i in group.members[:4])
+        ctype = group.ctype
+        member = _culprit(group, method, args)
+        c = system.constraints[group.members[member]]
         raise PluginError(
-            f"the {ctype.kind} type '{ctype.name}' failed in {method}(): "
-            f"{type(err).__name__}: {err}", first.span,
-            notes=[f"constraints of this type: {names}"
-                   + (" ..." if len(group.members) > 4 else ""),
-                   f"the type comes from the plugin {type(ctype).__module__}"]) from None
+            f"the {ctype.kind} type '{ctype.name}' failed in {method}() for {c.kind} "
+            f"'{c.name}': {type(err).__name__}: {err}", c.span, system.source,
+            notes=[f"the type comes from the plugin {type(ctype).__module__}; this is a "
+                   "defect of the plugin, not of the .mech file"]) from None
 
 
-def _drive_values(system: System, t: np.ndarray, which: str, shape) -> np.ndarray:
+def _checked(group: Group, method: str, args):
+    ctype = group.ctype
+    with np.errstate(all="ignore"):
+        out = getattr(ctype, method)(*args)
+    expect = (ctype.n_eq,) if method != "jacobian" else (ctype.n_eq, 3)
+    arrays = tuple(out) if method == "jacobian" else (out,)
+    if method == "jacobian" and len(arrays) != group.slots.shape[1]:
+        raise ValueError(f"returned {len(arrays)} Jacobian blocks for "
+                         f"{group.slots.shape[1]} attached bodies")
+    for a in arrays:
+        if np.shape(a)[-len(expect):] != expect:
+            raise ValueError(f"returned shape {np.shape(a)}, expected (..., "
+                             f"{', '.join(map(str, expect))})")
+    return out
+
+
+def _culprit(group: Group, method: str, args) -> int:
+    """The first constraint of the group whose own call fails (0 if each works alone)."""
+    kinds = {a.name: a.kind for a in group.ctype.signature}
+
+    def member(j: int, name: str, v):
+        if kinds[name] == "function":
+            return v.member(j)
+        # the constraint axis is the last batch axis: before the (2,) of points and vectors
+        return v[..., j : j + 1, :] if kinds[name] in ("point", "vector") else v[..., j : j + 1]
+
+    for j in range(len(group.members)):
+        sub = tuple(tuple(x[..., j : j + 1, :] for x in a) if isinstance(a, tuple)
+                    else {k: member(j, k, v) for k, v in a.items()} for a in args)
+        try:
+            _checked(group, method, sub)
+        except Exception:  # noqa: BLE001
+            return j
+    return 0
+
+
+def drive_values(system: System, t: np.ndarray, which: str, shape) -> np.ndarray:
+    """f, f' or f'' (``which``: 'f', 'fd', 'fdd') of every drive at ``t``: shape + (D,)."""
     env = dict(system.env)
     env["t"] = t
     with np.errstate(all="ignore"):
@@ -79,7 +102,7 @@ def constraint_values(system: System, q: np.ndarray, t: np.ndarray) -> np.ndarra
     for g in system.groups:
         phi[..., g.rows] = _call(system, g, "phi", _slots(g, poses), g.params)
     if system.drive_functions:
-        phi[..., system.drive_rows] -= _drive_values(system, t, "f", q.shape[:-1])
+        phi[..., system.drive_rows] -= drive_values(system, t, "f", q.shape[:-1])
     return phi
 
 
@@ -99,7 +122,7 @@ def velocity_rhs(system: System, t: np.ndarray, shape: tuple[int, ...]) -> np.nd
     """nu = -Phi_t, shape ``shape + (m,)``: f'(t) in the drive rows, zero elsewhere."""
     nu = np.zeros(tuple(shape) + (system.m,))
     if system.drive_functions:
-        nu[..., system.drive_rows] = _drive_values(system, t, "fd", tuple(shape))
+        nu[..., system.drive_rows] = drive_values(system, t, "fd", tuple(shape))
     return nu
 
 
@@ -112,7 +135,7 @@ def acceleration_rhs(system: System, q: np.ndarray, qd: np.ndarray,
         gamma[..., g.rows] = _call(system, g, "gamma", _slots(g, poses), _slots(g, rates),
                                    g.params)
     if system.drive_functions:
-        gamma[..., system.drive_rows] += _drive_values(system, t, "fdd", q.shape[:-1])
+        gamma[..., system.drive_rows] += drive_values(system, t, "fdd", q.shape[:-1])
     return gamma
 
 

@@ -12,7 +12,7 @@ run and every variant of a sweep).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Callable, Mapping, Union
 
 import numpy as np
@@ -93,7 +93,23 @@ class Cond:
     span: Span | None = None
 
 
-Expr = Union[Num, Name, Ref, Unary, Binary, Compare, Logic, Call, Cond]
+@dataclass(frozen=True)
+class Table:
+    """A cubic spline through the points (xs, ys), continuous in value, slope and curvature,
+    evaluated at ``arg``; ``order`` > 0 is its derivative of that order. Periodic with period
+    ``period`` when given (then ys[0] == ys[-1] over one period), else undefined (NaN)
+    outside [xs[0], xs[-1]]. ``label`` is how the data was written, for display."""
+
+    xs: tuple[float, ...]
+    ys: tuple[float, ...]
+    arg: "Expr"
+    period: float | None = None
+    order: int = 0
+    label: str = ""
+    span: Span | None = field(default=None, compare=False)
+
+
+Expr = Union[Num, Name, Ref, Unary, Binary, Compare, Logic, Call, Cond, Table]
 
 #: Function name -> (min args, max args or None for variadic). ``sign`` is the derivative of abs.
 FUNCTIONS: dict[str, tuple[int, int | None]] = {
@@ -121,6 +137,8 @@ def children(e: Expr) -> tuple[Expr, ...]:
         return e.args
     if isinstance(e, Cond):
         return (e.test, e.then, e.orelse)
+    if isinstance(e, Table):
+        return (e.arg,)
     return ()
 
 
@@ -273,6 +291,10 @@ def derivative(e: Expr, var: str = "t") -> Expr:
         return cond(e.test, d(e.then), d(e.orelse))
     if isinstance(e, Call):
         return _call_derivative(e, d)
+    if isinstance(e, Table):
+        # a cubic's fourth derivative vanishes; the chain rule for the argument
+        outer = replace(e, order=e.order + 1, span=None) if e.order < 3 else Num(0.0)
+        return mul(outer, d(e.arg))
     raise ValueError(f"cannot differentiate {type(e).__name__}")
 
 
@@ -358,6 +380,10 @@ def compile_expr(e: Expr) -> Compiled:
     if isinstance(e, Cond):
         ft, fa, fb = compile_expr(e.test), compile_expr(e.then), compile_expr(e.orelse)
         return lambda env: np.where(ft(env), fa(env), fb(env))
+    if isinstance(e, Table):
+        spline = _spline(e)
+        fa = compile_expr(e.arg)
+        return lambda env: spline(fa(env))
     if isinstance(e, Call):
         fs = [compile_expr(a) for a in e.args]
         if e.func in ("min", "max"):
@@ -377,6 +403,18 @@ def compile_expr(e: Expr) -> Compiled:
         g, h = fs
         return lambda env: uf(g(env), h(env))
     raise TypeError(f"cannot evaluate {type(e).__name__}")
+
+
+def _spline(e: Table) -> Callable:
+    """The scipy spline (or its derivative) of a table; scipy is imported only here."""
+    from scipy.interpolate import CubicSpline
+
+    xs, ys = np.asarray(e.xs), np.asarray(e.ys)
+    if e.period is not None:
+        s = CubicSpline(xs, ys, bc_type="periodic", extrapolate="periodic")
+    else:
+        s = CubicSpline(xs, ys, bc_type="not-a-knot", extrapolate=False)
+    return s.derivative(e.order) if e.order else s
 
 
 def evaluate(e: Expr, env: Env) -> "float | np.ndarray":
@@ -427,4 +465,7 @@ def _text(e: Expr, outer: int) -> str:
     if isinstance(e, Cond):
         s = f"if {_text(e.test, 0)} then {_text(e.then, 0)} else {_text(e.orelse, 0)}"
         return f"({s})" if outer > 0 else s
+    if isinstance(e, Table):
+        period = f", {e.period!r}" if e.period is not None else ""
+        return f"table({e.label}, {_text(e.arg, 0)}{period})" + "'" * e.order
     raise TypeError(type(e).__name__)

@@ -129,3 +129,5 @@ class Model:
     simulate: Simulate | None
     outputs: tuple[OutputRef, ...]
     sweeps: tuple[Sweep, ...]
+    #: ``plugin "module"`` statements: modules to load as plugins, with where they are named.
+    plugins: tuple[tuple[str, Span], ...] = ()

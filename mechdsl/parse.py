@@ -9,6 +9,7 @@ exceptions are translated here and nowhere else: every error leaves this module 
 from __future__ import annotations
 
 import functools
+import os
 from importlib import resources
 from typing import Iterable
 
@@ -19,6 +20,7 @@ from . import expr as E
 from .checks import TIME, build_model, check_expr
 from .errors import MechError, Source, Span
 from .model import Arg, Drive, Joint, Model, OutputRef, Param, Point, Simulate, Sweep, Vector
+from .tables import PointList, make_table
 
 __all__ = ["parse", "parse_expr", "parse_expr_list", "check_expr", "TIME"]
 
@@ -69,9 +71,45 @@ class _ToModel(Transformer):
     def ref(self, meta, items):
         return E.Ref(tuple(str(t) for t in items), _span(meta))
 
+    def __init__(self, base_dir: str) -> None:
+        super().__init__()
+        self.base_dir = base_dir
+
     def call(self, meta, items):
         func, *args = items
-        return E.Call(str(func), tuple(args), _span(meta))
+        name = str(func)
+        if name == "table":
+            return self._table(args, _span(meta))
+        for a in args:
+            if isinstance(a, (Token, PointList)):
+                raise MechError(f"only table() takes a file name or a list of points, not "
+                                f"{name}()", _tspan(a) if isinstance(a, Token) else a.span)
+        return E.Call(name, tuple(args), _span(meta))
+
+    def _table(self, args, span):
+        usage = ('table() takes the data (a file name such as "motion.csv" or points such '
+                 'as [(0, 0), (1, 2)]), the abscissa, and optionally the period')
+        if not 2 <= len(args) <= 3:
+            raise MechError(usage, span)
+        data = args[0]
+        if isinstance(data, Token) and data.type == "STRING":
+            data, data_span = str(data)[1:-1], _tspan(data)
+        elif isinstance(data, PointList):
+            data_span = data.span
+        else:
+            raise MechError(usage, getattr(data, "span", span))
+        for a in args[1:]:
+            if isinstance(a, (Token, PointList)):
+                raise MechError(usage, _tspan(a) if isinstance(a, Token) else a.span)
+        period = args[2] if len(args) == 3 else None
+        return make_table(data, data_span, args[1], period, self.base_dir, span)
+
+    def point_list(self, meta, items):
+        return PointList(tuple(items), _span(meta))
+
+    def plugin(self, meta, items):
+        (tok,) = items
+        return ("plugin", str(tok)[1:-1], _tspan(tok))
 
     def _binary(op):  # noqa: N805 - a factory used in the class body
         def method(self, meta, items):
@@ -187,7 +225,7 @@ class _ToModel(Transformer):
 
 _TERMINAL_WORDS = {
     "NAME": "a name", "NUMBER": "a number", "COMPARE": "a comparison", "$END": "end of file",
-    "STEP": "'step'", "COUNT": "'count'",
+    "STEP": "'step'", "COUNT": "'count'", "STRING": "a quoted name",
 }
 
 
@@ -226,9 +264,12 @@ def _syntax_error(err: UnexpectedInput, source: Source) -> MechError:
 
 
 def _lark_parse(text: str, source: Source, start: str):
+    # tables are read relative to the .mech file (the working folder for text without a file)
+    base_dir = os.getcwd() if source.name.startswith("<") else os.path.dirname(
+        os.path.abspath(source.name))
     try:
         tree = _parser().parse(text, start=start)
-        return _ToModel().transform(tree)
+        return _ToModel(base_dir).transform(tree)
     except UnexpectedInput as err:
         raise _syntax_error(err, source) from None
     except MechError as err:

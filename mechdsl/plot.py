@@ -6,6 +6,8 @@ from __future__ import annotations
 import math
 import os
 
+import numpy as np
+
 from .results import Results
 
 #: Image formats matplotlib writes without extra software, by file extension.
@@ -15,6 +17,20 @@ FORMATS = frozenset({"png", "pdf", "svg", "svgz", "eps", "ps", "jpg", "jpeg", "t
 
 def _variant_label(results: Results, v: int) -> str:
     return ", ".join(f"{k} = {a[v]:g}" for k, a in results.sweep.items())
+
+
+def _constant_range(ax, values) -> None:
+    """A quantity constant up to round-off is drawn flat, not as magnified noise."""
+    finite = values[np.isfinite(values)]
+    if not finite.size:
+        return
+    lo, hi = float(finite.min()), float(finite.max())
+    size = max(abs(lo), abs(hi))
+    if hi - lo <= 1e-9 * size or hi == lo:
+        mid = 0.5 * (lo + hi)
+        pad = 0.1 * abs(mid) if mid else 1.0
+        ax.set_ylim(mid - pad, mid + pad)
+        ax.ticklabel_format(axis="y", useOffset=False)
 
 
 def plot_results(results: Results, path: str | os.PathLike, title: str | None = None,
@@ -44,10 +60,16 @@ def plot_results(results: Results, path: str | os.PathLike, title: str | None = 
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
         ax.margins(x=0)
+        _constant_range(ax, results.data[label])
     for ax in axes[len(labels):]:
         ax.set_visible(False)
-    for ax in axes[max(0, len(labels) - ncols): len(labels)]:
-        ax.set_xlabel("t")
+    # the lowest panel of each column carries the time axis
+    for col in range(ncols):
+        shown = [i for i in range(col, len(labels), ncols)]
+        if shown:
+            bottom = axes[shown[-1]]
+            bottom.set_xlabel("t")
+            bottom.xaxis.set_tick_params(labelbottom=True)
     if results.sweep:
         axes[0].legend(fontsize="small", loc="best")
     fig.suptitle(title or os.path.basename(results.source_name))

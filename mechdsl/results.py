@@ -100,7 +100,14 @@ def _write(f: IO[str], header: list[str], rows: np.ndarray) -> None:
 
 
 def atomic_write_text(path: str, writer) -> None:
-    """Call ``writer(file)`` on a temporary file beside ``path``, then rename it to ``path``."""
+    """Call ``writer(file)`` on a temporary file beside ``path``, then rename it to ``path``.
+
+    A target that exists and is not a regular file (/dev/null, a named pipe) is written
+    directly: it cannot be replaced, and its folder is no place for temporary files."""
+    if os.path.exists(path) and not os.path.isfile(path):
+        with open(path, "w", newline="") as f:
+            writer(f)
+        return
     folder = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(prefix=".mechdsl-", suffix=".tmp", dir=folder)
     try:

@@ -34,7 +34,7 @@ import numpy as np
 from . import equations as eq
 from .assembly import assemble, check_mobility
 from .system import System
-from .diagnose import col_scale, failure
+from .diagnose import col_scale, failure, variant_label
 from .errors import MechError
 from .linalg import Factor, factor
 from .newton import correction_ratio, newton
@@ -165,6 +165,7 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
         bb = len(targets)
         act = st.active[:, None]
         T = np.where(act, targets[None, :], st.t[:, None])
+        undefined = _undefined_drives(system, T) & act
         pred = _predict(st, T)
         qn, ok, iters = newton(system, pred, T, D, st.active, opts)
         fac = factor(eq.jacobian(system, qn), D)
@@ -173,7 +174,7 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
         before = np.concatenate((st.sign[:, None], fac.sign[:, :-1]), axis=1)
         crossing = ok & ~singular & (fac.sign != before)
         jump = ok & ~singular & ~crossing & ~(ratio <= opts.branch_ratio)
-        good = (ok & ~singular & ~crossing & ~jump) | ~act
+        good = (ok & ~singular & ~crossing & ~jump & ~undefined) | ~act
         col_ok = good.all(axis=0)
         nacc = bb if col_ok.all() else int(np.argmin(col_ok))
         if nacc:
@@ -196,16 +197,19 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
         t_act = float(st.t[st.active][0])
         target = float(targets[0])
         gap = target - t_act
-        if gap > (times[k] - times[k - 1]) / 2**opts.max_bisections:
+        if gap > (times[k] - times[k - 1]) / 2**opts.max_bisections and not undefined.any():
             sub.insert(0, t_act + 0.5 * gap)
             b = 1
             continue
         # at the finest interval a large correction with a continuous position is a kink in
         # a drive's velocity, not a branch jump
         jump &= ~_continuous(system, st, qn[:, 0], T[:, 0], fac, D, gap, floor)
-        good = (ok & ~singular & ~crossing & ~jump) | ~act
+        good = (ok & ~singular & ~crossing & ~jump & ~undefined) | ~act
         bad = st.active & ~good[:, 0]
         for v in np.flatnonzero(bad):
+            if undefined[v, 0]:
+                st.failures.append(_undefined_message(system, int(v), target, k))
+                continue
             why = ("singular" if singular[v, 0] else "crossing" if crossing[v, 0]
                    else "jump" if jump[v, 0] else "diverged")
             st.failures.append(failure(system, st.q[v], float(st.t[v]), int(v), target, k, why))
@@ -216,6 +220,27 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
                 sub.pop(0)
             else:
                 k += 1
+
+
+def _undefined_drives(system: System, T: np.ndarray) -> np.ndarray:
+    """(V, b): where some drive's function, or its derivatives, is not a finite number."""
+    if not system.drive_functions:
+        return np.zeros(T.shape, bool)
+    ok = np.ones(T.shape, bool)
+    for which in ("f", "fd", "fdd"):
+        ok &= np.isfinite(eq.drive_values(system, T, which, T.shape)).all(axis=-1)
+    return ~ok
+
+
+def _undefined_message(system: System, v: int, target: float, k: int) -> str:
+    values = eq.drive_values(system, np.full((system.n_variants, 1), target), "f",
+                             (system.n_variants, 1))[v, 0]
+    drives = [c for c in system.constraints if c.kind == "drive"]
+    bad = [drives[i] for i in np.flatnonzero(~np.isfinite(values))] or drives
+    names = ", ".join(f"drive {c.name} (line {c.span.line})" for c in bad)
+    return (f"the function of {names} is not defined at t = {target:.10g} (instant {k} of "
+            f"{len(system.times) - 1}){variant_label(system, v)}: outside its table's range, "
+            "or a domain error such as sqrt of a negative number")
 
 
 def _cols(fac: Factor, c: int) -> Factor:

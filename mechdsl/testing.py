@@ -1,15 +1,28 @@
-"""Checks of a constraint type against its contract, for use in any plugin's tests.
+"""The conformance kit: checks of a constraint type against its contract, for any plugin's
+own tests, in one call.
 
 >>> from mechdsl.testing import check_constraint_type
->>> check_constraint_type(Revolute())        # raises ContractViolation with the numbers
+>>> check_constraint_type(MyJoint())          # raises ContractViolation, with the numbers
 
-Every check uses the type's own ``phi`` as the truth:
+On random poses, velocities and accelerations of the attached bodies and random argument
+values, using the type's own ``phi`` as the truth, it checks
 
-* Jacobian: each block against central differences of Phi in each coordinate;
-* gamma: against the second time derivative of Phi along random trajectories
-  q(t) = q0 + qd t + qdd t^2/2, since d^2 Phi/dt^2 = Phi_q qdd - gamma;
-* shapes: outputs ``(..., n_eq)`` and ``(..., n_eq, 3)`` for one and two batch axes, with
-  arguments whose batch shapes differ (they must broadcast).
+1. the declaration (name, kind, signature, number of equations);
+2. shapes: ``phi`` and ``gamma`` give ``(..., n_eq)`` and ``jacobian`` one ``(..., n_eq, 3)``
+   block per attached body, for one, two and three batch axes, with arguments whose batch
+   shapes differ and must broadcast;
+3. no NaN or infinity on valid input;
+4. the Jacobian against central differences of Phi in every coordinate;
+5. gamma against the second time derivative of Phi along random trajectories
+   q(t) = q0 + qd t + qdd t^2 / 2: d2Phi/dt2 = Phi_q qdd - gamma (types are functions of q
+   only: Phi_qt and Phi_tt vanish; a drive's f(t) is the core's);
+6. for types that claim ``invariant``: |Phi| unchanged when all attached bodies move by one
+   rigid motion.
+
+``params`` overrides the random values of arguments with a restricted domain: a callable
+``f(rng, shape)`` for a point, vector or scalar, expression text (or an
+:class:`~mechdsl.functions.ExprFunction`) for a function. ``poses`` likewise replaces the
+random poses: ``f(rng, shape) -> tuple of (*shape, 3) arrays``, one per attached body.
 """
 
 from __future__ import annotations
@@ -18,7 +31,11 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from .plugins.contract import REQUIRED, ConstraintType
+from .functions import ExprFunction
+from .plugins.contract import REQUIRED, ConstraintType, contract_problems
+
+#: The function a ``function`` argument gets unless the test gives one: smooth, positive.
+DEFAULT_FUNCTION = "1.5 + 0.3*sin({v}) + 0.1*cos(2*{v})"
 
 
 class ContractViolation(AssertionError):
@@ -26,17 +43,26 @@ class ContractViolation(AssertionError):
 
 
 def random_params(ctype: ConstraintType, rng: np.random.Generator, batch: tuple[int, ...],
-                  overrides: Mapping[str, Callable] | None = None) -> dict[str, np.ndarray]:
+                  overrides: Mapping[str, object] | None = None) -> dict[str, object]:
     """Random argument values of shape ``batch + (...)``: points and vectors uniform in
-    [-1, 1]^2, scalars at their default or uniform in [0.5, 1.5]. ``overrides`` maps an
-    argument name to ``f(rng, shape) -> array`` for types with a restricted domain."""
-    p = {}
+    [-1, 1]^2, scalars at their default +- 0.3 or uniform in [0.5, 1.5], functions
+    :data:`DEFAULT_FUNCTION` of their variable."""
+    overrides = overrides or {}
+    p: dict[str, object] = {}
     for arg in ctype.signature:
         if arg.kind == "body":
             continue
+        given = overrides.get(arg.name)
+        if arg.kind == "function":
+            if isinstance(given, ExprFunction):
+                p[arg.name] = given
+            else:
+                text = given if isinstance(given, str) else DEFAULT_FUNCTION.format(v=arg.var)
+                p[arg.name] = ExprFunction.of(text, arg.var)
+            continue
         shape = batch + ((2,) if arg.kind in ("point", "vector") else ())
-        if overrides and arg.name in overrides:
-            p[arg.name] = np.asarray(overrides[arg.name](rng, shape), dtype=float)
+        if given is not None:
+            p[arg.name] = np.broadcast_to(np.asarray(given(rng, shape), dtype=float), shape)
         elif arg.kind == "scalar" and arg.default is not REQUIRED:
             p[arg.name] = np.full(shape, float(arg.default)) + rng.uniform(-0.3, 0.3, shape)
         elif arg.kind == "scalar":
@@ -46,80 +72,149 @@ def random_params(ctype: ConstraintType, rng: np.random.Generator, batch: tuple[
     return p
 
 
+def _index(flat: int, shape: tuple[int, ...]) -> tuple[int, ...]:
+    return tuple(int(i) for i in np.unravel_index(flat, shape))
+
+
 def _fail(ctype: ConstraintType, what: str, got, want, where: str = "") -> None:
-    got, want = np.asarray(got), np.asarray(want)
+    got, want = np.asarray(got, dtype=float), np.asarray(want, dtype=float)
     err = np.abs(got - want)
-    i = np.unravel_index(np.nanargmax(err), err.shape) if err.size else ()
+    i = _index(int(np.nanargmax(err)), err.shape) if err.size else ()
     raise ContractViolation(
         f"{ctype.kind} type '{ctype.name}': {what} is wrong{where}: at index {i} got "
-        f"{got[i]!r}, expected {want[i]!r} (error {err[i]:.3g})")
+        f"{float(got[i])!r}, expected {float(want[i])!r} (error {float(err[i]):.3g})")
 
 
-def check_constraint_type(ctype: ConstraintType, *, samples: int = 20, seed: int = 0,
-                          params: Mapping[str, Callable] | None = None,
-                          rtol: float = 1e-6) -> None:
-    """Raise :class:`ContractViolation` if ``ctype`` breaks the contract (see module doc)."""
+def _call(ctype: ConstraintType, method: str, *args, where: str = ""):
+    """Call a method of the type; an exception it raises is a violation too."""
+    try:
+        with np.errstate(all="ignore"):
+            return getattr(ctype, method)(*args)
+    except Exception as err:  # noqa: BLE001 - the plugin's failure is the finding
+        raise ContractViolation(f"{ctype.kind} type '{ctype.name}': {method}() raised "
+                                f"{type(err).__name__}: {err}{where}") from err
+
+
+def _shape(ctype: ConstraintType, what: str, got, want: tuple[int, ...]) -> None:
+    if np.shape(got) != want:
+        raise ContractViolation(f"{ctype.kind} type '{ctype.name}': {what} has shape "
+                                f"{np.shape(got)}, expected {want}")
+
+
+def _finite(ctype: ConstraintType, what: str, a) -> None:
+    a = np.asarray(a, dtype=float)
+    if not np.isfinite(a).all():
+        i = _index(int(np.argmin(np.isfinite(a))), a.shape)
+        raise ContractViolation(f"{ctype.kind} type '{ctype.name}': {what} is "
+                                f"{float(a[i])!r} at index {i} for valid input")
+
+
+def _rotate(angle, v):
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack((c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]), axis=-1)
+
+
+def check_constraint_type(ctype: ConstraintType, *, samples: int = 24, seed: int = 0,
+                          params: Mapping[str, object] | None = None,
+                          poses: Callable | None = None, rtol: float = 1e-6) -> None:
+    """Raise :class:`ContractViolation` if ``ctype`` breaks its contract (see the module
+    documentation for the checks); return None if it meets it."""
+    problems = contract_problems(ctype)
+    if problems:
+        raise ContractViolation(f"type {getattr(ctype, 'name', ctype)!r} is declared wrongly: "
+                                + "; ".join(problems))
     rng = np.random.default_rng(seed)
-    S = len(ctype.slots)
+    S, m = len(ctype.slots), ctype.n_eq
     batch = (samples,)
     p = random_params(ctype, rng, batch, params)
-    q = tuple(rng.uniform(-1, 1, batch + (3,)) * [1, 1, np.pi] for _ in range(S))
+    if poses is not None:
+        q = tuple(np.asarray(x, dtype=float) for x in poses(rng, batch))
+    else:
+        q = tuple(rng.uniform(-1, 1, batch + (3,)) * [1, 1, np.pi] for _ in range(S))
     qd = tuple(rng.uniform(-1, 1, batch + (3,)) for _ in range(S))
     qdd = tuple(rng.uniform(-1, 1, batch + (3,)) for _ in range(S))
 
-    phi = np.asarray(ctype.phi(q, p))
-    if phi.shape != batch + (ctype.n_eq,):
-        raise ContractViolation(f"'{ctype.name}'.phi returned shape {phi.shape}, expected "
-                                f"{batch + (ctype.n_eq,)}")
-    blocks = ctype.jacobian(q, p)
+    # shapes and finiteness, one batch axis
+    phi = np.asarray(_call(ctype, "phi", q, p))
+    _shape(ctype, "phi", phi, batch + (m,))
+    _finite(ctype, "phi", phi)
+    blocks = tuple(_call(ctype, "jacobian", q, p))
     if len(blocks) != S:
-        raise ContractViolation(f"'{ctype.name}'.jacobian returned {len(blocks)} blocks for "
-                                f"{S} attached bodies")
+        raise ContractViolation(f"{ctype.kind} type '{ctype.name}': jacobian returned "
+                                f"{len(blocks)} blocks for {S} attached bodies")
     for k, blk in enumerate(blocks):
-        if np.shape(blk) != batch + (ctype.n_eq, 3):
-            raise ContractViolation(f"'{ctype.name}'.jacobian block {k} has shape "
-                                    f"{np.shape(blk)}, expected {batch + (ctype.n_eq, 3)}")
-        fd = np.empty(batch + (ctype.n_eq, 3))
+        _shape(ctype, f"Jacobian block {k}", blk, batch + (m, 3))
+        _finite(ctype, f"Jacobian block {k}", blk)
+    gamma = np.asarray(_call(ctype, "gamma", q, qd, p))
+    _shape(ctype, "gamma", gamma, batch + (m,))
+    _finite(ctype, "gamma", gamma)
+
+    # the Jacobian against central differences
+    h = 1e-6
+    for k, blk in enumerate(blocks):
+        fd = np.empty(batch + (m, 3))
         for c in range(3):
-            h = 1e-6
             dq = np.zeros(3)
             dq[c] = h
             plus = tuple(x + dq if i == k else x for i, x in enumerate(q))
             minus = tuple(x - dq if i == k else x for i, x in enumerate(q))
             fd[..., c] = (ctype.phi(plus, p) - ctype.phi(minus, p)) / (2 * h)
-        scale = 1.0 + np.abs(fd).max()
-        if not np.allclose(blk, fd, rtol=0, atol=rtol * scale):
-            _fail(ctype, f"Jacobian block {k}", blk, fd, " (against central differences)")
+        if not np.allclose(blk, fd, rtol=0, atol=rtol * (1.0 + np.abs(fd).max())):
+            _fail(ctype, f"Jacobian block {k} (attached body {k})", blk, fd,
+                  " (against central differences of phi)")
 
-    gamma = np.asarray(ctype.gamma(q, qd, p))
-    if gamma.shape != batch + (ctype.n_eq,):
-        raise ContractViolation(f"'{ctype.name}'.gamma returned shape {gamma.shape}")
-    # d2Phi/dt2 along q(t) = q + qd t + qdd t^2/2, by Richardson-extrapolated differences
-    def second(h: float) -> np.ndarray:
+    # gamma against d2Phi/dt2 along q(t) = q + qd t + qdd t^2/2 (Richardson-extrapolated)
+    def second(step: float) -> np.ndarray:
         at = lambda s: tuple(x + v * s + a * s * s / 2 for x, v, a in zip(q, qd, qdd))  # noqa
-        return (ctype.phi(at(h), p) - 2 * phi + ctype.phi(at(-h), p)) / h**2
+        return (ctype.phi(at(step), p) - 2 * phi + ctype.phi(at(-step), p)) / step**2
 
-    h = 1e-3
-    d2 = (4 * second(h / 2) - second(h)) / 3
-    phi_q_qdd = sum(np.einsum("...ij,...j->...i", b, a) for b, a in zip(blocks, qdd))
-    want = phi_q_qdd - d2
-    scale = 1.0 + np.abs(want).max()
-    if not np.allclose(gamma, want, rtol=0, atol=1e-5 * scale):
-        _fail(ctype, "gamma", gamma, want, " (against d2Phi/dt2 along random trajectories)")
+    d2 = (4 * second(5e-4) - second(1e-3)) / 3
+    want = sum(np.einsum("...ij,...j->...i", b, a) for b, a in zip(blocks, qdd)) - d2
+    if not np.allclose(gamma, want, rtol=0, atol=1e-5 * (1.0 + np.abs(want).max())):
+        _fail(ctype, "gamma", gamma, want, " (against d2Phi/dt2 = Phi_q qdd - gamma along "
+              "random trajectories)")
 
-    # broadcasting: two batch axes, points batched differently from poses
-    p2 = {k: v[:, None] for k, v in p.items()}
-    q2 = tuple(x[None, :] for x in q)
-    qd2 = tuple(x[None, :] for x in qd)
-    core = {a.name: (1 if a.kind in ("point", "vector") else 0) for a in ctype.signature}
-    want_shape = np.broadcast_shapes(*(x.shape[:-1] for x in q2),
-                                     *(v.shape[: v.ndim - core[k]] for k, v in p2.items()))
-    for name, out, core in (("phi", ctype.phi(q2, p2), (ctype.n_eq,)),
-                            ("gamma", ctype.gamma(q2, qd2, p2), (ctype.n_eq,))):
-        if np.shape(out) != want_shape + core:
-            raise ContractViolation(f"'{ctype.name}'.{name} does not broadcast: shape "
-                                    f"{np.shape(out)}, expected {want_shape + core}")
-    for k, blk in enumerate(ctype.jacobian(q2, p2)):
-        if np.shape(blk) != want_shape + (ctype.n_eq, 3):
-            raise ContractViolation(f"'{ctype.name}'.jacobian block {k} does not broadcast: "
-                                    f"shape {np.shape(blk)}")
+    # broadcasting: poses batched along one axis, arguments along another, velocities a third
+    _broadcasting(ctype, q, qd, p, samples)
+
+    # invariance of |Phi| under one rigid motion of every attached body
+    if ctype.invariant:
+        angle = rng.uniform(-np.pi, np.pi, batch)
+        shift = rng.uniform(-2, 2, batch + (2,))
+        moved = tuple(np.concatenate((_rotate(angle, x[..., :2]) + shift,
+                                      (x[..., 2] + angle)[..., None]), axis=-1) for x in q)
+        got = np.linalg.norm(np.asarray(ctype.phi(moved, p)), axis=-1)
+        if not np.allclose(got, np.linalg.norm(phi, axis=-1), rtol=0,
+                           atol=1e-9 * (1.0 + np.abs(phi).max())):
+            _fail(ctype, "|phi| after a rigid motion of the whole mechanism (the type claims "
+                  "invariant = True)", got, np.linalg.norm(phi, axis=-1))
+
+
+def _broadcasting(ctype: ConstraintType, q, qd, p, n: int) -> None:
+    """Outputs carry the broadcast batch shape for two and three batch axes."""
+    m = ctype.n_eq
+    kinds = {a.name: a.kind for a in ctype.signature}
+
+    def lift(x, axis: int, axes: int, core: int):
+        """Put the sample axis of ``x`` at ``axis`` of ``axes`` batch axes."""
+        shape = [1] * axes
+        shape[axis] = n
+        return np.reshape(x, tuple(shape) + np.shape(x)[np.ndim(x) - core:])
+
+    for axes, (q_ax, p_ax, v_ax) in ((2, (1, 0, 1)), (3, (2, 0, 1))):
+        q2 = tuple(lift(x, q_ax, axes, 1) for x in q)
+        qd2 = tuple(lift(x, v_ax, axes, 1) for x in qd)
+        p2 = {k: (v if kinds[k] == "function" else
+                  lift(v, p_ax, axes, 1 if kinds[k] in ("point", "vector") else 0))
+              for k, v in p.items()}
+        shapes = [x.shape[:-1] for x in q2]
+        shapes += [v.shape[: v.ndim - (1 if kinds[k] in ("point", "vector") else 0)]
+                   for k, v in p2.items() if kinds[k] != "function"]
+        want = np.broadcast_shapes(*shapes)
+        with_v = np.broadcast_shapes(want, *(x.shape[:-1] for x in qd2))
+        where = f" with {axes} batch axes"
+        _shape(ctype, "phi" + where, _call(ctype, "phi", q2, p2, where=where), want + (m,))
+        for k, blk in enumerate(_call(ctype, "jacobian", q2, p2, where=where)):
+            _shape(ctype, f"Jacobian block {k}" + where, blk, want + (m, 3))
+        _shape(ctype, "gamma" + where, _call(ctype, "gamma", q2, qd2, p2, where=where),
+               with_v + (m,))

@@ -16,12 +16,16 @@ EXAMPLES = ROOT / "examples"
 
 @pytest.fixture(scope="session")
 def registry():
+    import mechdsl_cams
+    import mechdsl_distance
     import mechdsl_drives
+    import mechdsl_gears
     import mechdsl_prismatic
     import mechdsl_revolute
+    import mechdsl_rigid
 
-    reg = build_registry([mechdsl_revolute, mechdsl_prismatic, mechdsl_drives],
-                         entry_points=False)
+    reg = build_registry([mechdsl_revolute, mechdsl_prismatic, mechdsl_drives, mechdsl_rigid,
+                          mechdsl_distance, mechdsl_gears, mechdsl_cams], entry_points=False)
     assert not reg.broken, reg.broken
     return reg
 

@@ -44,18 +44,24 @@ def test_the_readme_install_and_test_commands_are_marked_for_ci():
     assert "readme_command install" in (ROOT / ".ci" / "run").read_text()
 
 
-def test_the_builtin_type_table_matches_the_plugins(registry):
-    section = LANGUAGE.split("## Arguments")[1].split("## Expressions")[0]
-    rows = re.findall(r"^\| (`.*?`) \| (joint|drive) \|", section, flags=re.M)
-    documented = {(kind, name) for names, kind in rows
-                  for name in re.findall(r"`([a-z_]+)\(", names)}
+JOINTS = (ROOT / "docs" / "joints.md").read_text()
+
+
+def test_the_library_reference_lists_every_type_with_its_signature(registry):
+    joints = JOINTS.split("## Joints")[1].split("## Drives")[0]
+    drives = JOINTS.split("## Drives")[1].split("## Notes")[0]
+    documented = set()
+    for kind, section in (("joint", joints), ("drive", drives)):
+        for call, dist in re.findall(r"^\| `(.*?)` \| (mechdsl-[a-z]+) \|", section, flags=re.M):
+            name = call.split("(")[0]
+            ctype = registry.get(kind, name)
+            assert ctype is not None, name
+            documented.add((kind, name))
+            # the documented call spells the signature: names and defaults, in order
+            plain = re.sub(r": [a-z]+(\([a-z]+\))?", "", ctype.describe())
+            assert call == plain, (call, plain)
+            assert dist == f"mechdsl-{type(ctype).__module__.split('_')[1]}"
     assert documented == set(registry.types)
-    for names, kind in rows:
-        if kind == "joint":  # joint rows spell the signature: names and defaults
-            for call in re.findall(r"`([a-z_]+\(.*?\))`", names):
-                name = call.split("(")[0]
-                assert call == registry.get(kind, name).describe().replace(": point", "") \
-                    .replace(": vector", "").replace(": scalar", "")
 
 
 def test_every_documented_run_option_exists():

@@ -187,3 +187,22 @@ def test_lines_are_counted_as_the_parser_counts_them(tmp_path):
     r = run_cli("run", f)
     assert f"{f}:4:11: error: unknown name 'e'" in r.stderr
     assert "    4 | param d = e" in r.stderr
+
+
+def test_output_to_a_pipe_is_written_into_it_not_over_it(tmp_path, load_example):
+    import os
+    import stat
+    import threading
+
+    from mechdsl.results import write_csv
+
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    received = []
+    reader = threading.Thread(target=lambda: received.append(fifo.read_text()))
+    reader.start()
+    write_csv(load_example("slider_crank.mech").simulate(step=0.1), fifo)
+    reader.join(timeout=30)
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    assert received[0].splitlines()[0] == "t,slider.x,slider.vx,slider.ax"
+    assert len(received[0].splitlines()) == 12

@@ -7,7 +7,9 @@ one body, called a *slot*. The solver hands the type, for all constraints of tha
 * ``q``: a tuple with one pose array per slot, each of shape ``(..., 3)`` = (x, y, phi);
 * ``qd``: the matching velocities (for :meth:`ConstraintType.gamma`);
 * ``p``: a dict from argument name to values: a point's coordinates in its body's frame
-  ``(..., 2)``, a vector ``(..., 2)``, a scalar ``(...)``; body arguments have no entry.
+  ``(..., 2)``, a vector ``(..., 2)``, a scalar ``(...)``, a function (:class:`Function`: an
+  expression of one variable written by the user, with exact derivatives); body arguments
+  have no entry.
 
 The leading axes ``...`` are batch axes (constraints of the type, instants, sweep variants);
 they broadcast against each other, and every method must return arrays with the full
@@ -26,12 +28,16 @@ nu = f'(t), gamma = -(g_q qd)_q qd + f''(t). Joint types are time-independent: n
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping
+from typing import Any, ClassVar, Mapping, Protocol
 
 import numpy as np
 
 KINDS = ("joint", "drive")
-ARG_KINDS = ("point", "body", "vector", "scalar")
+ARG_KINDS = ("point", "body", "vector", "scalar", "function")
+#: Words an argument name cannot be: the language's reserved words (``body`` and ``point``
+#: may still name arguments, the grammar allows them before ``=``).
+RESERVED_ARG_NAMES = frozenset({"param", "guess", "joint", "drive", "simulate", "output",
+                                "sweep", "plugin", "if", "then", "else", "and", "or", "not"})
 
 
 class _Required:
@@ -48,21 +54,26 @@ class Arg:
     """One argument of a constraint type's signature.
 
     ``kind`` is ``"point"`` (a reference ``body.P``; attaches the body), ``"body"`` (a body
-    name; attaches it), ``"vector"`` (``(x, y)``) or ``"scalar"`` (an expression of params).
-    Vector and scalar arguments may have a default; references may not.
+    name; attaches it), ``"vector"`` (``(x, y)``), ``"scalar"`` (an expression of params) or
+    ``"function"`` (an expression of params and of the variable ``var``, e.g. a cam profile
+    ``2 + 0.5*sin(psi)``). Vector and scalar arguments may have a default; references and
+    functions may not.
     """
 
     name: str
     kind: str
     default: Any = REQUIRED
     doc: str = ""
+    var: str | None = None
 
     @property
     def is_reference(self) -> bool:
         return self.kind in ("point", "body")
 
     def describe(self) -> str:
-        """``name: kind`` or ``name: kind = default``."""
+        """``name: kind``, ``name: kind = default`` or ``name: function(var)``."""
+        if self.kind == "function":
+            return f"{self.name}: function({self.var})"
         if self.default is REQUIRED:
             return f"{self.name}: {self.kind}"
         d = self.default
@@ -71,6 +82,17 @@ class Arg:
         else:
             d = f"{d:g}"
         return f"{self.name}: {self.kind} = {d}"
+
+
+class Function(Protocol):
+    """What a plugin receives for a ``function`` argument: f and its exact first and second
+    derivatives, evaluated elementwise on an array of the type's batch shape."""
+
+    def __call__(self, x: np.ndarray) -> np.ndarray: ...
+
+    def d1(self, x: np.ndarray) -> np.ndarray: ...
+
+    def d2(self, x: np.ndarray) -> np.ndarray: ...
 
 
 class ArgError(ValueError):
@@ -98,6 +120,10 @@ class ConstraintType:
     n_eq: ClassVar[int]
     #: One line shown by ``mechdsl plugins``.
     doc: ClassVar[str] = ""
+    #: Whether |Phi| is unchanged when every attached body undergoes the same rigid motion
+    #: (true of joints, which constrain relative positions; false of drives such as x()).
+    #: The conformance kit checks it where it is claimed.
+    invariant: ClassVar[bool] = True
 
     @property
     def slots(self) -> tuple[Arg, ...]:
@@ -147,10 +173,17 @@ def contract_problems(ctype: object) -> list[str]:
         if len(set(names)) != len(names):
             problems.append("signature has two arguments with the same name")
         for a in sig:
+            if not isinstance(a.name, str) or not a.name.isidentifier():
+                problems.append(f"argument name {a.name!r} is not an identifier")
+            elif a.name in RESERVED_ARG_NAMES:
+                problems.append(f"argument name {a.name!r} is a reserved word of the language")
             if a.kind not in ARG_KINDS:
                 problems.append(f"argument {a.name!r} has kind {a.kind!r}; use one of {ARG_KINDS}")
-            elif a.is_reference and a.default is not REQUIRED:
-                problems.append(f"reference argument {a.name!r} cannot have a default")
+            elif (a.is_reference or a.kind == "function") and a.default is not REQUIRED:
+                problems.append(f"{a.kind} argument {a.name!r} cannot have a default")
+            if a.kind == "function" and not (isinstance(a.var, str) and a.var.isidentifier()):
+                problems.append(f"function argument {a.name!r} needs var, the name of its "
+                                "variable")
         if not any(a.is_reference for a in sig):
             problems.append("signature attaches no body (no point or body argument)")
     for method in ("phi", "jacobian", "gamma"):

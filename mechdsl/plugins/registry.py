@@ -60,6 +60,16 @@ class Registry:
             raise PluginConflict(message)
         self.types[key] = (ctype, provider)
 
+    def merged(self, other: "Registry") -> "Registry":
+        """A new registry with the types of both; a name in both is a conflict, recorded."""
+        out = Registry(dict(self.types), self.broken + other.broken, dict(self.conflicts))
+        for ctype, provider in other.types.values():
+            try:
+                out.add(ctype, provider)
+            except PluginConflict as err:
+                out.broken.append(BrokenPlugin(provider, str(err)))
+        return out
+
     def get(self, kind: str, name: str) -> ConstraintType | None:
         """The type of that kind and name, or None."""
         entry = self.types.get((kind, name))

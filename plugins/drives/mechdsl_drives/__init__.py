@@ -33,6 +33,7 @@ class Angle(ConstraintType):
     signature = (Arg("body", "body"),)
     n_eq = 1
     doc = "the rotation phi of a body (rad)"
+    invariant = False
 
     def phi(self, q, p):
         return q[0][..., 2:3]
@@ -42,11 +43,12 @@ class Angle(ConstraintType):
         return (block(np.zeros(z.shape + (1, 2)), (z + 1.0)[..., None]),)
 
     def gamma(self, q, qd, p):
-        return _zeros(q[0])[..., None]
+        return _zeros(q[0], qd[0])[..., None]
 
 
 class _Coordinate(ConstraintType):
     kind = "drive"
+    invariant = False
     signature = (Arg("point", "point"),)
     n_eq = 1
     axis: int
@@ -93,7 +95,7 @@ class RelAngle(ConstraintType):
         return block(zr, (z - 1.0)[..., None]), block(zr, (z + 1.0)[..., None])
 
     def gamma(self, q, qd, p):
-        return _zeros(q[0], q[1])[..., None]
+        return _zeros(q[0], q[1], qd[0], qd[1])[..., None]
 
 
 class Distance(ConstraintType):

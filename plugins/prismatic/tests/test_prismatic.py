@@ -78,3 +78,27 @@ simulate t = 0 .. 1 step 0.1
     with pytest.raises(MechError, match="zero vector") as info:
         mech.simulate()
     assert (info.value.span.line, info.value.span.column) == (2, 45)
+
+
+def test_pin_slot_meets_the_contract():
+    from mechdsl_prismatic import PinSlot
+
+    check_constraint_type(PinSlot(), samples=50)
+
+
+def test_scotch_yoke_by_pin_slot():
+    mech = mechdsl.loads("""
+        body crank { guess = (0, 0, 0.2)  point P = (0.5, 0) }
+        body yoke  { guess = (0.4, 0, 0) }
+        joint axle:  revolute(ground.origin, crank.origin)
+        joint guide: prismatic(ground.origin, yoke.origin, axis = (1, 0))
+        joint pin:   pin_slot(yoke.origin, crank.P, axis = (0, 1))
+        drive motor: angle(crank) = 2*t
+        simulate t = 0 .. 2 step 0.01
+        output yoke.x, yoke.vx, yoke.ax
+    """, registry=_registry())
+    res = mech.simulate()
+    t = res["t"]
+    np.testing.assert_allclose(res["yoke.x"], 0.5 * np.cos(2 * t), atol=1e-14)
+    np.testing.assert_allclose(res["yoke.vx"], -1.0 * np.sin(2 * t), atol=1e-13)
+    np.testing.assert_allclose(res["yoke.ax"], -2.0 * np.cos(2 * t), atol=1e-12)

@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# Regenerate the plots under docs/images from the examples (run from the repository root,
+# with mechdsl installed: .venv/bin/mechdsl or mechdsl on the PATH).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+M=${MECHDSL:-$( [ -x .venv/bin/mechdsl ] && echo .venv/bin/mechdsl || echo mechdsl )}
+out=docs/images
+for name in slider_crank fourbar rod_sweep scotch_yoke planetary rack_pinion cam_flat \
+            cam_roller fourbar_coupler; do
+    "$M" run "examples/$name.mech" -q -o /dev/null --plot "$out/$name.png"
+done
+for t1 in 0.5 1 2; do
+    "$M" run examples/start_from_rest.mech --set "t1=$t1" -q -o /dev/null \
+        --plot "$out/start_from_rest_t1_$t1.png"
+done
+"$M" run examples/plugins/curve_slot/curve_slot.mech -q -o /dev/null --plot "$out/curve_slot.png"

@@ -1,0 +1,156 @@
+"""Gear pairs with centres that may move, and rack and pinion (after Nikravesh, Planar
+Multibody Dynamics, the gear and rack-and-pinion joints).
+
+Gears: pitch radii R_1, R_2, ratio k = R_1 / R_2, centres C_i = r_i + A_i c'_i, d = C_2 - C_1
+and theta the direction of d. Rolling without slip at the pitch point gives
+k (phi_1 - theta) + s (phi_2 - theta) = phase, with s = +1 for an external pair
+(``gear``) and s = -1 for a pinion inside a ring (``internal_gear``). Written through the
+direction the gear angles imply, psi = (k phi_1 + s phi_2 - phase) / (k + s), as
+
+    Phi = perp(e(psi)) . d = |d| sin(theta - psi)                       (1 equation)
+
+it stays smooth when theta turns past +-pi (a planet orbiting its sun). With m = perp(e(psi)),
+e = e(psi), a_1 = k / (k + s), a_2 = s / (k + s)::
+
+    dPhi/dq_1 = [ -m^T, -m . perp(A_1 c'_1) - a_1 e . d ]
+    dPhi/dq_2 = [  m^T,  m . perp(A_2 c'_2) - a_2 e . d ]
+    gamma = (m . d) psid^2 + 2 psid e . dd + m . (A_2 c'_2 phid_2^2 - A_1 c'_1 phid_1^2)
+
+with psid = a_1 phid_1 + a_2 phid_2 and dd the time derivative of d. With fixed centres,
+omega_2 = -k omega_1 (external) or +k omega_1 (internal).
+
+Rack and pinion: the pinion's centre C (radius R) and a rack line through the rack body's
+origin along the unit vector u (in the rack's frame), the pinion on the left of u::
+
+    Phi = u_g . (C - r_rack) + R (phi_pinion - phi_rack) - phase        (1 equation)
+
+with u_g = A_rack u: turning the pinion by +dphi moves it by -R dphi along u.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mechdsl.plugins import Arg, ArgError, ConstraintType, hookimpl
+from mechdsl.plugins.geometry import block, dot, perp, rotate
+
+
+class _GearPair(ConstraintType):
+    kind = "joint"
+    n_eq = 1
+    sense: float
+    signature = (
+        Arg("body1", "body", doc="the first gear"),
+        Arg("body2", "body", doc="the second gear"),
+        Arg("ratio", "scalar", doc="R1 / R2, the ratio of the pitch radii"),
+        Arg("phase", "scalar", 0.0, doc="k (phi1 - theta) + s (phi2 - theta) at mesh (rad)"),
+        Arg("center1", "vector", (0.0, 0.0), doc="gear 1's centre in its body's frame"),
+        Arg("center2", "vector", (0.0, 0.0), doc="gear 2's centre in its body's frame"),
+    )
+
+    def validate(self, p):
+        if np.any(p["ratio"] <= 0):
+            raise ArgError("ratio", "the ratio of pitch radii must be positive")
+
+    def _parts(self, q, p):
+        q1, q2 = q
+        k, s = p["ratio"], self.sense
+        a1, a2 = k / (k + s), s / (k + s)
+        psi = a1 * q1[..., 2] + a2 * q2[..., 2] - p["phase"] / (k + s)
+        e = np.stack((np.cos(psi), np.sin(psi)), axis=-1)
+        ac1 = rotate(q1[..., 2], p["center1"])
+        ac2 = rotate(q2[..., 2], p["center2"])
+        d = q2[..., :2] + ac2 - q1[..., :2] - ac1
+        e, ac1, ac2, d = np.broadcast_arrays(e, ac1, ac2, d)
+        return a1, a2, e, perp(e), ac1, ac2, d
+
+    def phi(self, q, p):
+        *_, m, _, _, d = self._parts(q, p)
+        return dot(m, d)[..., None]
+
+    def jacobian(self, q, p):
+        a1, a2, e, m, ac1, ac2, d = self._parts(q, p)
+        ed = dot(e, d)
+        return (block(-m[..., None, :], (-dot(m, perp(ac1)) - a1 * ed)[..., None]),
+                block(m[..., None, :], (dot(m, perp(ac2)) - a2 * ed)[..., None]))
+
+    def gamma(self, q, qd, p):
+        a1, a2, e, m, ac1, ac2, d = self._parts(q, p)
+        w1, w2 = qd[0][..., 2], qd[1][..., 2]
+        psid = a1 * w1 + a2 * w2
+        dd = (qd[1][..., :2] + perp(ac2) * w2[..., None]
+              - qd[0][..., :2] - perp(ac1) * w1[..., None])
+        g = (dot(m, d) * psid**2 + 2 * psid * dot(e, dd)
+             + dot(m, ac2 * (w2**2)[..., None] - ac1 * (w1**2)[..., None]))
+        return g[..., None]
+
+
+class Gear(_GearPair):
+    name = "gear"
+    sense = 1.0
+    doc = "external gear pair: omega2 = -ratio * omega1 about fixed centres"
+
+
+class InternalGear(_GearPair):
+    name = "internal_gear"
+    sense = -1.0
+    doc = "pinion (body1) inside a ring gear (body2): omega2 = ratio * omega1 about fixed centres"
+
+    def validate(self, p):
+        super().validate(p)
+        if np.any(p["ratio"] >= 1):
+            raise ArgError("ratio", "the pinion of an internal gear must be smaller than the "
+                           "ring: ratio = R_pinion / R_ring < 1")
+
+
+class RackPinion(ConstraintType):
+    name = "rack_pinion"
+    kind = "joint"
+    n_eq = 1
+    signature = (
+        Arg("pinion", "body"),
+        Arg("rack", "body"),
+        Arg("radius", "scalar", doc="the pinion's pitch radius"),
+        Arg("axis", "vector", (1.0, 0.0), doc="the rack's direction in its frame; the pinion "
+                                              "on its left"),
+        Arg("phase", "scalar", 0.0),
+        Arg("center", "vector", (0.0, 0.0), doc="the pinion's centre in its body's frame"),
+    )
+    doc = "rack and pinion: the pinion rolls along a straight rack"
+
+    def validate(self, p):
+        if np.any(p["radius"] <= 0):
+            raise ArgError("radius", "the pinion's radius must be positive")
+        if np.any(np.linalg.norm(p["axis"], axis=-1) == 0):
+            raise ArgError("axis", "the rack's axis must not be the zero vector")
+
+    def _parts(self, q, p):
+        qp, qr = q
+        axis = p["axis"] / np.linalg.norm(p["axis"], axis=-1, keepdims=True)
+        u = rotate(qr[..., 2], axis)
+        ac = rotate(qp[..., 2], p["center"])
+        d = qp[..., :2] + ac - qr[..., :2]
+        return np.broadcast_arrays(u, ac, d)
+
+    def phi(self, q, p):
+        u, _, d = self._parts(q, p)
+        g = dot(u, d) + p["radius"] * (q[0][..., 2] - q[1][..., 2]) - p["phase"]
+        return g[..., None]
+
+    def jacobian(self, q, p):
+        u, ac, d = self._parts(q, p)
+        R = np.broadcast_to(p["radius"], u.shape[:-1])
+        return (block(u[..., None, :], (dot(u, perp(ac)) + R)[..., None]),
+                block(-u[..., None, :], (dot(perp(u), d) - R)[..., None]))
+
+    def gamma(self, q, qd, p):
+        u, ac, d = self._parts(q, p)
+        wp, wr = qd[0][..., 2], qd[1][..., 2]
+        dd = qd[0][..., :2] + perp(ac) * wp[..., None] - qd[1][..., :2]
+        g = dot(u, d) * wr**2 - 2 * wr * dot(perp(u), dd) + dot(u, ac) * wp**2
+        return g[..., None]
+
+
+@hookimpl
+def mechdsl_constraint_types():
+    return [Gear(), InternalGear(), RackPinion()]
