@@ -249,13 +249,30 @@ class _Compiler:
                                     a.span)
                 check_expr(v, set(self.param_names), f"argument '{arg.name}'")
                 params[arg.name] = self.var.values(v, f"argument '{arg.name}'", a.span)
+        values = {k: self._function(ctype, k, [v]) if isinstance(v, E.Expr) else v
+                  for k, v in params.items()}
         try:
             with np.errstate(all="ignore"):
-                ctype.validate({k: self._function(ctype, k, [v]) if isinstance(v, E.Expr) else v
-                                for k, v in params.items()})
+                ctype.validate(values)
         except ArgError as err:
-            raise MechError(f"{ctype.name}: {err.message}", spans.get(err.arg, c.span)) from None
+            raise MechError(f"{ctype.name}: {err.message}{self._bad_variant(ctype, values)}",
+                            spans.get(err.arg, c.span)) from None
         return slots, params
+
+    def _bad_variant(self, ctype: ConstraintType, values: dict) -> str:
+        """' (for l = -1)': the first sweep variant whose values the type rejects."""
+        if self.V == 1:
+            return ""
+        for v in range(self.V):
+            one = {k: (a.variant(v) if isinstance(a, ExprFunction) else a[v : v + 1])
+                   for k, a in values.items()}
+            try:
+                with np.errstate(all="ignore"):
+                    ctype.validate(one)
+            except ArgError:
+                return " (for " + ", ".join(f"{k} = {a[v]:g}" for k, a in
+                                            self.var.sweep.items()) + ")"
+        return ""
 
     def _group(self, ctype: ConstraintType, members: list) -> Group:
         idx = tuple(m[0] for m in members)

@@ -7,11 +7,13 @@ own tests, in one call.
 On random poses, velocities and accelerations of the attached bodies and random argument
 values, using the type's own ``phi`` as the truth, it checks
 
-1. the declaration (name, kind, signature, number of equations);
+1. the declaration (name, kind, signature, number of equations), and that ``validate``
+   accepts the argument values the test uses;
 2. shapes: ``phi`` and ``gamma`` give ``(..., n_eq)`` and ``jacobian`` one ``(..., n_eq, 3)``
    block per attached body, for one, two and three batch axes, with arguments whose batch
    shapes differ and must broadcast;
-3. no NaN or infinity on valid input;
+3. no NaN or infinity on valid input, and each row of a batch computed from its own
+   arguments and poses (as if alone);
 4. the Jacobian against central differences of Phi in every coordinate;
 5. gamma against the second time derivative of Phi along random trajectories
    q(t) = q0 + qd t + qdd t^2 / 2: d2Phi/dt2 = Phi_q qdd - gamma (types are functions of q
@@ -127,6 +129,14 @@ def check_constraint_type(ctype: ConstraintType, *, samples: int = 24, seed: int
     S, m = len(ctype.slots), ctype.n_eq
     batch = (samples,)
     p = random_params(ctype, rng, batch, params)
+    # validate() sees arrays with a leading variant axis; the test's values must pass it
+    try:
+        with np.errstate(all="ignore"):
+            ctype.validate(p)
+    except Exception as err:  # noqa: BLE001
+        raise ContractViolation(
+            f"{ctype.kind} type '{ctype.name}': validate() rejects the test's values "
+            f"({type(err).__name__}: {err}); give valid ones with params=") from err
     if poses is not None:
         q = tuple(np.asarray(x, dtype=float) for x in poses(rng, batch))
     else:
@@ -174,6 +184,9 @@ def check_constraint_type(ctype: ConstraintType, *, samples: int = 24, seed: int
         _fail(ctype, "gamma", gamma, want, " (against d2Phi/dt2 = Phi_q qdd - gamma along "
               "random trajectories)")
 
+    # each constraint of a batch computes with its own arguments and poses
+    _batch_members(ctype, q, qd, p, phi, blocks, gamma)
+
     # broadcasting: poses batched along one axis, arguments along another, velocities a third
     _broadcasting(ctype, q, qd, p, samples)
 
@@ -188,6 +201,28 @@ def check_constraint_type(ctype: ConstraintType, *, samples: int = 24, seed: int
                            atol=1e-9 * (1.0 + np.abs(phi).max())):
             _fail(ctype, "|phi| after a rigid motion of the whole mechanism (the type claims "
                   "invariant = True)", got, np.linalg.norm(phi, axis=-1))
+
+
+def _batch_members(ctype: ConstraintType, q, qd, p, phi, blocks, gamma) -> None:
+    """Row i of a batched call equals a call with sample i alone (a type that used, say, the
+    first constraint's length for all would pass every other check)."""
+    kinds = {a.name: a.kind for a in ctype.signature}
+    n = phi.shape[0]
+    for i in sorted({0, n // 2, n - 1}):
+        one = slice(i, i + 1)
+        qi = tuple(x[one] for x in q)
+        qdi = tuple(x[one] for x in qd)
+        pi = {k: (v if kinds[k] == "function" else v[one]) for k, v in p.items()}
+        for what, got, want in (
+                ("phi", _call(ctype, "phi", qi, pi), phi[one]),
+                ("gamma", _call(ctype, "gamma", qi, qdi, pi), gamma[one]),
+                *((f"Jacobian block {k}", b, blocks[k][one])
+                  for k, b in enumerate(_call(ctype, "jacobian", qi, pi)))):
+            if np.shape(got) != np.shape(want) or not np.allclose(got, want, rtol=1e-12,
+                                                                  atol=1e-12):
+                _fail(ctype, f"{what} of sample {i} computed alone (each constraint must use "
+                      "its own arguments and poses)", np.broadcast_to(got, np.shape(want)),
+                      want)
 
 
 def _broadcasting(ctype: ConstraintType, q, qd, p, n: int) -> None:

@@ -74,6 +74,16 @@ class FalselyInvariant(SameX):
     invariant = True
 
 
+class SharesOneGap(SameX):
+    def phi(self, q, p):
+        return super().phi(q, {**p, "gap": p["gap"][..., :1]})  # the first gap for all
+
+
+class RejectsValidValues(SameX):
+    def validate(self, p):
+        raise ValueError("gap too small")
+
+
 class BadDeclaration(SameX):
     n_eq = 0
     signature = (Arg("p1", "point"), Arg("if", "point"))
@@ -88,6 +98,8 @@ class BadDeclaration(SameX):
     (TooFewBlocks(), r"jacobian returned 1 blocks for 2 attached bodies"),
     (NotFinite(), r"phi is inf at index \(\d+, 0\) for valid input"),
     (FalselyInvariant(), r"\|phi\| after a rigid motion .* is wrong"),
+    (SharesOneGap(), r"phi of sample \d+ computed alone \(each constraint must use its own"),
+    (RejectsValidValues(), r"validate\(\) rejects the test's values \(ValueError: gap too small\)"),
     (BadDeclaration(), r"declared wrongly: n_eq must be a positive int.*'if' is a reserved word"),
 ], ids=lambda x: type(x).__name__ if isinstance(x, ConstraintType) else "")
 def test_the_kit_catches_each_kind_of_defect(ctype, message):
