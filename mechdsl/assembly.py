@@ -1,4 +1,4 @@
-"""Before the run: the count of equations against coordinates, and the assembly at t0."""
+"""Before the run: the assembly at t0, in the assembly mode nearest the guesses."""
 
 from __future__ import annotations
 
@@ -8,49 +8,34 @@ import numpy as np
 
 from . import equations as eq
 from .system import System
-from .diagnose import col_scale, constraint_names, variant_label
-from .errors import MechError
+from .diagnose import col_scale, constraint_names, one_variant, variant_label
 from .linalg import factor
+from .mobility import Mobility, analyse, count_check, square
 from .newton import correction_ratio, newton
 from .options import SolverOptions
 
 
-def check_mobility(system: System) -> None:
-    """Raise MechError unless there are as many equations as coordinates (a fully driven
-    kinematic model), naming the bodies that no constraint attaches."""
-    n, m = system.n, system.m
-    src = system.source
-    if n == 0:
-        raise MechError("the model has no moving body", source=src)
-    attached = {b for c in system.constraints for b in c.bodies}
-    notes = [f"body '{b}' is attached to nothing" for b in system.body_names
-             if b not in attached]
-    if m < n:
-        dof = n - m
-        s = "s" if dof > 1 else ""
-        raise MechError(
-            f"the mechanism is not fully driven: {n} coordinates and {m} equations leave "
-            f"{dof} degree{s} of freedom; add {dof} drive{s} or joint equation{s}",
-            source=src, notes=notes)
-    if m > n:
-        raise MechError(f"the mechanism is over-constrained: {m} equations for {n} "
-                        f"coordinates ({m - n} too many); remove a joint or a drive",
-                        source=src, notes=notes)
-
-
 @dataclass(frozen=True)
 class Assembly:
-    """The configuration at t0 of every variant; ``ok[v]`` False where it was not found."""
+    """The configuration at t0 of every variant (``ok[v]`` False where it was not found, with
+    the reasons in ``messages``) and the mobility analysis that says which equations to use
+    (None if no variant's joints could be closed)."""
 
     q: np.ndarray
     ok: np.ndarray
     messages: tuple[str, ...]
     iterations: int
+    mobility: Mobility | None
 
 
-def _min_norm_step(a: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """dz minimising |a dz + r| with the least |dz| (SVD, small singular values cut)."""
+def _lm_step(a: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """The Levenberg-Marquardt step dz = -(a^T a + lam I)^-1 a^T r with lam = |r|^2
+    (Yamashita and Fukushima), by SVD. As r -> 0 it becomes the Gauss-Newton step, and it
+    converges quadratically even where the solutions are not isolated (redundant joints,
+    a mechanism with free coordinates), where a plain minimum-norm step would divide noise
+    by a vanishing singular value and creep along the solution set."""
     a = np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
+    lam = np.sum(r * r, axis=-1, keepdims=True)
     try:
         u, s, vt = np.linalg.svd(a, full_matrices=False)
     except np.linalg.LinAlgError:  # rare: fall back to one variant at a time
@@ -61,9 +46,9 @@ def _min_norm_step(a: np.ndarray, r: np.ndarray) -> np.ndarray:
             except np.linalg.LinAlgError:
                 pass
         return out
-    cut = s > s[..., :1] * 1e-12
-    inv = np.where(cut, 1.0 / np.where(cut, s, 1.0), 0.0)
-    return -np.einsum("...ji,...j,...j->...i", vt, inv, np.einsum("...ji,...j->...i", u, r))
+    keep = s > s[..., :1] * 1e-14
+    gain = np.where(keep, s / np.where(keep, s * s + lam, 1.0), 0.0)
+    return -np.einsum("...ji,...j,...j->...i", vt, gain, np.einsum("...ji,...j->...i", u, r))
 
 
 def assemble(system: System, t0: float, options: SolverOptions | None = None) -> Assembly:
@@ -80,36 +65,67 @@ def assemble(system: System, t0: float, options: SolverOptions | None = None) ->
     3. Where that fails, Gauss-Newton on all equations at once, as a last resort.
     """
     opts = options or SolverOptions()
+    count_check(system)
     V, n = system.n_variants, system.n
     D = col_scale(system)
     t = np.full((V, 1), float(t0))
     joint_rows = np.setdiff1d(np.arange(system.m), system.drive_rows)
     guess = system.guess.reshape(V, 1, n)
-    q1, ok1, it1 = _gauss_newton(system, guess, t, D, joint_rows, opts)
-    q, ok, it2 = _continue_drives(system, q1, t, D, ok1, opts)
-    retry = ok1 & ~ok
-    if retry.any():
-        q2, ok2, it3 = _gauss_newton(system, q1, t, D, np.arange(system.m), opts)
-        q = np.where((retry & ok2)[:, None, None], q2, q)
-        ok = ok | (retry & ok2)
-        it2 += it3
+    q1, ok1, it1 = gauss_newton(system, guess, t, D, joint_rows, opts)
+    mob = None
+    q, ok, it2 = q1, ok1 & False, 0
+    if ok1.any():
+        first = int(np.flatnonzero(ok1)[0])
+        if system.m > n:
+            # more equations than coordinates: find the redundant ones before going on
+            mob = analyse(one_variant(system, first), q1[first, 0], D[first, 0])
+        else:
+            mob = square(system)
+        q, ok, it2 = _continue_drives(system, q1, t, D, ok1, opts, mob.rows)
+        retry = ok1 & ~ok
+        if retry.any():
+            q2, ok2, it3 = gauss_newton(system, q1, t, D, mob.rows, opts)
+            q = np.where((retry & ok2)[:, None, None], q2, q)
+            ok = ok | (retry & ok2)
+            it2 += it3
     messages = []
+    reported: set[int] = set()
     with np.errstate(all="ignore"):
         phi = eq.constraint_values(system, np.where(ok1[:, None, None], q, q1), t)[:, 0]
         weights = _row_weights(system, q, D)[:, 0]
+    if mob is not None and mob.dropped.size:
+        # least squares settles for a compromise where redundant equations are inconsistent:
+        # every equation must hold
+        resid = np.abs(weights * phi)
+        for v in np.flatnonzero(ok & ~(resid <= opts.assembly_residual).all(axis=1)):
+            ok[v] = False
+            reported.add(int(v))
+            worst = np.argsort(-resid[v])[:3]
+            messages.append(
+                f"the mechanism is over-constrained{variant_label(system, v)}: its redundant "
+                f"constraints ({constraint_names(system, mob.dropped)}) cannot hold together "
+                f"with the others; equations of {constraint_names(system, worst)} are violated "
+                f"(scaled residual {resid[v].max():.3g}); remove them or make the dimensions "
+                "consistent")
     for v in np.flatnonzero(~ok):
+        if v in reported:
+            continue
         rows = joint_rows if not ok1[v] else np.arange(system.m)
         resid = np.nan_to_num(np.abs(weights[v, rows] * phi[v, rows]), nan=np.inf)
         worst = rows[np.argsort(-resid)[:3]]
+        over = system.m > n and not ok1[v]
         what = ("the joints cannot be closed near the guesses" if not ok1[v] else
                 "the drives cannot reach their values at t0 from the guessed configuration")
+        if over:
+            what += (f" ({len(joint_rows)} joint equations for {n} coordinates: they may "
+                     "over-constrain the mechanism)")
         messages.append(
             f"the mechanism cannot be assembled at t = {t0:g}{variant_label(system, v)}: "
             f"{what}; the closest configuration found leaves equations of "
             f"{constraint_names(system, worst)} unsatisfied (scaled residual "
             f"{resid.max():.3g}); check the dimensions, or give guesses nearer the intended "
             "configuration")
-    return Assembly(q[:, 0], ok, tuple(messages), it1 + it2)
+    return Assembly(q[:, 0], ok, tuple(messages), it1 + it2, mob)
 
 
 def _row_weights(system: System, q: np.ndarray, D: np.ndarray) -> np.ndarray:
@@ -119,7 +135,7 @@ def _row_weights(system: System, q: np.ndarray, D: np.ndarray) -> np.ndarray:
     return np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
 
 
-def _gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
+def gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
                   rows: np.ndarray, opts: SolverOptions) -> tuple[np.ndarray, np.ndarray, int]:
     """Damped Gauss-Newton on the equations ``rows`` from ``q`` (V, 1, n).
 
@@ -142,7 +158,11 @@ def _gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
     for it in range(1, opts.assembly_max_iterations + 1):
         with np.errstate(all="ignore"):
             A = eq.jacobian(system, q)[..., rows, :] * D[..., None, :] * W[..., None]
-        dz = _min_norm_step(A, np.nan_to_num(W * phi))
+        dz = _lm_step(A, np.nan_to_num(W * phi))
+        # a trust region: long Gauss-Newton steps can leap to another assembly mode; short
+        # ones follow the residual down from the guess to the closure nearest it
+        size = np.abs(dz).max(axis=-1, keepdims=True)
+        dz = dz * np.minimum(1.0, opts.assembly_max_step / np.maximum(size, 1e-300))
         alpha = np.ones((V, 1))
         todo = ~(done | stuck)
         accepted = np.zeros((V, 1), bool)
@@ -172,7 +192,7 @@ def _gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
 
 
 def _continue_drives(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
-                     active: np.ndarray, opts: SolverOptions
+                     active: np.ndarray, opts: SolverOptions, rows: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, int]:
     """Carry the drives from their values at ``q`` to f(t0) (step 2 of :func:`assemble`)."""
     ok = active.copy()
@@ -182,17 +202,17 @@ def _continue_drives(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray
         delta = np.zeros(q.shape[:-1] + (system.m,))
         delta[..., system.drive_rows] = -eq.constraint_values(system, q, t)[..., system.drive_rows]
     delta = np.where(ok[:, None, None], np.nan_to_num(delta), 0.0)
-    fac = factor(eq.jacobian(system, q), D)
+    fac = factor(eq.jacobian(system, q)[..., rows, :], D)
     floor = np.sqrt(opts.newton_tol)
     s, ds, iterations = 0.0, 1.0, 0
     while s < 1.0 and ok.any():
         s_new = min(1.0, s + ds)
         with np.errstate(all="ignore"):
-            pred = q + (s_new - s) * fac.solve(delta)
+            pred = q + (s_new - s) * fac.solve(delta[..., rows])
         pred = np.where(np.isfinite(pred), pred, q)
-        qn, conv, it = newton(system, pred, t, D, ok, opts, shift=(1.0 - s_new) * delta)
+        qn, conv, it = newton(system, pred, t, D, ok, opts, rows, shift=(1.0 - s_new) * delta)
         iterations += it
-        fn = factor(eq.jacobian(system, qn), D)
+        fn = factor(eq.jacobian(system, qn)[..., rows, :], D)
         good = (conv & (fn.rcond >= opts.singular_rcond) & (fn.sign == fac.sign)
                 & (correction_ratio(qn, pred, q, D, floor) <= opts.branch_ratio))
         good |= ~ok[:, None]

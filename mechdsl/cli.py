@@ -58,6 +58,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--newton-tol", type=float, metavar="TOL",
                      help="Newton-Raphson step tolerance, relative to the model's size "
                           "(default 1e-10)")
+    run.add_argument("--through-singular", action="store_true",
+                     help="at a singular position (dead point, change point) continue on the "
+                          "branch the motion was on, instead of stopping")
     run.add_argument("--max-instants", type=int, metavar="N",
                      help="refuse grids with more instants than this (default 50,000,000)")
     run.add_argument("-q", "--quiet", action="store_true", help="print only errors")

@@ -36,10 +36,13 @@ def _overrides(mech: Mechanism, args) -> Overrides:
 def _options(args):
     from .options import SolverOptions
 
-    if getattr(args, "newton_tol", None) is None:
-        return SolverOptions()
+    given = {}
+    if getattr(args, "newton_tol", None) is not None:
+        given["newton_tol"] = args.newton_tol
+    if getattr(args, "through_singular", False):
+        given["at_singular"] = "continue"
     try:
-        return SolverOptions(newton_tol=args.newton_tol)
+        return SolverOptions(**given)
     except ValueError as err:
         raise MechError(f"--newton-tol: {err}") from None
 
@@ -88,6 +91,9 @@ def run_command(args) -> int:
     except OSError as err:
         raise MechError(f"cannot write {err.filename or 'the output'}: {err.strerror}") from None
     written = args.output and args.output != "-"
+    if not args.quiet:
+        for w in results.warnings:
+            print(f"{args.file}: warning: {w}", file=sys.stderr)
     if not args.quiet and results.ok:
         if not args.output:
             print(summary(results))
@@ -114,17 +120,18 @@ def run_command(args) -> int:
 
 
 def check_command(args) -> int:
-    """``mechdsl check``: structure, equation count, degrees of freedom, assembly at t0."""
+    """``mechdsl check``: structure, equations, mobility and redundancy at the assembled
+    configuration, assembly at t0."""
     from . import equations as eq
-    from .assembly import assemble, check_mobility
-    from .diagnose import col_scale, singularity
+    from .assembly import assemble
+    from .diagnose import col_scale, one_variant, singularity
     from .linalg import factor
+    from .mobility import redundancy_warning, report
     from .options import SolverOptions
 
     mech = load(args.file, plugins=args.plugin)
     system = mech.compile(_overrides(mech, args), need_times=mech.model.simulate is not None)
     print(_structure(mech, system))
-    check_mobility(system)
     t0 = float(system.times[0]) if system.times is not None else 0.0
     asm = assemble(system, t0)
     if not asm.ok.all():
@@ -135,7 +142,19 @@ def check_command(args) -> int:
         x, y, phi = (0.0 if abs(c) < 1e-14 * s else c for c, s in
                      zip(asm.q[0, 3 * i : 3 * i + 3], (system.scale[0], system.scale[0], 1)))
         print(f"  {b:<{width}}  x = {x:< 12.6g} y = {y:< 12.6g} phi = {phi:.6g}")
-    rcond = factor(eq.jacobian(system, asm.q[:, None]), col_scale(system)).rcond[:, 0]
+    D = col_scale(system)
+    mobility, rank, redundant = report(one_variant(system, 0), asm.q[0], D[0, 0])
+    joints = system.m - len(system.drive_rows)
+    drives = len(system.drive_rows)
+    print(f"mobility {mobility}: {system.n} coordinates, joint equations of rank {rank} "
+          f"(of {joints}); {drives} drive{'s' if drives != 1 else ''}")
+    if redundant:
+        print(f"redundant: {redundant}")
+    warning = redundancy_warning(system, asm.mobility) if asm.mobility is not None else None
+    if warning:
+        print(f"{system.source.name}: warning: {warning}", file=sys.stderr)
+    rows = asm.mobility.rows
+    rcond = factor(eq.jacobian(system, asm.q[:, None])[..., rows, :], D).rcond[:, 0]
     bad = np.flatnonzero(~(rcond >= SolverOptions().singular_rcond))
     if bad.size:
         v = int(bad[0])

@@ -44,7 +44,7 @@ def singularity(system: System, q: np.ndarray, v: int) -> tuple[float, str]:
     """Condition number of the scaled Jacobian at ``q`` (n,) of variant ``v``, and the joints
     and drives whose equations take part in its near-dependency: the largest components of
     the left singular vector of the smallest singular value."""
-    one = _single(system, v)
+    one = one_variant(system, v)
     jac = eq.jacobian(one, q.reshape(1, 1, -1))[0, 0] * col_scale(one)[0]
     rn = np.linalg.norm(jac, axis=-1)
     jac = jac / np.where(rn > 0, rn, 1.0)[:, None]
@@ -58,7 +58,7 @@ def singularity(system: System, q: np.ndarray, v: int) -> tuple[float, str]:
     return cond, constraint_names(system, rows)
 
 
-def _single(system: System, v: int) -> System:
+def one_variant(system: System, v: int) -> System:
     """The system restricted to variant ``v``."""
     groups = tuple(replace(g, params={k: a.variant(v) if hasattr(a, "variant") else a[v : v + 1]
                                       for k, a in g.params.items()})

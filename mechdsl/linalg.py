@@ -13,7 +13,14 @@ import numpy as np
 
 
 def solve(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Batched a x = b; ``ok`` is False (and x NaN) where a is singular or x not finite."""
+    """Batched a x = b; ``ok`` is False (and x NaN) where a is singular or x not finite.
+
+    With more equations than unknowns (redundant constraints) x is the least-squares
+    solution, by QR: exact where the equations are consistent."""
+    if a.shape[-2] > a.shape[-1]:
+        with np.errstate(all="ignore"):
+            qm, r = np.linalg.qr(np.nan_to_num(a))
+            a, b = r, np.einsum("...ji,...j->...i", qm, b)
     with np.errstate(all="ignore"):
         try:
             x = np.linalg.solve(a, b[..., None])[..., 0]
@@ -63,12 +70,19 @@ class Factor:
 
 
 def factor(jac: np.ndarray, col_scale: np.ndarray) -> Factor:
-    """Factorise ``jac`` (..., m, n) with ``col_scale`` broadcastable to (..., n); square."""
+    """Factorise ``jac`` (..., m, n) with ``col_scale`` broadcastable to (..., n).
+
+    Square: the inverse, its 1-norm condition and the determinant's sign. With m > n
+    (redundant constraints): the pseudo-inverse by SVD, the 2-norm condition (smallest over
+    largest singular value), and sign 1 (no determinant)."""
     with np.errstate(all="ignore"):
         a = jac * col_scale[..., None, :]
         norms = np.linalg.norm(a, axis=-1)
         r = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
         a = a * r[..., :, None]
+    if a.shape[-2] > a.shape[-1]:
+        return _factor_redundant(np.nan_to_num(a), r, col_scale)
+    with np.errstate(all="ignore"):
         sign = np.linalg.slogdet(np.nan_to_num(a))[0]
         ainv = inverse(a)
         norm_a = np.abs(a).sum(axis=-2).max(axis=-1)
@@ -77,3 +91,12 @@ def factor(jac: np.ndarray, col_scale: np.ndarray) -> Factor:
     rcond = np.where(np.isfinite(rcond), rcond, 0.0)
     phi_q_inv = col_scale[..., :, None] * ainv * r[..., None, :]
     return Factor(phi_q_inv, rcond, np.where(rcond > 0, sign, 0.0))
+
+
+def _factor_redundant(a: np.ndarray, r: np.ndarray, col_scale: np.ndarray) -> Factor:
+    u, s, vt = np.linalg.svd(a, full_matrices=False)
+    rcond = s[..., -1] / np.where(s[..., 0] > 0, s[..., 0], 1.0)
+    inv_s = np.where(s > 0, 1.0 / np.where(s > 0, s, 1.0), 0.0)
+    ainv = np.einsum("...ki,...k,...jk->...ij", vt, inv_s, u)  # V S^-1 U^T
+    phi_q_pinv = col_scale[..., :, None] * ainv * r[..., None, :]
+    return Factor(phi_q_pinv, rcond, np.ones(rcond.shape))

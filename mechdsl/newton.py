@@ -11,10 +11,11 @@ from .options import SolverOptions
 
 
 def newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray, active: np.ndarray,
-           opts: SolverOptions, shift: np.ndarray | None = None
+           opts: SolverOptions, rows: np.ndarray, shift: np.ndarray | None = None
            ) -> tuple[np.ndarray, np.ndarray, int]:
-    """Solve Phi(q, t) + shift = 0 by Newton-Raphson, Phi_q dq = -(Phi + shift), from ``q``
-    (V, b, n) at times ``t`` (V, b), for the ``active`` variants (V,).
+    """Solve the equations ``rows`` of Phi(q, t) + shift = 0 by Newton-Raphson,
+    Phi_q dq = -(Phi + shift), from ``q`` (V, b, n) at times ``t`` (V, b), for the ``active``
+    variants (V,). ``rows`` are as many independent equations as coordinates.
 
     Converged where the scaled step max |dq / D| falls to ``opts.newton_tol``; abandoned
     where the step stops contracting (Newton from a good start contracts quadratically), so
@@ -31,7 +32,7 @@ def newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray, active: 
             phi = eq.constraint_values(system, q, t)
             if shift is not None:
                 phi = phi + shift
-        dq, solved = solve(eq.jacobian(system, q), -phi)
+        dq, solved = solve(eq.jacobian(system, q)[..., rows, :], -phi[..., rows])
         with np.errstate(invalid="ignore"):
             step = np.abs(dq / D).max(axis=-1)
         failed |= ~solved & ~done

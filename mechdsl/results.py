@@ -30,6 +30,11 @@ class Results:
     solve_time: float
     residual: float
     source_name: str
+    #: Things the user should know although the run succeeded (redundant constraints left
+    #: out, a singular position come close to or passed).
+    warnings: tuple[str, ...] = ()
+    #: Per variant, the largest condition number of the scaled Jacobian met during the run.
+    condition: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:

@@ -32,16 +32,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import equations as eq
-from .assembly import assemble, check_mobility
+from .assembly import assemble
 from .system import System
-from .diagnose import col_scale, failure, variant_label
+from .diagnose import col_scale, constraint_names, failure, variant_label
+from .mobility import redundancy_warning
 from .errors import MechError
 from .linalg import Factor, factor
 from .newton import correction_ratio, newton
+from .singular import singular_step
 from .options import SolverOptions
 from .results import Results
 
-__all__ = ["SolverOptions", "simulate", "assemble", "check_mobility"]
+__all__ = ["SolverOptions", "simulate", "assemble"]
 
 
 @dataclass
@@ -55,8 +57,18 @@ class _State:
     sign: np.ndarray
     active: np.ndarray
     n_solved: np.ndarray
+    rows: np.ndarray
+    watched: np.ndarray
+    watch_weights: np.ndarray
+    min_rcond: np.ndarray
+    min_rcond_t: np.ndarray
     failures: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    passages: list[float] = field(default_factory=list)
     residual: float = 0.0
+    #: The last state whose Jacobian was well conditioned (rcond >= warn_rcond): time,
+    #: velocity, acceleration; near a singular position, predictions start from it.
+    good: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
 
 def _predict(st: _State, T: np.ndarray) -> np.ndarray:
@@ -80,61 +92,97 @@ def simulate(system: System, options: SolverOptions | None = None) -> Results:
     ``"failed"`` with the reasons in ``Results.messages``.
     """
     opts = options or SolverOptions()
-    check_mobility(system)
     times = system.times
     if times is None:
         raise MechError("the system was compiled without a time grid")
     V, n, K = system.n_variants, system.n, len(times)
-    data = {o.label: np.full((V, K), np.nan) for o in system.outputs}
     start = time.perf_counter()
     asm = assemble(system, float(times[0]), opts)
+    data = {o.label: np.full((V, K), np.nan) for o in system.outputs}
+    mob = asm.mobility
+    rows = mob.rows if mob is not None else np.arange(system.m)
+    redundant = mob is not None and mob.dropped.size > 0
+    watched = rows if redundant else np.zeros(0, np.intp)
+    weights = mob.dropped_weights if redundant else np.zeros(0)
     st = _State(t=np.full(V, times[0]), q=asm.q.copy(), qd=np.zeros((V, n)),
                 qdd=np.zeros((V, n)), sign=np.ones(V), active=asm.ok.copy(),
-                n_solved=np.zeros(V, int), failures=list(asm.messages))
+                n_solved=np.zeros(V, int), rows=rows, watched=watched,
+                watch_weights=weights, min_rcond=np.ones(V),
+                min_rcond_t=np.full(V, times[0]), failures=list(asm.messages))
+    if asm.mobility is not None:
+        note = redundancy_warning(system, asm.mobility)
+        if note:
+            st.warnings.append(note)
     status = "ok"
     try:
         if st.active.any():
             q0, t0 = asm.q[:, None], np.full((V, 1), times[0])
-            fac = factor(eq.jacobian(system, q0), col_scale(system))
+            fac = factor(eq.jacobian(system, q0)[..., rows, :], col_scale(system))
             singular = st.active & ~(fac.rcond[:, 0] >= opts.singular_rcond)
             for v in np.flatnonzero(singular):
                 st.failures.append(failure(system, st.q[v], float(times[0]), int(v),
                                            float(times[0]), 0, "singular"))
             st.active &= ~singular
             st.sign = fac.sign[:, 0]
-            _accept(system, st, q0, t0, np.array([0]), fac, st.active.copy(), data)
+            _accept(system, st, q0, t0, np.array([0]), fac, st.active.copy(), data, opts)
             _march(system, st, opts, data)
     except KeyboardInterrupt:
         status = "interrupted"
     elapsed = time.perf_counter() - start
     if status == "ok" and st.failures:
         status = "failed"
+    if st.passages:
+        st.warnings.append(_passages(st.passages, times))
+    for v in np.flatnonzero(st.min_rcond < opts.warn_rcond):
+        st.warnings.append(
+            f"near a singular position{variant_label(system, int(v))}: the Jacobian's "
+            f"condition number reaches {1 / st.min_rcond[v]:.3g} at t = {st.min_rcond_t[v]:.10g}"
+            "; results there are sensitive to the data")
     return Results(
         times=times, data=data, sweep=dict(system.sweep), n_solved=st.n_solved,
         status=status, messages=tuple(st.failures), solve_time=elapsed,
         residual=st.residual, source_name=system.source.name,
+        warnings=tuple(st.warnings), condition=1.0 / st.min_rcond,
     )
 
 
 def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.ndarray,
-            fac: Factor, mask: np.ndarray, data: dict) -> None:
+            fac: Factor, mask: np.ndarray, data: dict, opts: SolverOptions,
+            rates: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """Take the solved positions ``q`` (V, c, n) at ``t`` (V, c), with their factorised
     Jacobians, as the new state of the variants in ``mask``; solve velocities and
     accelerations (at every column when an output needs them, else at the last column only,
-    for the predictor); record the columns whose ``rec`` index is not negative."""
+    for the predictor), unless ``rates`` gives them; record the columns whose ``rec`` index is
+    not negative. Redundant equations left out of the solve must still hold."""
     order = system.order
+    rows = st.rows
     c = q.shape[1]
-    cols = slice(None) if order >= 1 else slice(c - 1, c)
-    qs, ts = q[:, cols], t[:, cols]
-    inv = Factor(fac.inverse[:, cols], fac.rcond[:, cols], fac.sign[:, cols])
+    if rates is not None:
+        qd, qdd = rates
+    else:
+        cols = slice(None) if order >= 1 else slice(c - 1, c)
+        qs, ts = q[:, cols], t[:, cols]
+        inv = Factor(fac.inverse[:, cols], fac.rcond[:, cols], fac.sign[:, cols])
+        with np.errstate(all="ignore"):
+            qd = inv.solve(eq.velocity_rhs(system, ts, qs.shape[:-1])[..., rows])
+            qdd = inv.solve(eq.acceleration_rhs(system, qs, qd, ts)[..., rows])
     with np.errstate(all="ignore"):
-        qd = inv.solve(eq.velocity_rhs(system, ts, qs.shape[:-1]))
-        qdd = inv.solve(eq.acceleration_rhs(system, qs, qd, ts))
-        res = np.abs(eq.constraint_values(system, q, t)[mask]).max(initial=0.0)
-    st.residual = max(st.residual, float(res))
+        phi = eq.constraint_values(system, q, t)
+    st.residual = max(st.residual, float(np.abs(phi[mask]).max(initial=0.0)))
+    _watch_redundant(system, st, phi, t, mask, opts)
+    worst = np.argmin(fac.rcond, axis=1)
+    lowest = fac.rcond[np.arange(len(worst)), worst]
+    lower = mask & (lowest < st.min_rcond)
+    st.min_rcond[lower] = lowest[lower]
+    st.min_rcond_t[lower] = t[lower, worst[lower]]
     st.q[mask], st.t[mask] = q[mask, -1], t[mask, -1]
     st.qd[mask], st.qdd[mask] = qd[mask, -1], qdd[mask, -1]
     st.sign[mask] = fac.sign[mask, -1]
+    regular = mask & (fac.rcond[:, -1] >= opts.warn_rcond) & (qd.shape[1] == c)
+    if st.good is None:
+        st.good = (st.t.copy(), st.qd.copy(), st.qdd.copy())
+    gt, gqd, gqdd = st.good
+    gt[regular], gqd[regular], gqdd[regular] = t[regular, -1], qd[regular, -1], qdd[regular, -1]
     keep = rec >= 0
     if not keep.any():
         return
@@ -147,10 +195,32 @@ def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.nd
     st.n_solved[mask] = k[-1] + 1
 
 
+def _watch_redundant(system: System, st: _State, phi: np.ndarray, t: np.ndarray,
+                     mask: np.ndarray, opts: SolverOptions) -> None:
+    """Stop the variants of a redundant model whose equations no longer all hold: least
+    squares converges to a compromise where redundant constraints are inconsistent."""
+    if not st.watched.size:
+        return
+    resid = np.abs(phi[..., st.watched]) * st.watch_weights
+    bad = mask & ~(resid <= opts.assembly_residual).all(axis=(1, 2))
+    for v in np.flatnonzero(bad):
+        col = int(np.argmax((resid[v] > opts.assembly_residual).any(axis=-1)))
+        worst = st.watched[np.argsort(-resid[v, col])[:3]]
+        st.failures.append(
+            f"the redundant constraints no longer hold together at t = {t[v, col]:.10g}"
+            f"{variant_label(system, int(v))}: equations of {constraint_names(system, worst)} "
+            f"are violated (scaled residual {resid[v, col].max():.3g}); the constraints are "
+            "inconsistent, over-constraining the mechanism as it moves")
+        st.active[v] = False
+        mask[v] = False
+
+
 def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
     times = system.times
     V, n, K = system.n_variants, system.n, len(times)
     D = col_scale(system)
+    rows = st.rows
+    stop_at_singular = opts.at_singular == "stop"
     cap = max(1, opts.max_batch_elements // max(1, V * system.m * n))
     b = max(1, min(opts.initial_block, cap))
     k = 1  # the next instant to record
@@ -167,19 +237,19 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
         T = np.where(act, targets[None, :], st.t[:, None])
         undefined = _undefined_drives(system, T) & act
         pred = _predict(st, T)
-        qn, ok, iters = newton(system, pred, T, D, st.active, opts)
-        fac = factor(eq.jacobian(system, qn), D)
+        qn, ok, iters = newton(system, pred, T, D, st.active, opts, rows)
+        fac = factor(eq.jacobian(system, qn)[..., rows, :], D)
         ratio = correction_ratio(qn, pred, st.q[:, None], D, floor)
         singular = ok & ~(fac.rcond >= opts.singular_rcond)
         before = np.concatenate((st.sign[:, None], fac.sign[:, :-1]), axis=1)
-        crossing = ok & ~singular & (fac.sign != before)
+        crossing = ok & ~singular & (fac.sign != before) & stop_at_singular
         jump = ok & ~singular & ~crossing & ~(ratio <= opts.branch_ratio)
         good = (ok & ~singular & ~crossing & ~jump & ~undefined) | ~act
         col_ok = good.all(axis=0)
         nacc = bb if col_ok.all() else int(np.argmin(col_ok))
         if nacc:
             _accept(system, st, qn[:, :nacc], T[:, :nacc], rec[:nacc], _cols(fac, nacc),
-                    st.active.copy(), data)
+                    st.active.copy(), data, opts)
             if sub:
                 sub.pop(0)
             else:
@@ -203,8 +273,12 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
             continue
         # at the finest interval a large correction with a continuous position is a kink in
         # a drive's velocity, not a branch jump
-        jump &= ~_continuous(system, st, qn[:, 0], T[:, 0], fac, D, gap, floor)
+        jump &= ~_continuous(system, st, qn[:, 0], T[:, 0], fac, D, gap, floor, rows)
         good = (ok & ~singular & ~crossing & ~jump & ~undefined) | ~act
+        rates = None
+        if not stop_at_singular and (st.active & ~good[:, 0]).any():
+            qn, rates, passed = _through(system, st, pred, T, D, rows, opts)
+            good |= passed[:, None] & ~undefined
         bad = st.active & ~good[:, 0]
         for v in np.flatnonzero(bad):
             if undefined[v, 0]:
@@ -215,11 +289,38 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
             st.failures.append(failure(system, st.q[v], float(st.t[v]), int(v), target, k, why))
         st.active &= ~bad
         if st.active.any():
-            _accept(system, st, qn, T, rec, fac, st.active.copy(), data)
+            fac = factor(eq.jacobian(system, qn)[..., rows, :], D)
+            _accept(system, st, qn, T, rec, fac, st.active.copy(), data, opts, rates)
             if sub:
                 sub.pop(0)
             else:
                 k += 1
+
+
+def _through(system: System, st: _State, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
+             rows: np.ndarray, opts: SolverOptions):
+    """One instant on a singular position, for the option at_singular = "continue"."""
+    gt, gqd, gqdd = st.good
+    tau = (T[:, 0] - gt)[:, None]
+    q, qd, qdd, ok = singular_step(system, pred, T, gqd + tau * gqdd, gqdd, D, rows, opts)
+    ratio = correction_ratio(q, pred, st.q[:, None], D, np.sqrt(opts.newton_tol))[:, 0]
+    passed = ok & (ratio <= opts.branch_ratio) & st.active
+    if passed.any():
+        st.passages.append(float(T[passed][0, 0]))
+    return q, (qd, qdd), passed
+
+
+def _passages(times_passed: list[float], grid: np.ndarray) -> str:
+    """One warning for the singular positions passed, one time per output step."""
+    h = float(np.min(np.diff(grid))) if len(grid) > 1 else 1.0
+    marks: list[float] = []
+    for t in sorted(times_passed):
+        if not marks or t - marks[-1] > h:
+            marks.append(t)
+    shown = ", ".join(f"{t:.6g}" for t in marks)
+    return (f"the mechanism passes singular positions near t = {shown} and continues on the "
+            "branch it was moving on; velocities and accelerations exactly there are completed "
+            "from their predicted values (accurate to about one step)")
 
 
 def _undefined_drives(system: System, T: np.ndarray) -> np.ndarray:
@@ -248,11 +349,11 @@ def _cols(fac: Factor, c: int) -> Factor:
 
 
 def _continuous(system: System, st: _State, q: np.ndarray, t: np.ndarray, fac: Factor,
-                D: np.ndarray, gap: float, floor: float) -> np.ndarray:
+                D: np.ndarray, gap: float, floor: float, rows: np.ndarray) -> np.ndarray:
     """(V, 1): whether the step from the state to ``q`` (V, n) over ``gap`` is no larger than
     the velocities at both ends allow (twice their mean times the gap)."""
     with np.errstate(all="ignore"):
-        qd = fac.solve(eq.velocity_rhs(system, t[:, None], (len(q), 1)))[:, 0]
+        qd = fac.solve(eq.velocity_rhs(system, t[:, None], (len(q), 1))[..., rows])[:, 0]
         speed = (np.abs(st.qd / D[:, 0]) + np.abs(qd / D[:, 0])).max(axis=-1)
         moved = np.abs((q - st.q) / D[:, 0]).max(axis=-1)
     return (moved <= speed * gap + floor * 1e-3)[:, None]

@@ -26,16 +26,16 @@ def test_gear_types_meet_the_contract(ctype, params):
 def test_fixed_centre_gears_turn_at_the_ratio():
     mech = mechdsl.loads("""
         param R1 = 0.3  param R2 = 0.75
-        ground { point C2 = (R1 + R2, 0) }
+        ground { point C2 = (R1 + R2, 0)  point P = (3, 0)  point Q = (3.75, 0) }
         body g1 { }
         body g2 { guess = (R1 + R2, 0, 0) }
-        body ring { }
-        body pin { guess = (0.1, 0, 0) }
+        body ring { guess = (3, 0, 0) }
+        body pin { guess = (3.75, 0, 0) }
         joint a1: revolute(ground.origin, g1.origin)
         joint a2: revolute(ground.C2, g2.origin)
         joint mesh: gear(g1, g2, ratio = R1/R2)
-        joint a3: revolute(ground.origin, ring.origin)
-        joint a4: revolute(ground.origin, pin.origin)
+        joint a3: revolute(ground.P, ring.origin)
+        joint a4: revolute(ground.Q, pin.origin)
         joint inner: internal_gear(pin, ring, ratio = 0.25)
         drive d: angle(g1) = sin(t)
         drive e: angle(pin) = t^2
