@@ -61,8 +61,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--through-singular", action="store_true",
                      help="at a singular position (dead point, change point) continue on the "
                           "branch the motion was on, instead of stopping")
-    run.add_argument("--max-instants", type=int, metavar="N",
-                     help="refuse grids with more instants than this (default 50,000,000)")
+    run.add_argument("--max-memory", metavar="SIZE",
+                     help="refuse runs whose results would take more memory than this "
+                          "(e.g. 16G; default 4G)")
     run.add_argument("-q", "--quiet", action="store_true", help="print only errors")
 
     check = sub.add_parser("check", help="parse, compile and assemble; print the structure")
@@ -99,6 +100,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("mechdsl: interrupted", file=sys.stderr)
         return ExitCode.INTERRUPTED
+    except MemoryError:
+        print(f"{getattr(args, 'file', 'mechdsl')}: error: not enough memory for this run; take "
+              "a longer step, fewer outputs or fewer sweep variants (--max-memory is the limit "
+              "checked beforehand)", file=sys.stderr)
+        return ExitCode.USER_ERROR
     except BrokenPipeError:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())

@@ -26,10 +26,18 @@ def _overrides(mech: Mechanism, args) -> Overrides:
             if not eq_sign or not name.isidentifier():
                 raise MechError(f"{opt} takes NAME=VALUE, not '{item}'")
             target[name] = parse_value(value, f"{opt} {name}", names)
-    for attr in ("t0", "t1", "step", "max_instants"):
+    for attr in ("t0", "t1", "step"):
         value = getattr(args, attr, None)
         if value is not None:
             setattr(ov, attr, value)
+    if getattr(args, "max_memory", None):
+        from .variants import parse_size
+
+        try:
+            ov.max_memory = parse_size(args.max_memory)
+        except (ValueError, IndexError):
+            raise MechError(f"--max-memory takes a size such as 16G or 500M, not "
+                            f"'{args.max_memory}'") from None
     return ov
 
 

@@ -55,7 +55,8 @@ class _Compiler:
         self._bodies()
         constraints, groups, drive_rows, drive_fns = self._constraints()
         outputs = self._outputs()
-        times = time_grid(self.model, self.ov, self.var) if need_times else None
+        times = (time_grid(self.model, self.ov, self.var, len(outputs)) if need_times
+                 else None)
         order = max((o.order for o in outputs), default=0)
         env = {k: _readonly(v[:, None]) for k, v in self.var.env.items()}
         return System(

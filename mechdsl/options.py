@@ -46,8 +46,11 @@ class SolverOptions:
     initial_block: int = 8
     #: Cap on V * b * m * n, the size of a batched Jacobian (memory bound).
     max_batch_elements: int = 2**22
-    #: Halvings of the interval before a failing instant before the failure is reported.
+    #: Halvings of the substep before a failing instant before the failure is reported.
     max_bisections: int = 12
+    #: Substeps allowed to cross one output interval; past them the step is too coarse for
+    #: the motion, an error.
+    max_substeps: int = 400
 
     def __post_init__(self) -> None:
         if not 0 < self.newton_tol <= 1e-4:

@@ -224,14 +224,21 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
     cap = max(1, opts.max_batch_elements // max(1, V * system.m * n))
     b = max(1, min(opts.initial_block, cap))
     k = 1  # the next instant to record
-    sub: list[float] = []  # pending intermediate times before times[k], ascending
+    # between output instants that cannot be reached in one step the interval is crossed in
+    # substeps of adaptive size hsub (halved on failure, doubled on success)
+    hsub: float | None = None
+    attempts = 0
     floor = np.sqrt(opts.newton_tol)
     while k < K and st.active.any():
-        if sub:
-            targets, rec = np.array(sub[:1]), np.array([-1])
-        else:
+        t_now = float(st.t[st.active][0])  # the active variants move in lockstep
+        h_out = times[k] - times[k - 1]
+        if hsub is None:
             bb = min(b, K - k, cap)
             targets, rec = times[k : k + bb], np.arange(k, k + bb)
+        elif t_now + hsub < times[k] - 1e-9 * h_out:
+            targets, rec = np.array([t_now + hsub]), np.array([-1])
+        else:
+            targets, rec = times[k : k + 1], np.array([k])
         bb = len(targets)
         act = st.active[:, None]
         T = np.where(act, targets[None, :], st.t[:, None])
@@ -247,28 +254,37 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
         good = (ok & ~singular & ~crossing & ~jump & ~undefined) | ~act
         col_ok = good.all(axis=0)
         nacc = bb if col_ok.all() else int(np.argmin(col_ok))
+        if hsub is not None:
+            attempts += 1
         if nacc:
             _accept(system, st, qn[:, :nacc], T[:, :nacc], rec[:nacc], _cols(fac, nacc),
                     st.active.copy(), data, opts)
-            if sub:
-                sub.pop(0)
-            else:
+            if hsub is None:
                 k += nacc
+            elif rec[0] >= 0:
+                hsub, attempts, k = None, 0, k + 1
+            else:
+                hsub = 2 * hsub
         if nacc == bb:
-            if iters <= 3 and not sub:
-                b = min(2 * b, opts.max_block, cap)
-            elif iters >= 6:
-                b = max(1, b // 2)
+            if hsub is None:  # the block grows while Newton converges fast
+                if iters <= 3:
+                    b = min(2 * b, opts.max_block, cap)
+                elif iters >= 6:
+                    b = max(1, b // 2)
             continue
         if bb > 1:
             b = max(1, min(nacc, bb // 2))
             continue
-        # a single step fails: bisect the interval, then decide
-        t_act = float(st.t[st.active][0])
+        # a single step fails: shorten it, then decide
         target = float(targets[0])
-        gap = target - t_act
-        if gap > (times[k] - times[k - 1]) / 2**opts.max_bisections and not undefined.any():
-            sub.insert(0, t_act + 0.5 * gap)
+        gap = target - t_now
+        if attempts > opts.max_substeps:
+            for v in np.flatnonzero(st.active):
+                st.failures.append(_too_coarse(system, int(v), t_now, k, opts.max_substeps))
+            st.active[:] = False
+            break
+        if gap > h_out / 2**opts.max_bisections and not undefined.any():
+            hsub = gap / 2
             b = 1
             continue
         # at the finest interval a large correction with a continuous position is a kink in
@@ -291,10 +307,18 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
         if st.active.any():
             fac = factor(eq.jacobian(system, qn)[..., rows, :], D)
             _accept(system, st, qn, T, rec, fac, st.active.copy(), data, opts, rates)
-            if sub:
-                sub.pop(0)
+            if rec[0] >= 0:
+                hsub, attempts, k = None, 0, k + 1
             else:
-                k += 1
+                hsub = gap
+
+
+def _too_coarse(system: System, v: int, t_now: float, k: int, budget: int) -> str:
+    return (f"the time step is too coarse for the motion: going on from t = {t_now:.10g} to "
+            f"the next instant t = {system.times[k]:.10g} (instant {k} of "
+            f"{len(system.times) - 1}){variant_label(system, v)} took more than {budget} "
+            "substeps (the mechanism moves far, or to and fro, between instants); take a "
+            "smaller step")
 
 
 def _through(system: System, st: _State, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
@@ -315,7 +339,9 @@ def _passages(times_passed: list[float], grid: np.ndarray) -> str:
     h = float(np.min(np.diff(grid))) if len(grid) > 1 else 1.0
     marks: list[float] = []
     for t in sorted(times_passed):
-        if not marks or t - marks[-1] > h:
+        # name the output instant the passage belongs to, not an internal substep
+        t = float(grid[min(np.searchsorted(grid, t), len(grid) - 1)])
+        if not marks or t - marks[-1] > h / 2:
             marks.append(t)
     shown = ", ".join(f"{t:.6g}" for t in marks)
     return (f"the mechanism passes singular positions near t = {shown} and continues on the "

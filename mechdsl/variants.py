@@ -18,8 +18,8 @@ from . import expr as E
 from .errors import MechError, Span, suggest
 from .model import Model, Sweep, Vector
 
-#: Largest number of instants a run may have unless the caller raises it.
-MAX_INSTANTS = 50_000_000
+#: Largest memory (bytes) a run's results may take unless the caller raises it.
+MAX_MEMORY = 4 * 2**30
 #: Largest number of sweep variants unless the caller raises it.
 MAX_VARIANTS = 1_000_000
 #: Relative slack when deciding whether (t1 - t0) / step is a whole number of steps.
@@ -39,7 +39,7 @@ class Overrides:
     t0: E.Expr | float | None = None
     t1: E.Expr | float | None = None
     step: E.Expr | float | None = None
-    max_instants: int = MAX_INSTANTS
+    max_memory: int = MAX_MEMORY
     max_variants: int = MAX_VARIANTS
 
 
@@ -195,8 +195,10 @@ def _first_bad(value) -> str:
     return repr(float(bad[0])) if bad.size else "not finite"
 
 
-def time_grid(model: Model, ov: Overrides, variants: Variants) -> np.ndarray:
-    """The instants of the run: the file's ``simulate`` line, after overrides."""
+def time_grid(model: Model, ov: Overrides, variants: Variants, outputs: int) -> np.ndarray:
+    """The instants of the run: the file's ``simulate`` line, after overrides. A grid whose
+    results (``outputs`` quantities of every variant at every instant, 8 bytes each) would
+    take more than ``ov.max_memory`` is refused before anything is allocated."""
     sim = model.simulate
     if sim is None and (ov.t1 is None or ov.step is None):
         raise MechError("nothing to simulate: add a line such as "
@@ -215,26 +217,53 @@ def time_grid(model: Model, ov: Overrides, variants: Variants) -> np.ndarray:
         if np.ptp(v) != 0:
             raise MechError(f"the {what} differs between sweep variants; the time grid "
                             "cannot depend on a swept param", span)
-    return grid(float(t0[0]), float(t1[0]), float(h[0]), span, "simulate", "instants",
-                ov.max_instants)
+    per_instant = 8 * (1 + variants.count * max(outputs, 1))
+    return grid(float(t0[0]), float(t1[0]), float(h[0]), span, "simulated time", "instants",
+                max(2, ov.max_memory // per_instant), bytes_per_item=per_instant)
 
 
 def grid(a: float, b: float, h: float, span: Span | None, what: str, items: str,
-         limit: int) -> np.ndarray:
-    """a + k h for k = 0, 1, ... up to b, and b itself: both ends included."""
+         limit: int, bytes_per_item: int = 0) -> np.ndarray:
+    """a + k h for k = 0, 1, ... up to b, and b itself: both ends included; at most
+    ``limit`` items (checked before the grid is made)."""
     if not h > 0:
         raise MechError(f"the {what} step must be positive, not {h:g}", span)
     if b < a:
         raise MechError(f"the {what} range ends ({b:g}) before it starts ({a:g})", span)
     steps = (b - a) / h
+    if not steps < 2**62:
+        steps = float(2**62)
     n = math.floor(steps + GRID_SLACK)
     if n + 2 > limit:
-        option = "--max-instants" if items == "instants" else "the limit"
+        if bytes_per_item:
+            need = (n + 1) * bytes_per_item
+            raise MechError(
+                f"the {what} has {n + 1:,} {items}, whose results would take "
+                f"{_size(need)}, more than the limit of {_size(limit * bytes_per_item)}",
+                span, notes=["raise the limit with --max-memory (e.g. --max-memory 16G) if "
+                             "the machine has the memory, or take a longer step"])
         raise MechError(f"the {what} has {n + 1:,} {items}, more than the limit of {limit:,}",
-                        span, notes=[f"raise {option} if this is intended"])
+                        span)
     out = a + h * np.arange(n + 1, dtype=float)
     if b - out[-1] > GRID_SLACK * min(h, b - a):
         out = np.append(out, b)
     elif n > 0:
         out[-1] = b  # a whole number of steps, up to round-off: end exactly at b
     return out
+
+
+def _size(n: float) -> str:
+    for unit, scale in (("TB", 2**40), ("GB", 2**30), ("MB", 2**20), ("kB", 2**10)):
+        if n >= scale:
+            return f"{n / scale:.1f} {unit}"
+    return f"{n:.0f} bytes"
+
+
+def parse_size(text: str) -> int:
+    """'4G', '500M', '2048k' or a plain number of bytes -> bytes."""
+    text = text.strip().upper().rstrip("B")
+    scale = {"K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}.get(text[-1:], 1)
+    number = float(text[:-1] if scale > 1 else text)
+    if not number > 0:
+        raise ValueError("the size must be positive")
+    return int(number * scale)

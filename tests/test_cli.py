@@ -87,7 +87,7 @@ def test_user_errors_exit_1_with_location_caret_and_no_traceback(tmp_path):
     (["run", SLIDER_CRANK, "--set", "L=2"], "cannot set 'L': there is no param of that name; did you mean 'l'?"),
     (["run", SLIDER_CRANK, "--set", "l=2*"], "--set l:1:3: error: unexpected end of file"),
     (["run", SLIDER_CRANK, "--set", "l"], "--set takes NAME=VALUE"),
-    (["run", SLIDER_CRANK, "--step", "0"], "the simulate step must be positive"),
+    (["run", SLIDER_CRANK, "--step", "0"], "the simulated time step must be positive"),
     (["run", SLIDER_CRANK, "--bogus"], "unrecognized arguments: --bogus"),
     (["frobnicate"], "invalid choice: 'frobnicate'"),
 ])
