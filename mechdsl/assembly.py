@@ -11,7 +11,8 @@ from .system import System
 from .diagnose import col_scale, constraint_names, one_variant, variant_label
 from .linalg import factor
 from .mobility import Mobility, analyse, count_check, square
-from .newton import correction_ratio, newton
+from .newton import correction_ratio, newton, use_sparse
+from .sparse import SparseJac
 from .options import SolverOptions
 
 
@@ -92,7 +93,7 @@ def assemble(system: System, t0: float, options: SolverOptions | None = None) ->
     reported: set[int] = set()
     with np.errstate(all="ignore"):
         phi = eq.constraint_values(system, np.where(ok1[:, None, None], q, q1), t)[:, 0]
-        weights = _row_weights(system, q, D)[:, 0]
+        weights = _row_weights(system, q, D, opts)[:, 0]
     if mob is not None and mob.dropped.size:
         # least squares settles for a compromise where redundant equations are inconsistent:
         # every equation must hold
@@ -128,10 +129,47 @@ def assemble(system: System, t0: float, options: SolverOptions | None = None) ->
     return Assembly(q[:, 0], ok, tuple(messages), it1 + it2, mob)
 
 
-def _row_weights(system: System, q: np.ndarray, D: np.ndarray) -> np.ndarray:
+def _large(system: System, opts: SolverOptions) -> bool:
+    """Whether the assembly works on sparse Jacobians (see SolverOptions.sparse_from)."""
+    return system.pattern is not None and system.n >= opts.sparse_from
+
+
+def _lm_step_sparse(jac: SparseJac, rows: np.ndarray, D: np.ndarray, W: np.ndarray,
+                    r: np.ndarray) -> np.ndarray:
+    """The step of :func:`_lm_step` for a large sparse Jacobian, through the identity
+    (A^T A + lam I)^-1 A^T = A^T (A A^T + lam I)^-1 with A = W Phi_q D: one sparse LU of the
+    m x m matrix A A^T + lam I (lam floored at 1e-14 of its diagonal, for redundant rows)."""
+    from scipy.sparse import csr_matrix, identity
+    from scipy.sparse.linalg import splu
+
+    p = jac.pattern
+    where = np.full(p.shape[0], -1)
+    where[rows] = np.arange(len(rows))
+    sel = where[p.rows] >= 0
+    ri, ci = where[p.rows[sel]], p.cols[sel]
+    D = np.broadcast_to(D, r.shape[:-1] + (p.shape[1],))
+    out = np.zeros(r.shape[:-1] + (p.shape[1],))
+    for i in np.ndindex(*r.shape[:-1]):
+        vals = np.nan_to_num(jac.values[i][sel] * W[i][ri] * D[i][ci])
+        a = csr_matrix((vals, (ri, ci)), shape=(len(rows), p.shape[1]))
+        m = (a @ a.T).tocsc()
+        lam = float(r[i] @ r[i]) + 1e-14 * max(float(m.diagonal().max(initial=0.0)), 1.0)
+        try:
+            out[i] = -(a.T @ splu(m + lam * identity(len(rows), format="csc")).solve(r[i]))
+        except RuntimeError:
+            pass
+    return out
+
+
+def _row_weights(system: System, q: np.ndarray, D: np.ndarray,
+                 opts: SolverOptions) -> np.ndarray:
     """1 / norm of each row of Phi_q D (1 for an empty row): makes equations comparable."""
     with np.errstate(all="ignore"):
-        norms = np.linalg.norm(np.nan_to_num(eq.jacobian(system, q) * D[..., None, :]), axis=-1)
+        if _large(system, opts):
+            norms = np.nan_to_num(eq.jacobian_values(system, q).row_norms(D))
+        else:
+            norms = np.linalg.norm(np.nan_to_num(eq.jacobian(system, q) * D[..., None, :]),
+                                   axis=-1)
     return np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
 
 
@@ -147,7 +185,8 @@ def gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
     V = q.shape[0]
     if rows.size == 0:
         return q.copy(), np.ones(V, bool), 0
-    W = _row_weights(system, q, D)[..., rows]
+    large = _large(system, opts)
+    W = _row_weights(system, q, D, opts)[..., rows]
     with np.errstate(all="ignore"):
         phi = eq.constraint_values(system, q, t)[..., rows]
     merit = 0.5 * np.sum((W * phi) ** 2, axis=-1)
@@ -157,14 +196,24 @@ def gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
     it = 0
     for it in range(1, opts.assembly_max_iterations + 1):
         with np.errstate(all="ignore"):
-            A = eq.jacobian(system, q)[..., rows, :] * D[..., None, :] * W[..., None]
-        dz = _lm_step(A, np.nan_to_num(W * phi))
+            if large:
+                dz = _lm_step_sparse(eq.jacobian_values(system, q), rows, D, W,
+                                     np.nan_to_num(W * phi))
+            else:
+                A = eq.jacobian(system, q)[..., rows, :] * D[..., None, :] * W[..., None]
+                dz = _lm_step(A, np.nan_to_num(W * phi))
         # a trust region: long Gauss-Newton steps can leap to another assembly mode; short
         # ones follow the residual down from the guess to the closure nearest it
         size = np.abs(dz).max(axis=-1, keepdims=True)
         dz = dz * np.minimum(1.0, opts.assembly_max_step / np.maximum(size, 1e-300))
         alpha = np.ones((V, 1))
+        # already closed: the residual is nil and Gauss-Newton asks for no step (no line
+        # search, which would halve a zero step to no decrease)
+        done |= ((np.abs(W * phi).max(axis=-1) <= opts.assembly_residual)
+                 & (size[..., 0] <= opts.assembly_tol))
         todo = ~(done | stuck)
+        if not todo.any():
+            break
         accepted = np.zeros((V, 1), bool)
         for _ in range(30):
             q_try = q + (alpha * todo)[..., None] * D * dz
@@ -202,7 +251,8 @@ def _continue_drives(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray
         delta = np.zeros(q.shape[:-1] + (system.m,))
         delta[..., system.drive_rows] = -eq.constraint_values(system, q, t)[..., system.drive_rows]
     delta = np.where(ok[:, None, None], np.nan_to_num(delta), 0.0)
-    fac = factor(eq.jacobian(system, q)[..., rows, :], D)
+    sparse = use_sparse(system, opts, rows)
+    fac = factor(eq.solver_jacobian(system, q, rows, sparse), D)
     floor = np.sqrt(opts.newton_tol)
     s, ds, iterations = 0.0, 1.0, 0
     while s < 1.0 and ok.any():
@@ -212,7 +262,7 @@ def _continue_drives(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray
         pred = np.where(np.isfinite(pred), pred, q)
         qn, conv, it = newton(system, pred, t, D, ok, opts, rows, shift=(1.0 - s_new) * delta)
         iterations += it
-        fn = factor(eq.jacobian(system, qn)[..., rows, :], D)
+        fn = factor(eq.solver_jacobian(system, qn, rows, sparse), D)
         good = (conv & (fn.rcond >= opts.singular_rcond) & (fn.sign == fac.sign)
                 & (correction_ratio(qn, pred, q, D, floor) <= opts.branch_ratio))
         good |= ~ok[:, None]

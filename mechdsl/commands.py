@@ -135,13 +135,15 @@ def check_command(args) -> int:
     from .diagnose import col_scale, one_variant, singularity
     from .linalg import factor
     from .mobility import redundancy_warning, report
+    from .newton import use_sparse
     from .options import SolverOptions
 
     mech = load(args.file, plugins=args.plugin)
     system = mech.compile(_overrides(mech, args), need_times=mech.model.simulate is not None)
     print(_structure(mech, system))
     t0 = float(system.times[0]) if system.times is not None else 0.0
-    asm = assemble(system, t0)
+    opts = SolverOptions().for_size(system.n_bodies)
+    asm = assemble(system, t0, opts)
     if not asm.ok.all():
         raise NumericalError(asm.messages[0], source=system.source)
     print(f"assembled at t = {t0:g}:")
@@ -162,8 +164,9 @@ def check_command(args) -> int:
     if warning:
         print(f"{system.source.name}: warning: {warning}", file=sys.stderr)
     rows = asm.mobility.rows
-    rcond = factor(eq.jacobian(system, asm.q[:, None])[..., rows, :], D).rcond[:, 0]
-    bad = np.flatnonzero(~(rcond >= SolverOptions().singular_rcond))
+    jac = eq.solver_jacobian(system, asm.q[:, None], rows, use_sparse(system, opts, rows))
+    rcond = factor(jac, D).rcond[:, 0]
+    bad = np.flatnonzero(~(rcond >= opts.singular_rcond))
     if bad.size:
         v = int(bad[0])
         cond, names = singularity(system, asm.q[v], v)

@@ -19,6 +19,7 @@ from .model import (
 from .checks import TIME, check_expr
 from .plugins.contract import REQUIRED, ArgError, ConstraintType
 from .plugins.registry import Registry
+from .sparse import Pattern
 from .system import Constraint, DriveFunction, Group, OutputSpec, System
 from .variants import Overrides, evaluate, time_grid
 
@@ -44,6 +45,27 @@ def compile_model(model: Model, registry: Registry, overrides: Overrides | None 
         raise err.with_source(model.source) from None
 
 
+def _sparse_pattern(groups: list[Group], constraints: list[Constraint], n: int
+                    ) -> tuple[list[Group], Pattern]:
+    """The non-zero entries of Phi_q (the Jacobian blocks of the moving bodies), and for each
+    group and attached body where its block's entries go among them (``Group.nz``)."""
+    from dataclasses import replace
+
+    width = n + 3
+    m = constraints[-1].rows[1] if constraints else 0
+    flats = [f for g in groups for f in g.flat]
+    every = np.unique(np.concatenate(flats)) if flats else np.zeros(0, np.intp)
+    entries = every[every % width < n]
+    out = []
+    for g in groups:
+        nz = []
+        for f in g.flat:
+            keep = np.flatnonzero(f % width < n)
+            nz.append((_readonly(keep), _readonly(np.searchsorted(entries, f[keep]))))
+        out.append(replace(g, nz=tuple(nz)))
+    return out, Pattern.from_entries(entries // width, entries % width, (m, n))
+
+
 class _Compiler:
     def __init__(self, model: Model, registry: Registry, ov: Overrides) -> None:
         self.model, self.registry, self.ov = model, registry, ov
@@ -54,6 +76,7 @@ class _Compiler:
         self.V = self.var.count
         self._bodies()
         constraints, groups, drive_rows, drive_fns = self._constraints()
+        groups, pattern = _sparse_pattern(groups, constraints, 3 * len(self.bodies))
         outputs = self._outputs()
         times = (time_grid(self.model, self.ov, self.var, len(outputs)) if need_times
                  else None)
@@ -76,6 +99,7 @@ class _Compiler:
             times=None if times is None else _readonly(times),
             outputs=tuple(outputs),
             order=order,
+            pattern=pattern,
         )
 
     # -- params and sweeps ---------------------------------------------------------------------
@@ -289,7 +313,9 @@ class _Compiler:
         # Jacobian columns in the extended matrix whose last 3 columns belong to the ground
         cols = tuple(_readonly((3 * slots[:, k])[:, None, None] + np.arange(3)[None, None, :])
                      for k in range(slots.shape[1]))
-        return Group(ctype, idx, _readonly(slots), params, _readonly(rows), cols)
+        width = 3 * len(self.bodies) + 3
+        flat = tuple(_readonly((rows[:, :, None] * width + c).ravel()) for c in cols)
+        return Group(ctype, idx, _readonly(slots), params, _readonly(rows), cols, flat)
 
     def _function(self, ctype: ConstraintType, name: str, exprs: list) -> ExprFunction:
         """The function argument ``name`` of a group: member j's expression on x[..., j];

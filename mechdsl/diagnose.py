@@ -12,6 +12,9 @@ from .system import System
 
 #: A condition number above which a state next to a failure is called near-singular.
 NEAR_SINGULAR = 1e6
+#: Above this many coordinates a singular Jacobian is analysed with the sparse LU instead of
+#: a dense SVD (which would need n^2 memory and n^3 time).
+DENSE_ANALYSIS_MAX = 600
 
 
 def variant_label(system: System, v: int) -> str:
@@ -45,6 +48,8 @@ def singularity(system: System, q: np.ndarray, v: int) -> tuple[float, str]:
     and drives whose equations take part in its near-dependency: the largest components of
     the left singular vector of the smallest singular value."""
     one = one_variant(system, v)
+    if system.m == system.n and system.n > DENSE_ANALYSIS_MAX:
+        return _sparse_singularity(one, q)
     jac = eq.jacobian(one, q.reshape(1, 1, -1))[0, 0] * col_scale(one)[0]
     rn = np.linalg.norm(jac, axis=-1)
     jac = jac / np.where(rn > 0, rn, 1.0)[:, None]
@@ -56,6 +61,35 @@ def singularity(system: System, q: np.ndarray, v: int) -> tuple[float, str]:
     weights = np.abs(u[:, -1])
     rows = [i for i in np.argsort(-weights) if weights[i] > 0.2 * weights.max()]
     return cond, constraint_names(system, rows)
+
+
+def _sparse_singularity(one: System, q: np.ndarray) -> tuple[float, str]:
+    """:func:`singularity` for a large mechanism, without a dense SVD: the condition estimate
+    of the sparse LU, and the left singular direction by two steps of inverse iteration,
+    u = (A A^T)^-1 r (the smallest singular value's direction dominates)."""
+    from .sparse import TransposedLU, inverse_norm1
+
+    vals = eq.jacobian_values(one, q.reshape(1, 1, -1)).values[0, 0]
+    p = one.pattern
+    D = col_scale(one)[0, 0]
+    a = vals * D[p.cols]
+    rn = np.sqrt(np.bincount(p.rows, a * a, minlength=p.shape[0]))
+    a = np.nan_to_num(a / np.where(rn > 0, rn, 1.0)[p.rows])
+    try:
+        lu = TransposedLU(a, p)
+        u = np.random.default_rng(0).standard_normal(p.shape[0])
+        for _ in range(2):
+            u = lu.solve_transposed(lu.solve(u))
+            u /= np.abs(u).max()
+        norm_a = float(np.bincount(p.cols, np.abs(a), minlength=p.shape[1]).max())
+        cond = norm_a * inverse_norm1(lu)
+    except RuntimeError:  # exactly singular: SuperLU gives no factors to iterate with
+        return float("inf"), "(the equations could not be separated: exactly singular)"
+    if not np.isfinite(u).all() or not np.isfinite(cond):
+        return float("inf"), "(the Jacobian could not be analysed)"
+    weights = np.abs(u)
+    rows = [i for i in np.argsort(-weights)[:50] if weights[i] > 0.2]
+    return cond, constraint_names(one, rows)
 
 
 def one_variant(system: System, v: int) -> System:

@@ -17,6 +17,7 @@ import numpy as np
 
 from .system import Group, System
 from .errors import MechError
+from .sparse import SparseJac
 
 
 class PluginError(MechError):
@@ -92,6 +93,8 @@ def drive_values(system: System, t: np.ndarray, which: str, shape) -> np.ndarray
     env["t"] = t
     with np.errstate(all="ignore"):
         cols = [np.broadcast_to(getattr(d, which)(env), shape) for d in system.drive_functions]
+    if len(cols) == 1:  # the common case, without the copy of a stack
+        return cols[0][..., None]
     return np.stack(cols, axis=-1)
 
 
@@ -109,13 +112,41 @@ def constraint_values(system: System, q: np.ndarray, t: np.ndarray) -> np.ndarra
 def jacobian(system: System, q: np.ndarray) -> np.ndarray:
     """Phi_q, shape ``(V, b, m, n)`` (a view; copy before writing)."""
     poses = _poses(system, q)
-    jac = np.zeros(q.shape[:-1] + (system.m, system.n + 3))
+    batch = q.shape[:-1]
+    width = system.n + 3
+    flat = np.zeros(batch + (system.m * width,))
     for g in system.groups:
         blocks = _call(system, g, "jacobian", _slots(g, poses), g.params)
-        rows = g.rows[:, :, None]
+        shape = batch + g.rows.shape + (3,)
         for k, blk in enumerate(blocks):
-            jac[..., rows, g.cols[k]] += blk
-    return jac[..., : system.n]
+            # scattered through precomputed flat indices: far cheaper than 2-D fancy indexing
+            if np.shape(blk) != shape:
+                blk = np.broadcast_to(blk, shape)
+            flat[..., g.flat[k]] += blk.reshape(batch + (-1,))
+    return flat.reshape(batch + (system.m, width))[..., : system.n]
+
+
+def jacobian_values(system: System, q: np.ndarray) -> SparseJac:
+    """Phi_q as its non-zero entries in ``system.pattern``: values of shape ``(V, b, nnz)``."""
+    poses = _poses(system, q)
+    batch = q.shape[:-1]
+    vals = np.zeros(batch + (len(system.pattern.rows),))
+    for g in system.groups:
+        blocks = _call(system, g, "jacobian", _slots(g, poses), g.params)
+        shape = batch + g.rows.shape + (3,)
+        for (keep, where), blk in zip(g.nz, blocks):
+            if np.shape(blk) != shape:
+                blk = np.broadcast_to(blk, shape)
+            vals[..., where] += blk.reshape(batch + (-1,))[..., keep]
+    return SparseJac(vals, system.pattern)
+
+
+def solver_jacobian(system: System, q: np.ndarray, rows: np.ndarray, sparse: bool):
+    """Phi_q (rows ``rows``) as the solver factorises it: dense ``(V, b, len(rows), n)``, or
+    sparse (all rows) for a large mechanism."""
+    if sparse:
+        return jacobian_values(system, q)
+    return jacobian(system, q)[..., rows, :]
 
 
 def velocity_rhs(system: System, t: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:

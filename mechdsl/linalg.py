@@ -11,12 +11,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .sparse import SparseJac, TransposedLU, lu_one
 
-def solve(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+
+def solve(a: np.ndarray | SparseJac, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Batched a x = b; ``ok`` is False (and x NaN) where a is singular or x not finite.
 
     With more equations than unknowns (redundant constraints) x is the least-squares
-    solution, by QR: exact where the equations are consistent."""
+    solution, by QR: exact where the equations are consistent. A sparse ``a`` is solved
+    state by state with SuperLU."""
+    if isinstance(a, SparseJac):
+        return _solve_sparse(a, b)
     if a.shape[-2] > a.shape[-1]:
         with np.errstate(all="ignore"):
             qm, r = np.linalg.qr(np.nan_to_num(a))
@@ -26,6 +31,17 @@ def solve(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             x = np.linalg.solve(a, b[..., None])[..., 0]
         except np.linalg.LinAlgError:  # one singular matrix fails the whole batch
             x = _each(lambda i: np.linalg.solve(a[i], b[i]), b.shape, core=1)
+    return x, np.isfinite(x).all(axis=-1)
+
+
+def _solve_sparse(a: SparseJac, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    x = np.full(b.shape[:-1] + (a.pattern.shape[1],), np.nan)
+    for i in np.ndindex(*b.shape[:-1]):
+        try:
+            with np.errstate(all="ignore"):
+                x[i] = TransposedLU(a.values[i], a.pattern).solve(b[i])
+        except (RuntimeError, ValueError):  # singular, or not finite
+            pass
     return x, np.isfinite(x).all(axis=-1)
 
 
@@ -57,24 +73,42 @@ class Factor:
     With column scale D (L for lengths, 1 for angles) and row scale R (1 / norm of each row
     of Phi_q D), A = R Phi_q D is the scaled Jacobian; ``inverse`` is Phi_q^-1 = D A^-1 R,
     ``rcond`` the reciprocal 1-norm condition number of A and ``sign`` the sign of det Phi_q
-    (0 where singular).
+    (0 where singular). A sparse factorisation keeps, instead of the inverse, one SuperLU
+    object per state (``lus``, with R and D), and an estimated condition number.
     """
 
-    inverse: np.ndarray
+    inverse: np.ndarray | None
     rcond: np.ndarray
     sign: np.ndarray
+    lus: np.ndarray | None = None
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         """Phi_q^-1 rhs for right-hand sides ``(..., m)``."""
-        return np.einsum("...ij,...j->...i", self.inverse, rhs)
+        if self.lus is None:
+            return np.einsum("...ij,...j->...i", self.inverse, rhs)
+        out = np.full(rhs.shape, np.nan)
+        for i in np.ndindex(*self.lus.shape):
+            item = self.lus[i]
+            if item is not None:
+                lu, r, d = item
+                out[i] = d * lu.solve(r * rhs[i])
+        return out
+
+    def columns(self, cols) -> "Factor":
+        """The factorisations of the states ``[:, cols]``."""
+        return Factor(None if self.inverse is None else self.inverse[:, cols],
+                      self.rcond[:, cols], self.sign[:, cols],
+                      None if self.lus is None else self.lus[:, cols])
 
 
-def factor(jac: np.ndarray, col_scale: np.ndarray) -> Factor:
+def factor(jac: np.ndarray | SparseJac, col_scale: np.ndarray) -> Factor:
     """Factorise ``jac`` (..., m, n) with ``col_scale`` broadcastable to (..., n).
 
     Square: the inverse, its 1-norm condition and the determinant's sign. With m > n
     (redundant constraints): the pseudo-inverse by SVD, the 2-norm condition (smallest over
-    largest singular value), and sign 1 (no determinant)."""
+    largest singular value), and sign 1 (no determinant). Sparse: SuperLU per state."""
+    if isinstance(jac, SparseJac):
+        return _factor_sparse(jac, col_scale)
     with np.errstate(all="ignore"):
         a = jac * col_scale[..., None, :]
         norms = np.linalg.norm(a, axis=-1)
@@ -91,6 +125,20 @@ def factor(jac: np.ndarray, col_scale: np.ndarray) -> Factor:
     rcond = np.where(np.isfinite(rcond), rcond, 0.0)
     phi_q_inv = col_scale[..., :, None] * ainv * r[..., None, :]
     return Factor(phi_q_inv, rcond, np.where(rcond > 0, sign, 0.0))
+
+
+def _factor_sparse(jac: SparseJac, col_scale: np.ndarray) -> Factor:
+    batch = jac.values.shape[:-1]
+    with np.errstate(all="ignore"):
+        norms = jac.row_norms(col_scale)
+    r = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
+    d = np.broadcast_to(col_scale, batch + (jac.pattern.shape[1],))
+    lus = np.empty(batch, dtype=object)
+    rcond, sign = np.zeros(batch), np.zeros(batch)
+    for i in np.ndindex(*batch):
+        lu, rcond[i], sign[i] = lu_one(jac.values[i], jac.pattern, r[i], d[i])
+        lus[i] = None if lu is None else (lu, r[i], d[i])
+    return Factor(None, rcond, sign, lus)
 
 
 def _factor_redundant(a: np.ndarray, r: np.ndarray, col_scale: np.ndarray) -> Factor:

@@ -13,6 +13,10 @@ class SolverOptions:
     #: Newton-Raphson stops when its step is at most this (|dx|/L, |dy|/L, |dphi|). The
     #: position error after that step is of the order of its square.
     newton_tol: float = 1e-10
+    #: Newton-Raphson also stops when the error left after its step, estimated from the
+    #: quadratic contraction of its last two steps as |dq_k|^3 / |dq_(k-1)|^2 (scaled as
+    #: newton_tol), is at most this: the step that would only confirm convergence is saved.
+    newton_error: float = 1e-18
     #: Newton iterations allowed per attempt at an instant.
     max_iterations: int = 12
     #: Assembly stops when its step is at most this (scaled as newton_tol).
@@ -27,7 +31,8 @@ class SolverOptions:
     assembly_max_step: float = 0.2
     #: A solved state whose scaled Jacobian has a reciprocal condition number (1-norm) below
     #: this is a singular position: the run stops there rather than write velocities and
-    #: accelerations solved with a (nearly) singular matrix.
+    #: accelerations solved with a (nearly) singular matrix. For more than 10 bodies, this
+    #: and warn_rcond are divided by (bodies / 10)^2 (see :meth:`for_size`).
     singular_rcond: float = 1e-8
     #: A solved state whose reciprocal condition number falls below this is near a singular
     #: position: the run goes on, with a warning naming the instant.
@@ -41,20 +46,45 @@ class SolverOptions:
     #: the last solved state. Above it the interval is bisected; if the position is still
     #: discontinuous at the finest bisection, the solution has jumped branch.
     branch_ratio: float = 0.5
+    #: Order of the Taylor predictor that starts Newton at each instant from the last state:
+    #: 1 (q + tau qd) or 2 (+ tau^2/2 qdd). (Order 0 is not offered: the branch check
+    #: measures Newton's correction against the predicted motion.)
+    predictor_order: int = 2
     #: Instants solved together at most, and at the start.
     max_block: int = 256
     initial_block: int = 8
     #: Cap on V * b * m * n, the size of a batched Jacobian (memory bound).
     max_batch_elements: int = 2**22
+    #: From this many coordinates (3 per moving body) on, a mechanism without redundant
+    #: constraints is solved with sparse LU (SuperLU), one state at a time, instead of dense
+    #: batched linear algebra; benchmarks/scaling.py measures the cross-over.
+    sparse_from: int = 90
+    #: Sparse systems: simplified Newton reuses the last state's factorised Jacobian while
+    #: each step is at most this fraction of the one before; beyond, it refactorises.
+    reuse_ratio: float = 0.2
     #: Halvings of the substep before a failing instant before the failure is reported.
     max_bisections: int = 12
     #: Substeps allowed to cross one output interval; past them the step is too coarse for
     #: the motion, an error.
     max_substeps: int = 400
 
+    def for_size(self, n_bodies: int) -> "SolverOptions":
+        """The options for a mechanism of ``n_bodies``: the condition limits divided by
+        (n_bodies / 10)^2 above 10 bodies. The condition number of a healthy mechanism grows
+        with its size (as N^2 for a chain of N loops, like a discretised bar), so a fixed limit
+        would call a long regular chain singular; a dead point still drives it to infinity."""
+        factor = max(1.0, (n_bodies / 10.0) ** 2)
+        if factor == 1.0:
+            return self
+        from dataclasses import replace
+        return replace(self, singular_rcond=self.singular_rcond / factor,
+                       warn_rcond=self.warn_rcond / factor)
+
     def __post_init__(self) -> None:
         if not 0 < self.newton_tol <= 1e-4:
             raise ValueError(f"newton_tol must be in (0, 1e-4], not {self.newton_tol!r}")
+        if self.predictor_order not in (1, 2):
+            raise ValueError(f"predictor_order must be 1 or 2, not {self.predictor_order!r}")
         if self.at_singular not in ("stop", "continue"):
             raise ValueError(f"at_singular must be 'stop' or 'continue', not {self.at_singular!r}")
         if not 0 < self.singular_rcond < 1:

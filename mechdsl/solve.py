@@ -38,7 +38,7 @@ from .diagnose import col_scale, constraint_names, failure, variant_label
 from .mobility import redundancy_warning
 from .errors import MechError
 from .linalg import Factor, factor
-from .newton import correction_ratio, newton
+from .newton import correction_ratio, newton, use_sparse
 from .singular import singular_step
 from .options import SolverOptions
 from .results import Results
@@ -69,16 +69,18 @@ class _State:
     #: The last state whose Jacobian was well conditioned (rcond >= warn_rcond): time,
     #: velocity, acceleration; near a singular position, predictions start from it.
     good: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    #: Sparse systems: the factorised Jacobian of the last state, for simplified Newton.
+    fac: Factor | None = None
 
 
-def _predict(st: _State, T: np.ndarray) -> np.ndarray:
-    """q + tau qd + tau^2/2 qdd, falling back to lower orders where that is not finite (an
-    infinite acceleration at t0, as for f = t^1.5)."""
+def _predict(st: _State, T: np.ndarray, order: int = 2) -> np.ndarray:
+    """q + tau qd + tau^2/2 qdd (to ``order``), falling back to lower orders where that is
+    not finite (an infinite acceleration at t0, as for f = t^1.5)."""
     tau = (T - st.t[:, None])[..., None]
     q, qd, qdd = st.q[:, None], st.qd[:, None], st.qdd[:, None]
     with np.errstate(all="ignore"):
         first = q + tau * qd
-        second = first + 0.5 * tau**2 * qdd
+        second = first + 0.5 * tau**2 * qdd if order >= 2 else first
     first = np.where(np.isfinite(first), first, q)
     return np.where(np.isfinite(second), second, first)
 
@@ -91,7 +93,7 @@ def simulate(system: System, options: SolverOptions | None = None) -> Results:
     failing variant stops, the instants solved before are kept, and ``Results.status`` is
     ``"failed"`` with the reasons in ``Results.messages``.
     """
-    opts = options or SolverOptions()
+    opts = (options or SolverOptions()).for_size(system.n_bodies)
     times = system.times
     if times is None:
         raise MechError("the system was compiled without a time grid")
@@ -117,7 +119,8 @@ def simulate(system: System, options: SolverOptions | None = None) -> Results:
     try:
         if st.active.any():
             q0, t0 = asm.q[:, None], np.full((V, 1), times[0])
-            fac = factor(eq.jacobian(system, q0)[..., rows, :], col_scale(system))
+            fac = factor(eq.solver_jacobian(system, q0, rows, use_sparse(system, opts, rows)),
+                         col_scale(system))
             singular = st.active & ~(fac.rcond[:, 0] >= opts.singular_rcond)
             for v in np.flatnonzero(singular):
                 st.failures.append(failure(system, st.q[v], float(times[0]), int(v),
@@ -162,7 +165,7 @@ def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.nd
     else:
         cols = slice(None) if order >= 1 else slice(c - 1, c)
         qs, ts = q[:, cols], t[:, cols]
-        inv = Factor(fac.inverse[:, cols], fac.rcond[:, cols], fac.sign[:, cols])
+        inv = fac.columns(cols)
         with np.errstate(all="ignore"):
             qd = inv.solve(eq.velocity_rhs(system, ts, qs.shape[:-1])[..., rows])
             qdd = inv.solve(eq.acceleration_rhs(system, qs, qd, ts)[..., rows])
@@ -178,6 +181,8 @@ def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.nd
     st.q[mask], st.t[mask] = q[mask, -1], t[mask, -1]
     st.qd[mask], st.qdd[mask] = qd[mask, -1], qdd[mask, -1]
     st.sign[mask] = fac.sign[mask, -1]
+    if fac.lus is not None and mask.all() and (fac.rcond[:, -1] > 0).all():
+        st.fac = fac.columns(slice(c - 1, c))
     regular = mask & (fac.rcond[:, -1] >= opts.warn_rcond) & (qd.shape[1] == c)
     if st.good is None:
         st.good = (st.t.copy(), st.qd.copy(), st.qdd.copy())
@@ -221,6 +226,7 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
     D = col_scale(system)
     rows = st.rows
     stop_at_singular = opts.at_singular == "stop"
+    sparse = use_sparse(system, opts, rows)
     cap = max(1, opts.max_batch_elements // max(1, V * system.m * n))
     b = max(1, min(opts.initial_block, cap))
     k = 1  # the next instant to record
@@ -243,9 +249,10 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
         act = st.active[:, None]
         T = np.where(act, targets[None, :], st.t[:, None])
         undefined = _undefined_drives(system, T) & act
-        pred = _predict(st, T)
-        qn, ok, iters = newton(system, pred, T, D, st.active, opts, rows)
-        fac = factor(eq.jacobian(system, qn)[..., rows, :], D)
+        pred = _predict(st, T, opts.predictor_order)
+        qn, ok, iters = newton(system, pred, T, D, st.active, opts, rows,
+                               reuse=st.fac if sparse else None)
+        fac = factor(eq.solver_jacobian(system, qn, rows, sparse), D)
         ratio = correction_ratio(qn, pred, st.q[:, None], D, floor)
         singular = ok & ~(fac.rcond >= opts.singular_rcond)
         before = np.concatenate((st.sign[:, None], fac.sign[:, :-1]), axis=1)
@@ -257,8 +264,8 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
         if hsub is not None:
             attempts += 1
         if nacc:
-            _accept(system, st, qn[:, :nacc], T[:, :nacc], rec[:nacc], _cols(fac, nacc),
-                    st.active.copy(), data, opts)
+            _accept(system, st, qn[:, :nacc], T[:, :nacc], rec[:nacc],
+                    fac.columns(slice(0, nacc)), st.active.copy(), data, opts)
             if hsub is None:
                 k += nacc
             elif rec[0] >= 0:
@@ -305,7 +312,7 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
             st.failures.append(failure(system, st.q[v], float(st.t[v]), int(v), target, k, why))
         st.active &= ~bad
         if st.active.any():
-            fac = factor(eq.jacobian(system, qn)[..., rows, :], D)
+            fac = factor(eq.solver_jacobian(system, qn, rows, sparse), D)
             _accept(system, st, qn, T, rec, fac, st.active.copy(), data, opts, rates)
             if rec[0] >= 0:
                 hsub, attempts, k = None, 0, k + 1
@@ -368,10 +375,6 @@ def _undefined_message(system: System, v: int, target: float, k: int) -> str:
     return (f"the function of {names} is not defined at t = {target:.10g} (instant {k} of "
             f"{len(system.times) - 1}){variant_label(system, v)}: outside its table's range, "
             "or a domain error such as sqrt of a negative number")
-
-
-def _cols(fac: Factor, c: int) -> Factor:
-    return Factor(fac.inverse[:, :c], fac.rcond[:, :c], fac.sign[:, :c])
 
 
 def _continuous(system: System, st: _State, q: np.ndarray, t: np.ndarray, fac: Factor,

@@ -16,6 +16,7 @@ import numpy as np
 from . import expr as E
 from .errors import Source, Span
 from .plugins.contract import ConstraintType
+from .sparse import Pattern
 
 
 @dataclass(frozen=True)
@@ -40,6 +41,12 @@ class Group:
     params: Mapping[str, np.ndarray]
     rows: np.ndarray
     cols: tuple[np.ndarray, ...]
+    #: per attached body, the entries of its Jacobian block in the flattened extended
+    #: Jacobian (m rows of n + 3 columns, the ground's last): rows * (n + 3) + cols
+    flat: tuple[np.ndarray, ...] = ()
+    #: per attached body, (which entries of its flattened block are not the ground's, where
+    #: they go among the non-zeros of the system's sparse Jacobian pattern)
+    nz: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -83,6 +90,8 @@ class System:
     times: np.ndarray | None
     outputs: tuple[OutputSpec, ...]
     order: int = field(default=0)
+    #: the non-zero entries of Phi_q, for the sparse solver of large mechanisms
+    pattern: Pattern | None = None
 
     @property
     def n_bodies(self) -> int:

@@ -9,17 +9,22 @@ from __future__ import annotations
 
 import numpy as np
 
+_PERP_SIGNS = np.array([-1.0, 1.0])
+_PERP_SIGNS.flags.writeable = False
+
 
 def rotate(phi: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """A(phi) s for angles ``(...)`` and vectors ``(..., 2)``; returns ``(..., 2)``."""
-    c, sn = np.cos(phi), np.sin(phi)
-    sx, sy = s[..., 0], s[..., 1]
-    return np.stack(np.broadcast_arrays(c * sx - sn * sy, sn * sx + c * sy), axis=-1)
+    """A(phi) s = cos(phi) s + sin(phi) perp(s) for angles ``(...)`` and vectors ``(..., 2)``;
+    returns ``(..., 2)``."""
+    phi = np.asarray(phi)[..., None]
+    # written with whole-vector products (no stacking): the solver calls this on tiny
+    # batches where per-call overhead, not arithmetic, is the cost
+    return np.cos(phi) * s + np.sin(phi) * perp(s)
 
 
 def perp(v: np.ndarray) -> np.ndarray:
     """R v = (-v_y, v_x): ``v`` turned by +90 degrees."""
-    return np.stack((-v[..., 1], v[..., 0]), axis=-1)
+    return np.asarray(v)[..., ::-1] * _PERP_SIGNS
 
 
 def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -35,8 +40,11 @@ def position(q: np.ndarray, s: np.ndarray) -> np.ndarray:
 def block(d_r: np.ndarray, d_phi: np.ndarray) -> np.ndarray:
     """A Jacobian block ``(..., n_eq, 3)`` from dPhi/dr ``(..., n_eq, 2)`` and dPhi/dphi
     ``(..., n_eq)``."""
-    d_r, d_phi = np.broadcast_arrays(d_r, d_phi[..., None])
-    return np.concatenate((d_r, d_phi[..., :1]), axis=-1)
+    d_r, d_phi = np.asarray(d_r), np.asarray(d_phi)
+    out = np.empty(np.broadcast(d_r[..., 0], d_phi).shape + (3,))
+    out[..., :2] = d_r
+    out[..., 2] = d_phi
+    return out
 
 
 def batch_shape(*arrays: np.ndarray, core: tuple[int, ...] = ()) -> tuple[int, ...]:

@@ -29,26 +29,37 @@ def _check_axis(p) -> None:
         raise ArgError("axis", "the axis must not be the zero vector")
 
 
-def _on_line(q, qd, p):
-    """Phi, its two Jacobian blocks and gamma of 'P2 on the line through P1 along axis'."""
+def _frame(q, p):
+    """A_1 s'_1, A_2 s'_2, the line's normal n = A_1 u and d = r^P2 - r^P1."""
     q1, q2 = q
+    axis = p["axis"]
     as1 = rotate(q1[..., 2], p["p1"])
     as2 = rotate(q2[..., 2], p["p2"])
-    axis = p["axis"]
-    n = rotate(q1[..., 2], perp(axis / np.linalg.norm(axis, axis=-1, keepdims=True)))
+    n = rotate(q1[..., 2], perp(axis) / np.sqrt(dot(axis, axis))[..., None])
     d = q2[..., :2] + as2 - q1[..., :2] - as1
-    as1, as2, n, d = np.broadcast_arrays(as1, as2, n, d)
-    phi = dot(n, d)
-    jac = (block(-n[..., None, :], (dot(perp(n), d) - dot(n, perp(as1)))[..., None]),
-           block(n[..., None, :], dot(n, perp(as2))[..., None]))
-    if qd is None:
-        return phi, jac, None
+    return as1, as2, n, d
+
+
+def _phi(q, p):
+    _, _, n, d = _frame(q, p)
+    return dot(n, d)
+
+
+def _jacobian(q, p):
+    as1, as2, n, d = _frame(q, p)
+    # dn/dphi_1 = perp(n), d(A_1 s'_1)/dphi_1 = perp(A_1 s'_1)
+    return (block(-n[..., None, :], (dot(perp(n), d) - dot(n, perp(as1)))[..., None]),
+            block(n[..., None, :], dot(n, perp(as2))[..., None]))
+
+
+def _gamma(q, qd, p):
+    as1, as2, n, d = _frame(q, p)
     qd1, qd2 = qd
-    w1, w2 = qd1[..., 2], qd2[..., 2]
-    dd = qd2[..., :2] + perp(as2) * w2[..., None] - qd1[..., :2] - perp(as1) * w1[..., None]
-    gamma = (phi * w1**2 - 2 * w1 * dot(perp(n), dd)
-             + dot(n, as2 * (w2**2)[..., None] - as1 * (w1**2)[..., None]))
-    return phi, jac, gamma
+    w1, w2 = qd1[..., 2:3], qd2[..., 2:3]
+    dd = qd2[..., :2] + perp(as2) * w2 - qd1[..., :2] - perp(as1) * w1
+    w1 = w1[..., 0]
+    return (dot(n, d) * w1**2 - 2 * w1 * dot(perp(n), dd)
+            + dot(n, as2 * w2**2 - as1 * (w1**2)[..., None]))
 
 
 class PinSlot(ConstraintType):
@@ -66,13 +77,13 @@ class PinSlot(ConstraintType):
         _check_axis(p)
 
     def phi(self, q, p):
-        return _on_line(q, None, p)[0][..., None]
+        return _phi(q, p)[..., None]
 
     def jacobian(self, q, p):
-        return _on_line(q, None, p)[1]
+        return _jacobian(q, p)
 
     def gamma(self, q, qd, p):
-        return _on_line(q, qd, p)[2][..., None]
+        return _gamma(q, qd, p)[..., None]
 
 
 class Prismatic(ConstraintType):
@@ -91,20 +102,25 @@ class Prismatic(ConstraintType):
         _check_axis(p)
 
     def phi(self, q, p):
-        on_line = _on_line(q, None, p)[0]
+        on_line = _phi(q, p)
         rel = q[1][..., 2] - q[0][..., 2] - p["angle"]
-        return np.stack(np.broadcast_arrays(on_line, rel), axis=-1)
+        out = np.empty(np.broadcast_shapes(on_line.shape, rel.shape) + (2,))
+        out[..., 0], out[..., 1] = on_line, rel
+        return out
 
     def jacobian(self, q, p):
-        b1, b2 = _on_line(q, None, p)[1]
-        turn1 = np.zeros(b1.shape[:-2] + (1, 3))
-        turn1[..., 0, 2] = -1.0
-        return (np.concatenate((b1, turn1), axis=-2),
-                np.concatenate((b2, -turn1), axis=-2))
+        b1, b2 = _jacobian(q, p)
+        j1 = np.zeros(np.broadcast_shapes(b1.shape[:-2], b2.shape[:-2]) + (2, 3))
+        j2 = np.zeros_like(j1)
+        j1[..., :1, :], j2[..., :1, :] = b1, b2
+        j1[..., 1, 2], j2[..., 1, 2] = -1.0, 1.0  # d(phi_2 - phi_1)
+        return j1, j2
 
     def gamma(self, q, qd, p):
-        g = _on_line(q, qd, p)[2]
-        return np.stack((g, np.zeros_like(g)), axis=-1)
+        g = _gamma(q, qd, p)
+        out = np.zeros(g.shape + (2,))
+        out[..., 0] = g
+        return out
 
 
 @hookimpl

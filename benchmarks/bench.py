@@ -1,0 +1,308 @@
+"""mechdsl's benchmark suite: run time against error, measured in one run on one machine.
+
+    python benchmarks/bench.py                      # everything (a few minutes)
+    python benchmarks/bench.py --quick              # smaller sizes, fewer repeats (~1 min)
+    python benchmarks/bench.py --only seed,scaling  # some sections
+
+Sections (each prints a table; the plots and a Markdown copy of the tables go to --out):
+
+* seed: the slider-crank of the seed (1001 instants), in-process solve time (model compiled)
+  and relative error of x, vx, ax against the closed form, beside Exudyn (if installed: the
+  ``bench`` extra) and a plain per-instant numpy Newton;
+* work-precision: maximal relative error against run time over Newton tolerance, output step
+  and predictor order, for the slider-crank, a four-bar and a chain of 101 bodies;
+* scaling: time per instant of a row of parallelograms from 11 to 10,001 bodies, dense and
+  sparse, beside Exudyn's sparse solver;
+* sweep: variants per second for a sweep of slider-cranks over the rod length;
+* startup: wall time of ``mechdsl run examples/slider_crank.mech -o out.csv`` as a process,
+  and of importing mechdsl (and exudyn).
+
+Times are medians of repeated runs; ratios are taken between figures of the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import mechdsl  # noqa: E402
+import models  # noqa: E402
+import peers  # noqa: E402
+from closed_forms import angle_error, four_bar  # noqa: E402
+from mechdsl.options import SolverOptions  # noqa: E402
+from mechdsl.solve import simulate  # noqa: E402
+from mechdsl.variants import Overrides  # noqa: E402
+
+
+def median_time(fn: Callable[[], object], repeat: int) -> tuple[float, object]:
+    """Median wall time of ``repeat`` calls (after one warm-up call) and the last result."""
+    out = fn()
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times), out
+
+
+def rel(value: np.ndarray, exact: np.ndarray) -> float:
+    return float(np.abs(value - exact).max() / np.abs(exact).max())
+
+
+class Report:
+    """Tables printed as they come and collected as Markdown for the README."""
+
+    def __init__(self, out: Path) -> None:
+        self.out = out
+        self.lines: list[str] = []
+
+    def table(self, title: str, head: list[str], rows: list[list[str]]) -> None:
+        print(f"\n{title}")
+        widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(head)]
+        print("  ".join(h.rjust(w) for h, w in zip(head, widths)))
+        for r in rows:
+            print("  ".join(c.rjust(w) for c, w in zip(r, widths)))
+        self.lines += [f"**{title}**", "", "| " + " | ".join(head) + " |",
+                       "|" + "|".join("---:" for _ in head) + "|"]
+        self.lines += ["| " + " | ".join(r) + " |" for r in rows]
+        self.lines.append("")
+
+    def save(self) -> None:
+        (self.out / "results.md").write_text("\n".join(self.lines) + "\n")
+
+
+# -- the mechanisms, compiled, with their closed forms ---------------------------------------
+
+def slider_crank_system(step: float = 1e-3, outputs: str | None = None):
+    text = (ROOT / "examples" / "slider_crank.mech").read_text()
+    if outputs:
+        text = text.replace("output slider.x, slider.vx, slider.ax", f"output {outputs}")
+    return mechdsl.loads(text, "slider_crank.mech").compile(Overrides(step=step))
+
+
+def slider_crank_errors(res) -> tuple[float, float, float]:
+    x, vx, ax = models.slider_crank_exact(res["t"])
+    return rel(res["slider.x"], x), rel(res["slider.vx"], vx), rel(res["slider.ax"], ax)
+
+
+def four_bar_errors(res) -> tuple[float, float, float]:
+    th2 = np.pi / 4 + 2 * np.pi * res["t"]
+    _, (th4, w4, al4) = four_bar(1.0, 3.5, 3.0, 4.0, th2, 2 * np.pi, 0.0)
+    return (float(angle_error(res["rocker.phi"], th4 + np.pi).max() / np.pi),
+            rel(res["rocker.omega"], w4), rel(res["rocker.alpha"], al4))
+
+
+def chain_errors(res, n_loops: int) -> tuple[float, float, float]:
+    ex = models.chain_exact(res["t"])
+    last = f"coupler{n_loops - 1}"
+    return (rel(res[f"{last}.x"] - (n_loops - 1) * models.D_PITCH, ex["x"]),
+            rel(res[f"{last}.vx"], ex["vx"]), rel(res[f"{last}.ax"], ex["ax"]))
+
+
+# -- sections ---------------------------------------------------------------------------------
+
+def seed(rep: Report, quick: bool) -> None:
+    repeat = 5 if quick else 15
+    rows = []
+    full = slider_crank_system()
+    t_full, res = median_time(lambda: simulate(full), repeat)
+    ex, evx, eax = slider_crank_errors(res)
+    pos = slider_crank_system(outputs="slider.x")
+    t_pos, res_pos = median_time(lambda: simulate(pos), repeat)
+    x_exact = models.slider_crank_exact(res_pos["t"])[0]
+    entries = [("mechdsl, x vx ax", t_full, ex, evx, eax),
+               ("mechdsl, x only", t_pos, rel(res_pos["slider.x"], x_exact), None, None)]
+    try:
+        exu = peers.exudyn_slider_crank(repeat=repeat)
+        entries.append(("Exudyn 1.13 (gen.-alpha)", exu["time"], exu["err_x"], exu["err_vx"],
+                        exu["err_ax"]))
+    except ImportError:
+        print("(exudyn not installed: pip install -e .[bench])")
+    base = peers.numpy_baseline_slider_crank(repeat=max(1, repeat // 5))
+    entries.append(("numpy Newton per instant", base["time"], base["err_x"], base["err_vx"],
+                    base["err_ax"]))
+    for name, t, a, b, c in entries:
+        rows.append([name, f"{1e3 * t:.1f}", f"{t / t_full:.2f}", f"{a:.1e}",
+                     "-" if b is None else f"{b:.1e}", "-" if c is None else f"{c:.1e}"])
+    rep.table("Seed slider-crank, 1001 instants (solve, model compiled)",
+              ["solver", "ms", "x mechdsl", "err x", "err vx", "err ax"], rows)
+
+
+def work_precision(rep: Report, quick: bool) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tols = [1e-4, 1e-6, 1e-8, 1e-10, 1e-12] if not quick else [1e-4, 1e-8, 1e-12]
+    n_chain = 50
+    cases = [
+        ("slider-crank", lambda step: slider_crank_system(step), slider_crank_errors),
+        ("four-bar", lambda step: mechdsl.load(ROOT / "examples" / "fourbar.mech")
+         .compile(Overrides(step=step)), four_bar_errors),
+        (f"chain, {2 * n_chain + 1} bodies",
+         lambda step: mechdsl.loads(models.chain_text(n_chain)).compile(Overrides(step=step * 10)),
+         lambda res: chain_errors(res, n_chain)),
+    ]
+    settings = [(1e-3, 2), (1e-3, 1), (1e-2, 2), (1e-2, 1)]
+    fig, axes = plt.subplots(len(cases), 3, figsize=(13, 3.6 * len(cases)), squeeze=False)
+    rows = []
+    for ci, (name, build, errors) in enumerate(cases):
+        for step, order in settings:
+            system = build(step)
+            pts = []
+            for tol in tols:
+                opts = SolverOptions(newton_tol=tol, predictor_order=order)
+                t, res = median_time(lambda: simulate(system, opts), 1 if quick else 3)
+                if not res.ok:
+                    continue
+                pts.append((t, *errors(res)))
+                rows.append([name, f"{system.times[1] - system.times[0]:g}", str(order),
+                             f"{tol:g}", f"{1e3 * t:.1f}",
+                             *(f"{e:.1e}" for e in pts[-1][1:])])
+            pts = np.array(pts)
+            for k, what in enumerate(("position", "velocity", "acceleration")):
+                ax = axes[ci, k]
+                ax.loglog(pts[:, 0], np.maximum(pts[:, 1 + k], 1e-17), "o-",
+                          label=f"step {system.times[1] - system.times[0]:g}, predictor {order}")
+                ax.set_title(f"{name}: {what}")
+                ax.set_xlabel("run time (s)")
+                ax.set_ylabel("max relative error")
+                ax.axhline(1e-12, color="grey", lw=0.5, ls="--")
+        axes[ci, 0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(rep.out / "work_precision.png", dpi=90)
+    plt.close(fig)
+    rep.table("Work-precision (points over the Newton tolerance)",
+              ["model", "step", "predictor", "newton_tol", "ms", "err pos", "err vel",
+               "err acc"], rows)
+
+
+def per_instant(system_for: Callable[[int], object], opts: SolverOptions,
+                k1: int, k2: int, repeat: int) -> tuple[float, tuple]:
+    """Time per instant without the assembly: (T(k2 instants) - T(k1)) / (k2 - k1)."""
+    t1, _ = median_time(lambda: simulate(system_for(k1), opts), repeat)
+    t2, res = median_time(lambda: simulate(system_for(k2), opts), repeat)
+    return max(t2 - t1, 1e-9) / (k2 - k1), res
+
+
+def scaling(rep: Report, quick: bool) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    loops = [5, 15, 50, 150, 500] + ([] if quick else [1500, 5000])
+    dense_max = 150
+    rows, curves = [], {"dense": [], "sparse": [], "Exudyn (sparse)": []}
+    for n_loops in loops:
+        mech = mechdsl.loads(models.chain_text(n_loops))
+        bodies = 2 * n_loops + 1
+        compiled = {k: mech.compile(Overrides(t1=(k - 1) * 0.01, step=0.01)) for k in (6, 26)}
+        row = [str(bodies)]
+        for kind, threshold in (("dense", 10**9), ("sparse", 0)):
+            if kind == "dense" and n_loops > dense_max:
+                row.append("-")
+                continue
+            dt, res = per_instant(compiled.__getitem__, SolverOptions(sparse_from=threshold),
+                                  6, 26, 1 if quick or n_loops >= 500 else 3)
+            err = chain_errors(res, n_loops)[0] if res.ok else float("nan")
+            curves[kind].append((bodies, dt))
+            row.append(f"{1e3 * dt:.3g} ({err:.0e})")
+        try:
+            if n_loops <= 1500:
+                exu = peers.exudyn_chain(n_loops, steps=10, repeat=1 if quick else 3)
+                curves["Exudyn (sparse)"].append((bodies, exu["time_per_step"]))
+                row.append(f"{1e3 * exu['time_per_step']:.3g} ({exu['err_x']:.0e})")
+            else:
+                row.append("-")
+        except ImportError:
+            row.append("-")
+        rows.append(row)
+        print("  " + "  ".join(row), flush=True)
+    rep.table("Scaling: row of parallelograms, ms per instant (relative error of x)",
+              ["bodies", "mechdsl dense", "mechdsl sparse", "Exudyn sparse"], rows)
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    for kind, pts in curves.items():
+        if pts:
+            pts = np.array(pts)
+            ax.loglog(pts[:, 0], 1e3 * pts[:, 1], "o-", label=kind)
+    ref = np.array([11, 10001])
+    ax.loglog(ref, 0.01 * ref, "k:", lw=0.8, label="linear growth")
+    ax.set_xlabel("bodies")
+    ax.set_ylabel("ms per instant")
+    ax.set_title("Row of parallelograms: time per instant")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(rep.out / "scaling.png", dpi=90)
+    plt.close(fig)
+
+
+def sweep(rep: Report, quick: bool) -> None:
+    variants = 100 if quick else 1000
+    mech = mechdsl.load(ROOT / "examples" / "slider_crank.mech")
+    rods = np.linspace(2.5, 5.0, variants)
+    system = mech.compile(Overrides(sweeps={"l": list(rods)}))
+    t, res = median_time(lambda: simulate(system), 1)
+    t1, _ = median_time(lambda: simulate(slider_crank_system()), 5)
+    ex = models.slider_crank_exact(res["t"][None, :], l=rods[:, None])
+    err = max(float((np.abs(res[k] - e).max(axis=1) / np.abs(e).max(axis=1)).max())
+              for k, e in zip(("slider.x", "slider.vx", "slider.ax"), ex))
+    rep.table(f"Sweep: {variants} slider-cranks (rod 2.5 .. 5 m) x 1001 instants",
+              ["variants", "s", "variants/s", "one variant alone, ms", "batched/loop", "max err"],
+              [[str(variants), f"{t:.2f}", f"{variants / t:.0f}", f"{1e3 * t1:.1f}",
+                f"{t / (variants * t1):.2f}", f"{err:.1e}"]])
+
+
+def startup(rep: Report, quick: bool) -> None:
+    repeat = 3 if quick else 7
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "out.csv"
+        cmd = [sys.executable, "-m", "mechdsl", "run", str(ROOT / "examples" / "slider_crank.mech"),
+               "-o", str(out), "-q"]
+        t_run, _ = median_time(lambda: subprocess.run(cmd, check=True), repeat)
+    rows = [["mechdsl run examples/slider_crank.mech -o out.csv", f"{1e3 * t_run:.0f}"],
+            ["python -c 'import mechdsl'", f"{1e3 * peers.import_time('mechdsl', repeat):.0f}"],
+            ["python -c 'import numpy'", f"{1e3 * peers.import_time('numpy', repeat):.0f}"],
+            ["python -c 'pass'", f"{1e3 * peers.import_time('sys', repeat):.0f}"]]
+    if importlib.util.find_spec("exudyn") is not None:
+        rows.append(["python -c 'import exudyn'",
+                     f"{1e3 * peers.import_time('exudyn', repeat):.0f}"])
+    rep.table("Start-up (whole process, ms)", ["command", "ms"], rows)
+
+
+SECTIONS = {"seed": seed, "work-precision": work_precision, "scaling": scaling,
+            "sweep": sweep, "startup": startup}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="smaller sizes and fewer repeats")
+    ap.add_argument("--only", default=",".join(SECTIONS), help="comma-separated sections")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results",
+                    help="folder for the plots and results.md")
+    args = ap.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    rep = Report(args.out)
+    import platform
+    print(f"python {platform.python_version()}, numpy {np.__version__}, "
+          f"{platform.machine()}, mechdsl {mechdsl.__version__}")
+    for name in args.only.split(","):
+        SECTIONS[name.strip()](rep, args.quick)
+    rep.save()
+    print(f"\nplots and results.md in {args.out}")
+
+
+if __name__ == "__main__":
+    main()
