@@ -14,3 +14,7 @@ for t1 in 0.5 1 2; do
         --plot "$out/start_from_rest_t1_$t1.png"
 done
 "$M" run examples/plugins/curve_slot/curve_slot.mech -q -o /dev/null --plot "$out/curve_slot.png"
+# the pictures of the mechanism itself: an animation and a coupler-curve figure
+"$M" run examples/slider_crank.mech -q -o /dev/null --trace crank.B --animate "$out/slider_crank.gif" \
+    --frames 50 --t1 0.5
+"$M" run examples/fourbar.mech -q -o /dev/null --snapshot "$out/fourbar_coupler_curve.png" --at 0,0.2,0.4,0.6,0.8

@@ -75,18 +75,20 @@ class Mechanism:
         sweep: Mapping[str, Sequence[float]] | None = None,
         params: Mapping[str, float] | None = None,
         options: SolverOptions | None = None,
+        poses: bool = False,
         **param_values: float,
     ) -> Results:
         """Compile with the given overrides and solve.
 
         ``span = (t0, t1)`` and ``step`` replace the file's ``simulate`` line. Params are
         overridden by keyword (``l=2.5``) or through ``params`` (for names that clash with
-        the keywords here); ``sweep`` maps param names to lists of values.
+        the keywords here); ``sweep`` maps param names to lists of values. ``poses`` keeps
+        every body's pose at every instant in ``Results.poses``.
         """
         values: dict[str, E.Expr | float] = {**(params or {}), **param_values}
         t0, t1 = span if span is not None else (None, None)
         ov = Overrides(params=values, sweeps=dict(sweep or {}), t0=t0, t1=t1, step=step)
-        return simulate(self.compile(ov), options)
+        return simulate(self.compile(ov), options, poses=poses)
 
 
 def loads(text: str, name: str = "<string>", **kwargs) -> Mechanism:

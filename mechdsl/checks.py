@@ -129,6 +129,7 @@ def build_model(source: Source, statements: list) -> Model:
     joints: list[Joint] = []
     drives: list[Drive] = []
     outputs: list[OutputRef] = []
+    traces: list[OutputRef] = []
     sweeps: list[Sweep] = []
     sweep_names = _Names("sweep of")
     ground: Body | None = None
@@ -184,6 +185,8 @@ def build_model(source: Source, statements: list) -> Model:
             plugins.append((module, span))
         elif isinstance(st, tuple) and st[0] == "output":
             outputs.extend(st[1])
+        elif isinstance(st, tuple) and st[0] == "trace":
+            traces.extend(st[1])
         elif isinstance(st, tuple) and isinstance(st[0], Sweep):
             sw, nspan = st
             sweep_names.add(sw.name, nspan)
@@ -201,7 +204,7 @@ def build_model(source: Source, statements: list) -> Model:
     if ground is None:
         ground = Body(GROUND, (), None, Span(1, 1, 1, 1), True)
     return Model(source, tuple(params), ground, tuple(bodies), tuple(joints), tuple(drives),
-                 simulate, tuple(outputs), tuple(sweeps), tuple(plugins))
+                 simulate, tuple(outputs), tuple(sweeps), tuple(plugins), tuple(traces))
 
 
 def _sweep_exprs(sw: Sweep) -> list[E.Expr]:

@@ -52,6 +52,19 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("-o", "--output", metavar="OUT.csv",
                      help="write the results as CSV ('-' for standard output)")
     run.add_argument("--plot", metavar="OUT.png", help="draw the time histories")
+    run.add_argument("--snapshot", metavar="OUT.png",
+                     help="draw the mechanism at a few instants over the traced paths")
+    run.add_argument("--at", metavar="T1,T2,...",
+                     help="the instants of --snapshot (default: six, evenly spread)")
+    run.add_argument("--animate", metavar="OUT.gif",
+                     help="write an animation of the motion (.gif; .mp4 with ffmpeg)")
+    run.add_argument("--export", metavar="OUT.xdmf",
+                     help="write the motion as meshes for ParaView: .xdmf (a time series) or "
+                          ".vtu (a file per instant and a .pvd index)")
+    run.add_argument("--frames", type=int, default=100, metavar="N",
+                     help="frames of the animation at most (default 100)")
+    run.add_argument("--trace", metavar="BODY.POINT", action="append", default=[],
+                     help="draw the path of this point (repeatable; adds to 'trace' lines)")
     run.add_argument("--t0", type=float, help="start time (overrides the file)")
     run.add_argument("--t1", type=float, help="end time (overrides the file)")
     run.add_argument("--step", type=float, help="time step (overrides the file)")

@@ -11,7 +11,7 @@ import numpy as np
 from .api import Mechanism, load
 from .system import System
 from .variants import Overrides
-from .errors import MechError, NumericalError, Source, format_error
+from .errors import MechError, NumericalError, Source, format_error, suggest
 from .parse import parse_expr, parse_expr_list
 
 
@@ -59,7 +59,9 @@ def _check_targets(args) -> None:
     """Refuse unwritable output paths and unknown plot formats before solving anything."""
     from .plot import FORMATS
 
-    for option, path in (("-o", args.output), ("--plot", args.plot)):
+    for option, path in (("-o", args.output), ("--plot", args.plot),
+                         ("--snapshot", args.snapshot), ("--animate", args.animate),
+                         ("--export", args.export)):
         if not path or path == "-":
             continue
         if os.path.exists(path) and not os.path.isfile(path):
@@ -69,11 +71,52 @@ def _check_targets(args) -> None:
             raise MechError(f"{option} {path}: the folder {folder} does not exist")
         if not os.access(folder, os.W_OK):
             raise MechError(f"{option} {path}: the folder {folder} is not writable")
-    if args.plot:
-        ext = os.path.splitext(args.plot)[1].lstrip(".").lower()
-        if ext not in FORMATS:
-            raise MechError(f"--plot {args.plot}: unknown image format '{ext}'; use one of "
+    for option, path in (("--plot", args.plot), ("--snapshot", args.snapshot)):
+        ext = os.path.splitext(path or "")[1].lstrip(".").lower()
+        if path and ext not in FORMATS:
+            raise MechError(f"{option} {path}: unknown image format '{ext}'; use one of "
                             + ", ".join(sorted(FORMATS)))
+    if args.animate:
+        ext = os.path.splitext(args.animate)[1].lower()
+        if ext not in (".gif", ".mp4"):
+            raise MechError(f"--animate {args.animate}: an animation is a .gif or an .mp4")
+        if ext == ".mp4":
+            from matplotlib import animation
+            if not animation.writers.is_available("ffmpeg"):
+                raise MechError(f"--animate {args.animate}: an .mp4 needs ffmpeg on the PATH, "
+                                "which is not there; install ffmpeg or write a .gif")
+    if args.export and os.path.splitext(args.export)[1].lower() not in (".xdmf", ".vtu"):
+        raise MechError(f"--export {args.export}: use .xdmf (one time series) or .vtu (one "
+                        "file per instant, with a .pvd index)")
+    if args.at is not None and not args.snapshot:
+        raise MechError("--at chooses the instants of --snapshot, which is not given")
+
+
+def _trace_ref(model, ref: str) -> list[str]:
+    """Check a --trace BODY.POINT against the model's bodies and points."""
+    parts = ref.split(".")
+    bodies = {b.name: b for b in (*model.bodies, model.ground)}
+    if not 1 <= len(parts) <= 2 or parts[0] not in bodies:
+        raise MechError(f"--trace {ref}: expected BODY.POINT with a body of the model"
+                        + suggest(parts[0], bodies))
+    points = {"origin", *(p.name for p in bodies[parts[0]].points)}
+    if len(parts) == 2 and parts[1] not in points:
+        raise MechError(f"--trace {ref}: body '{parts[0]}' has no point '{parts[1]}'"
+                        + suggest(parts[1], points, f"{parts[0]}."))
+    return parts
+
+
+def _instants_option(text: str | None) -> list[float] | None:
+    if text is None:
+        return None
+    try:
+        values = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise MechError(f"--at {text}: expected times separated by commas, such as "
+                        "0,0.25,0.5") from None
+    if not values:
+        raise MechError("--at: give at least one time")
+    return values
 
 
 def run_command(args) -> int:
@@ -83,9 +126,17 @@ def run_command(args) -> int:
     from .solve import simulate
 
     _check_targets(args)
+    at = _instants_option(args.at)
     mech = load(args.file, plugins=args.plugin)
+    if args.trace:
+        from dataclasses import replace
+
+        from .model import OutputRef
+        extra = tuple(OutputRef(tuple(_trace_ref(mech.model, r)), None) for r in args.trace)
+        mech.model = replace(mech.model, traces=mech.model.traces + extra)
     system = mech.compile(_overrides(mech, args))
-    results = simulate(system, _options(args))
+    drawing = bool(args.snapshot or args.animate)
+    results = simulate(system, _options(args), poses=drawing, rates=bool(args.export))
     try:
         if args.output:
             write_csv(results, args.output)
@@ -96,6 +147,17 @@ def run_command(args) -> int:
             if args.set:
                 title += " (" + ", ".join(s.replace("=", " = ", 1) for s in args.set) + ")"
             plot_results(results, args.plot, title=title)
+        if drawing and results.n_solved.max(initial=0) > 0:
+            from .draw import animate, snapshot
+
+            if args.snapshot:
+                snapshot(results, system, args.snapshot, at=at)
+            if args.animate:
+                animate(results, system, args.animate, max_frames=args.frames)
+        if args.export and results.n_solved.max(initial=0) > 0:
+            from .export import export
+
+            export(results, system, args.export)
     except OSError as err:
         raise MechError(f"cannot write {err.filename or 'the output'}: {err.strerror}") from None
     written = args.output and args.output != "-"

@@ -20,7 +20,7 @@ from .checks import TIME, check_expr
 from .plugins.contract import REQUIRED, ArgError, ConstraintType
 from .plugins.registry import Registry
 from .sparse import Pattern
-from .system import Constraint, DriveFunction, Group, OutputSpec, System
+from .system import Constraint, DriveFunction, Group, OutputSpec, Sketch, System
 from .variants import Overrides, evaluate, time_grid
 
 __all__ = ["compile_model", "Overrides", "System"]
@@ -100,6 +100,7 @@ class _Compiler:
             outputs=tuple(outputs),
             order=order,
             pattern=pattern,
+            sketch=self._sketch(groups),
         )
 
     # -- params and sweeps ---------------------------------------------------------------------
@@ -332,6 +333,35 @@ class _Compiler:
                              (f, fd, fdd))
 
     # -- outputs -------------------------------------------------------------------------------
+    def _sketch(self, groups: list[Group]) -> Sketch:
+        outlines = []
+        for b in [*self.bodies, self.model.ground]:
+            pts = [xy for name, xy in self.points[b.name].items() if name != ORIGIN]
+            pts = pts or [self.points[b.name][ORIGIN]]
+            outlines.append(_readonly(np.stack(pts, axis=1)))
+        pins = []
+        for g in groups:
+            k = 0
+            for arg in g.ctype.signature:
+                if arg.kind == "point":
+                    for j in range(g.slots.shape[0]):
+                        pins.append((int(g.slots[j, k]), _readonly(g.params[arg.name][:, 0, j])))
+                if arg.kind in ("point", "body"):
+                    k += 1
+        traces = []
+        for r in self.model.traces:
+            body = r.parts[0]
+            i = self._body_ref(body, r.span)
+            if len(r.parts) > 2:
+                raise MechError(f"'{'.'.join(r.parts)}' is not a point; trace body.P or body",
+                                r.span)
+            point = r.parts[1] if len(r.parts) == 2 else ORIGIN
+            if point not in self.points[body]:
+                raise MechError(f"body '{body}' has no point '{point}'"
+                                + suggest(point, self.points[body], f"{body}."), r.span)
+            traces.append(('.'.join(r.parts), i, _readonly(self.points[body][point])))
+        return Sketch(tuple(outlines), tuple(pins), tuple(traces))
+
     def _outputs(self) -> list[OutputSpec]:
         refs = self.model.outputs
         out: list[OutputSpec] = []

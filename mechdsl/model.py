@@ -131,3 +131,5 @@ class Model:
     sweeps: tuple[Sweep, ...]
     #: ``plugin "module"`` statements: modules to load as plugins, with where they are named.
     plugins: tuple[tuple[str, Span], ...] = ()
+    #: ``trace body.P`` statements: points whose paths snapshots and animations draw.
+    traces: tuple[OutputRef, ...] = ()

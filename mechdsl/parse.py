@@ -204,6 +204,9 @@ class _ToModel(Transformer):
     def output(self, meta, items):
         return ("output", tuple(items))
 
+    def trace(self, meta, items):
+        return ("trace", tuple(items))
+
     def sweep_list(self, meta, items):
         return ("list", tuple(items))
 

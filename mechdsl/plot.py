@@ -73,6 +73,22 @@ def plot_results(results: Results, path: str | os.PathLike, title: str | None = 
     if results.sweep:
         axes[0].legend(fontsize="small", loc="best")
     fig.suptitle(title or os.path.basename(results.source_name))
+    save_figure(fig, path)
+
+
+def new_figure(**kwargs):
+    """A matplotlib Figure on the Agg canvas, outside pyplot's global state."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(**kwargs)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def save_figure(fig, path: str | os.PathLike) -> None:
+    """Save in the format of the file name's extension (png by default), under a temporary
+    name renamed when complete."""
     path = os.fspath(path)
     ext = os.path.splitext(path)[1].lstrip(".").lower() or "png"
     tmp = os.path.join(os.path.dirname(os.path.abspath(path)),

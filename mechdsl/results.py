@@ -35,6 +35,11 @@ class Results:
     warnings: tuple[str, ...] = ()
     #: Per variant, the largest condition number of the scaled Jacobian met during the run.
     condition: np.ndarray | None = None
+    #: (V, K, bodies, 3): every body's (x, y, phi) at every instant, when the run was asked
+    #: to keep them (for drawings and exports); NaN after a variant's last solved instant.
+    poses: np.ndarray | None = None
+    #: (V, K, 2, bodies, 3): their velocities and accelerations, when kept (for exports).
+    rates: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:

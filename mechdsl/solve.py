@@ -71,6 +71,10 @@ class _State:
     good: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     #: Sparse systems: the factorised Jacobian of the last state, for simplified Newton.
     fac: Factor | None = None
+    #: (V, K, n): every recorded instant's coordinates, when drawings or exports need them;
+    #: (V, K, 2, n) their velocities and accelerations, when exports need them.
+    poses: np.ndarray | None = None
+    rates: np.ndarray | None = None
 
 
 def _predict(st: _State, T: np.ndarray, order: int = 2) -> np.ndarray:
@@ -85,9 +89,12 @@ def _predict(st: _State, T: np.ndarray, order: int = 2) -> np.ndarray:
     return np.where(np.isfinite(second), second, first)
 
 
-def simulate(system: System, options: SolverOptions | None = None) -> Results:
+def simulate(system: System, options: SolverOptions | None = None, *,
+             poses: bool = False, rates: bool = False) -> Results:
     """Solve positions (and, where outputs need them, velocities and accelerations) at every
-    instant of ``system.times``, for every variant.
+    instant of ``system.times``, for every variant; with ``poses``, also keep every body's
+    (x, y, phi) at every instant (``Results.poses``), for drawings and exports, and with
+    ``rates`` their first and second time derivatives too (``Results.rates``).
 
     Raises MechError if the model is not fully driven. Numerical failures do not raise: the
     failing variant stops, the instants solved before are kept, and ``Results.status`` is
@@ -110,7 +117,9 @@ def simulate(system: System, options: SolverOptions | None = None) -> Results:
                 qdd=np.zeros((V, n)), sign=np.ones(V), active=asm.ok.copy(),
                 n_solved=np.zeros(V, int), rows=rows, watched=watched,
                 watch_weights=weights, min_rcond=np.ones(V),
-                min_rcond_t=np.full(V, times[0]), failures=list(asm.messages))
+                min_rcond_t=np.full(V, times[0]), failures=list(asm.messages),
+                poses=np.full((V, K, n), np.nan) if poses or rates else None,
+                rates=np.full((V, K, 2, n), np.nan) if rates else None)
     if asm.mobility is not None:
         note = redundancy_warning(system, asm.mobility)
         if note:
@@ -146,6 +155,8 @@ def simulate(system: System, options: SolverOptions | None = None) -> Results:
         status=status, messages=tuple(st.failures), solve_time=elapsed,
         residual=st.residual, source_name=system.source.name,
         warnings=tuple(st.warnings), condition=1.0 / st.min_rcond,
+        poses=None if st.poses is None else st.poses.reshape(V, K, -1, 3),
+        rates=None if st.rates is None else st.rates.reshape(V, K, 2, -1, 3),
     )
 
 
@@ -157,7 +168,7 @@ def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.nd
     accelerations (at every column when an output needs them, else at the last column only,
     for the predictor), unless ``rates`` gives them; record the columns whose ``rec`` index is
     not negative. Redundant equations left out of the solve must still hold."""
-    order = system.order
+    order = 2 if st.rates is not None else system.order
     rows = st.rows
     c = q.shape[1]
     if rates is not None:
@@ -192,6 +203,11 @@ def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.nd
     if not keep.any():
         return
     k = rec[keep]
+    if st.poses is not None:
+        st.poses[np.ix_(mask, k)] = q[mask][:, keep]
+    if st.rates is not None:
+        st.rates[np.ix_(mask, k, [0])] = qd[mask][:, keep][:, :, None]
+        st.rates[np.ix_(mask, k, [1])] = qdd[mask][:, keep][:, :, None]
     full_qd = qd if order >= 1 else None
     full_qdd = qdd if order >= 2 else None
     for spec in system.outputs:

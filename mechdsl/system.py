@@ -71,6 +71,19 @@ class OutputSpec:
 
 
 @dataclass(frozen=True)
+class Sketch:
+    """What a drawing of the mechanism needs, in body frames; body index ``n_bodies`` is the
+    ground. ``outlines[i]`` (V, P, 2): the points of body i in declaration order (its origin
+    if it declares none), drawn as the polygon or polyline through them; ``pins``: (body,
+    (V, J, 2)) the points that joints and drives attach, drawn as small circles; ``traces``:
+    (label, body, (V, 2)) the points whose paths are drawn."""
+
+    outlines: tuple[np.ndarray, ...]
+    pins: tuple[tuple[int, np.ndarray], ...]
+    traces: tuple[tuple[str, int, np.ndarray], ...]
+
+
+@dataclass(frozen=True)
 class System:
     """A compiled mechanism. Arrays are read-only; nothing here changes during a solve."""
 
@@ -92,6 +105,8 @@ class System:
     order: int = field(default=0)
     #: the non-zero entries of Phi_q, for the sparse solver of large mechanisms
     pattern: Pattern | None = None
+    #: the geometry that drawings and exports show
+    sketch: Sketch | None = None
 
     @property
     def n_bodies(self) -> int:

@@ -1,0 +1,137 @@
+"""Results as meshes for ParaView and other VTK tools, written with meshio.
+
+Every body becomes line cells through its points (one segment for a bar, the closed loop of
+edges for a plate), every point carries its velocity and acceleration
+(rd^P = rd + phid B s', rdd^P = rdd + phidd B s' - phid^2 A s', Haug eq. 2.6.4 differentiated)
+and every cell the index of its body (-1 for the ground), so that ParaView can colour the
+mechanism by speed or by body.
+
+* ``.xdmf``: one time series (meshio's TimeSeriesWriter, the data inline as XML). XDMF keeps one geometry for the
+  series, so the points are those at t0 and each instant carries ``position`` (and
+  ``displacement`` from t0, for ParaView's Warp By Vector) as point data.
+* ``.vtu``: one file per instant, ``NAME_0000.vtu``, ``NAME_0001.vtu``, ..., with the points
+  where they are at that instant, and ``NAME.pvd``, the index ParaView opens as a series.
+
+With a sweep, every variant gets its own files: ``NAME_v0.xdmf``, ``NAME_v1.xdmf``, ...
+"""
+
+from __future__ import annotations
+
+import os
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+
+from .errors import MechError
+from .results import Results
+from .system import System
+
+FORMATS = (".xdmf", ".vtu")
+
+
+def _layout(system: System) -> tuple[list[tuple[int, np.ndarray]], list, list]:
+    """Which body and body-frame point each exported point is ((body, (V, 2)) per point), the
+    cells and the body index of each cell. Every cell is a line segment (one cell type keeps
+    XDMF's topology simple): a bar is one segment, a plate the closed loop of its edges, a
+    body of one point a segment of zero length, the ground the segments between its
+    successive points."""
+    sk = system.sketch
+    nb = system.n_bodies
+    owners: list[tuple[int, np.ndarray]] = []
+    segments: list[list[int]] = []
+    cell_body: list[int] = []
+    for i, outline in enumerate(sk.outlines):
+        start = len(owners)
+        P = outline.shape[1]
+        owners.extend((i, outline[:, p]) for p in range(P))
+        if P == 1:
+            pairs = [(0, 0)]
+        elif P == 2 or i == nb:
+            pairs = [(a, a + 1) for a in range(P - 1)]
+        else:
+            pairs = [(a, (a + 1) % P) for a in range(P)]
+        segments.extend([start + a, start + b] for a, b in pairs)
+        cell_body.extend([i if i < nb else -1] * len(pairs))
+    return (owners, [("line", np.array(segments, dtype=np.int64).reshape(-1, 2))],
+            [np.array(cell_body, dtype=np.int64)])
+
+
+def _kinematics(results: Results, owners, v: int) -> tuple[np.ndarray, ...]:
+    """Positions, velocities, accelerations (K, points, 3) of variant v's exported points."""
+    poses = results.poses[v]
+    K = poses.shape[0]
+    nb = poses.shape[1]
+    rates = results.rates[v] if results.rates is not None else np.zeros((K, 2, nb, 3))
+    pos = np.zeros((K, len(owners), 3))
+    vel, acc = np.zeros_like(pos), np.zeros_like(pos)
+    for j, (body, s) in enumerate(owners):
+        if body >= nb:  # the ground
+            pos[:, j, :2] = s[v]
+            continue
+        x, y, phi = poses[:, body].T
+        c, sn = np.cos(phi), np.sin(phi)
+        asx, asy = c * s[v, 0] - sn * s[v, 1], sn * s[v, 0] + c * s[v, 1]
+        (vx, vy, w), (ax, ay, al) = rates[:, 0, body].T, rates[:, 1, body].T
+        pos[:, j, 0], pos[:, j, 1] = x + asx, y + asy
+        vel[:, j, 0], vel[:, j, 1] = vx - w * asy, vy + w * asx
+        acc[:, j, 0] = ax - al * asy - w * w * asx
+        acc[:, j, 1] = ay + al * asx - w * w * asy
+    return pos, vel, acc
+
+
+def export(results: Results, system: System, path: str) -> list[str]:
+    """Write the run as meshes (see the module's docstring); returns the files written."""
+    import meshio
+
+    if results.poses is None:
+        raise ValueError("the run kept no poses: simulate(..., poses=True, rates=True)")
+    stem, ext = os.path.splitext(path)
+    ext = ext.lower()
+    if ext not in FORMATS:
+        raise MechError(f"--export {path}: use .xdmf (one time series) or .vtu (one file per "
+                        "instant, with a .pvd index)")
+    owners, blocks, bodies = _layout(system)
+    written = []
+    for v in range(results.n_variants):
+        k = int(results.n_solved[v])
+        if k == 0:
+            continue
+        name = stem if results.n_variants == 1 else f"{stem}_v{v}"
+        pos, vel, acc = (a[:k] for a in _kinematics(results, owners, v))
+        times = results.times[:k]
+        if ext == ".xdmf":
+            written.append(_xdmf(meshio, name + ext, pos, vel, acc, times, blocks, bodies))
+        else:
+            written.extend(_vtu(meshio, name, pos, vel, acc, times, blocks, bodies))
+    return written
+
+
+def _xdmf(meshio, path, pos, vel, acc, times, blocks, bodies) -> str:
+    # the data inline in the XML (HDF5 would need h5py, which meshio does not require)
+    with meshio.xdmf.TimeSeriesWriter(path, data_format="XML") as writer:
+        writer.write_points_cells(pos[0], blocks)
+        for k, t in enumerate(times):
+            writer.write_data(float(t), point_data={
+                "position": pos[k], "displacement": pos[k] - pos[0], "velocity": vel[k],
+                "acceleration": acc[k], "speed": np.linalg.norm(vel[k], axis=1)},
+                cell_data={"body": bodies})
+    return path
+
+
+def _vtu(meshio, stem, pos, vel, acc, times, blocks, bodies) -> list[str]:
+    files = []
+    for k in range(len(times)):
+        name = f"{stem}_{k:04d}.vtu"
+        mesh = meshio.Mesh(pos[k], blocks, point_data={
+            "velocity": vel[k], "acceleration": acc[k],
+            "speed": np.linalg.norm(vel[k], axis=1)}, cell_data={"body": bodies})
+        mesh.write(name)
+        files.append(name)
+    index = stem + ".pvd"
+    entries = "\n".join(
+        f'    <DataSet timestep="{t:.17g}" part="0" file={quoteattr(os.path.basename(f))}/>'
+        for t, f in zip(times, files))
+    with open(index, "w") as f:
+        f.write('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n'
+                f"  <Collection>\n{entries}\n  </Collection>\n</VTKFile>\n")
+    return [*files, index]

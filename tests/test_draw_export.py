@@ -1,0 +1,144 @@
+"""Pictures and meshes of the motion: traced paths, snapshots, animations, and the meshio
+export read back, each checked against the four-bar's closed form (loop closure)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from closed_forms import four_bar
+from conftest import EXAMPLES
+from test_cli import mechdsl
+
+FOURBAR = EXAMPLES / "fourbar.mech"
+A, B = 1.0, 3.5  # crank and coupler of examples/fourbar.mech; P = (0, 1) in the coupler frame
+
+
+def coupler_point(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Position, velocity, acceleration (K, 2) of the coupler point P by loop closure:
+    P = a e2 + (b/2) e3 + n3, differentiated with e' = w perp(e), n3' = -w3 e3."""
+    th2 = np.pi / 4 + 2 * np.pi * t
+    w2 = 2 * np.pi
+    (th3, w3, al3), _ = four_bar(A, B, 3.0, 4.0, th2, w2, 0.0)
+    e2 = np.stack((np.cos(th2), np.sin(th2)), -1)
+    e3 = np.stack((np.cos(th3), np.sin(th3)), -1)
+    p2, n3 = e2[:, ::-1] * [-1, 1], e3[:, ::-1] * [-1, 1]
+    w3, al3 = w3[:, None], al3[:, None]
+    pos = A * e2 + B / 2 * e3 + n3
+    vel = A * w2 * p2 + B / 2 * w3 * n3 - w3 * e3
+    acc = (-A * w2**2 * e2 + B / 2 * (al3 * n3 - w3**2 * e3) - (al3 * e3 + w3**2 * n3))
+    return pos, vel, acc
+
+
+def test_traced_path_is_the_coupler_curve(loads):
+    from mechdsl.draw import paths
+    from mechdsl.solve import simulate
+
+    text = FOURBAR.read_text() + "\ntrace rocker\n"  # the file itself traces coupler.P
+    system = loads(text).compile()
+    res = simulate(system, poses=True)
+    traced = paths(res, system.sketch)
+    assert set(traced) == {"coupler.P", "rocker"}
+    np.testing.assert_allclose(traced["coupler.P"][0], coupler_point(res["t"])[0], atol=1e-13)
+    # the rocker's origin, the middle of B-O4, stays at c/2 = 1.5 from O4 = (4, 0)
+    r = np.linalg.norm(traced["rocker"][0] - [4.0, 0.0], axis=-1)
+    np.testing.assert_allclose(r, 1.5, atol=1e-13)
+
+
+def test_trace_of_an_unknown_point_is_a_located_error(loads):
+    from mechdsl.errors import MechError
+
+    text = FOURBAR.read_text() + "\ntrace coupler.Q\n"
+    with pytest.raises(MechError) as err:
+        loads(text).compile()
+    assert "no point 'Q'" in str(err.value)
+    assert err.value.span is not None and err.value.span.line == text.count("\n")
+
+
+def test_snapshot_and_animation_are_written(tmp_path):
+    from PIL import Image
+
+    snap, gif = tmp_path / "coupler.png", tmp_path / "fourbar.gif"
+    r = mechdsl("run", FOURBAR, "--step", "0.01", "--trace", "crank.A", "--snapshot", snap,
+                "--at", "0,0.25,0.5", "--animate", gif, "--frames", "20", "-q")
+    assert r.returncode == 0, r.stderr
+    with Image.open(snap) as im:
+        assert im.format == "PNG" and im.size[0] > 300
+    with Image.open(gif) as im:
+        assert im.format == "GIF" and im.n_frames == 20
+    assert not list(tmp_path.glob(".mechdsl-*"))  # no temporary file left behind
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--animate", "out.avi"], "an animation is a .gif or an .mp4"),
+    (["--snapshot", "out.xyz"], "unknown image format 'xyz'"),
+    (["--export", "out.stl"], "use .xdmf"),
+    (["--at", "0,1"], "--at chooses the instants of --snapshot"),
+    (["--snapshot", "s.png", "--at", "0,x"], "expected times separated by commas"),
+    (["--snapshot", "s.png", "--trace", "coupler.Q"], "body 'coupler' has no point 'Q'"),
+    (["--snapshot", "s.png", "--trace", "couplr.P"], "did you mean 'coupler'"),
+])
+def test_drawing_options_are_checked_before_solving(tmp_path, args, message):
+    r = mechdsl("run", FOURBAR, *args, cwd=tmp_path)
+    assert r.returncode == 1
+    assert message in r.stderr and "Traceback" not in r.stderr
+
+
+def test_mp4_needs_ffmpeg(tmp_path):
+    from matplotlib import animation
+
+    r = mechdsl("run", FOURBAR, "--step", "0.05", "--animate", tmp_path / "a.mp4", "-q")
+    if animation.writers.is_available("ffmpeg"):
+        assert r.returncode == 0 and (tmp_path / "a.mp4").stat().st_size > 0
+    else:
+        assert r.returncode == 1 and "needs ffmpeg" in r.stderr
+
+
+def _coupler_p_index(system) -> int:
+    from mechdsl.export import _layout
+
+    owners, _, _ = _layout(system)
+    coupler = system.body_names.index("coupler")
+    return next(j for j, (body, s) in enumerate(owners)
+                if body == coupler and np.allclose(s[0], [0.0, 1.0]))
+
+
+def test_xdmf_time_series_reads_back(tmp_path, load_example):
+    import meshio
+
+    r = mechdsl("run", FOURBAR, "--step", "0.05", "--export", tmp_path / "fb.xdmf", "-q")
+    assert r.returncode == 0, r.stderr
+    system = load_example("fourbar.mech").compile()
+    j = _coupler_p_index(system)
+    t = np.arange(21) * 0.05
+    pos, vel, acc = coupler_point(t)
+    with meshio.xdmf.TimeSeriesReader(str(tmp_path / "fb.xdmf")) as reader:
+        points, cells = reader.read_points_cells()
+        assert reader.num_steps == 21 and cells[0].type == "line"
+        np.testing.assert_allclose(points[j, :2], pos[0], atol=1e-13)
+        for k in range(reader.num_steps):
+            tk, pd, cd = reader.read_data(k)
+            assert tk == pytest.approx(t[k])
+            np.testing.assert_allclose(pd["position"][j, :2], pos[k], atol=1e-12)
+            np.testing.assert_allclose(pd["velocity"][j, :2], vel[k], atol=1e-11)
+            np.testing.assert_allclose(pd["acceleration"][j, :2], acc[k], atol=1e-9)
+            np.testing.assert_allclose(pd["speed"][j], np.linalg.norm(vel[k]), atol=1e-11)
+            assert set(cd["body"][0]) == {-1, 0, 1, 2}
+
+
+def test_vtu_files_and_pvd_index(tmp_path, load_example):
+    import xml.etree.ElementTree as ET
+
+    import meshio
+
+    r = mechdsl("run", FOURBAR, "--step", "0.25", "--export", tmp_path / "fb.vtu", "-q")
+    assert r.returncode == 0, r.stderr
+    system = load_example("fourbar.mech").compile()
+    j = _coupler_p_index(system)
+    entries = ET.parse(tmp_path / "fb.pvd").getroot().findall(".//DataSet")
+    assert [float(e.get("timestep")) for e in entries] == pytest.approx([0, 0.25, 0.5, 0.75, 1])
+    pos, vel, _ = coupler_point(np.array([0, 0.25, 0.5, 0.75, 1.0]))
+    for k, e in enumerate(entries):
+        mesh = meshio.read(tmp_path / e.get("file"))
+        np.testing.assert_allclose(mesh.points[j, :2], pos[k], atol=1e-12)
+        np.testing.assert_allclose(mesh.point_data["velocity"][j, :2], vel[k], atol=1e-11)
