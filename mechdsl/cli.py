@@ -83,6 +83,13 @@ def _parser() -> argparse.ArgumentParser:
     model_options(check)
 
     sub.add_parser("plugins", help="list the installed joint and drive types")
+
+    plot = sub.add_parser("plot", help="redraw a CSV written by 'run', without solving again")
+    plot.add_argument("file", metavar="FILE.csv", help="a CSV written by mechdsl run -o")
+    plot.add_argument("-o", "--output", metavar="OUT.png",
+                      help="the picture (default: FILE with the extension .png)")
+    plot.add_argument("--only", metavar="Q1,Q2,...",
+                      help="draw only these quantities (default: every column)")
     return p
 
 

@@ -92,6 +92,41 @@ def _check_targets(args) -> None:
         raise MechError("--at chooses the instants of --snapshot, which is not given")
 
 
+class ProgressBar:
+    """A progress bar on ``stream`` for runs longer than ``delay`` seconds, drawn only when the
+    stream is a terminal (never into a file or a pipe), at most ``rate`` times a second."""
+
+    def __init__(self, stream, delay: float = 1.0, rate: float = 10.0, width: int = 30) -> None:
+        import time
+
+        self.stream, self.delay, self.period, self.width = stream, delay, 1.0 / rate, width
+        self.clock = time.monotonic
+        self.start = self.clock()
+        self.last = 0.0
+        self.shown = False
+        self.live = hasattr(stream, "isatty") and stream.isatty()
+
+    def __call__(self, done: int, total: int) -> None:
+        if not self.live:
+            return
+        now = self.clock()
+        if now - self.start < self.delay or now - self.last < self.period:
+            return
+        self.last = now
+        frac = done / max(total, 1)
+        filled = int(round(frac * self.width))
+        eta = (now - self.start) * (1 - frac) / frac if frac > 0 else float("nan")
+        self.stream.write(f"\r[{'#' * filled}{'.' * (self.width - filled)}] {100 * frac:5.1f} % "
+                          f"{done}/{total} instants, {eta:.0f} s left ")
+        self.stream.flush()
+        self.shown = True
+
+    def close(self) -> None:
+        if self.shown:
+            self.stream.write("\r" + " " * (self.width + 50) + "\r")
+            self.stream.flush()
+
+
 def _trace_ref(model, ref: str) -> list[str]:
     """Check a --trace BODY.POINT against the model's bodies and points."""
     parts = ref.split(".")
@@ -136,7 +171,13 @@ def run_command(args) -> int:
         mech.model = replace(mech.model, traces=mech.model.traces + extra)
     system = mech.compile(_overrides(mech, args))
     drawing = bool(args.snapshot or args.animate)
-    results = simulate(system, _options(args), poses=drawing, rates=bool(args.export))
+    bar = ProgressBar(sys.stderr) if not args.quiet else None
+    try:
+        results = simulate(system, _options(args), poses=drawing, rates=bool(args.export),
+                           progress=bar)
+    finally:
+        if bar is not None:
+            bar.close()
     try:
         if args.output:
             write_csv(results, args.output)
@@ -291,3 +332,28 @@ def plugins_command() -> int:
             print(f"  {b.provider.plugin} ({b.provider}): {b.reason}")
     return 0
 
+
+
+def plot_command(args) -> int:
+    """``mechdsl plot FILE.csv``: the time-history figure of a CSV written by ``run``."""
+    from .plot import FORMATS, plot_results
+    from .results import read_csv
+
+    results = read_csv(args.file)
+    out = args.output or os.path.splitext(args.file)[0] + ".png"
+    ext = os.path.splitext(out)[1].lstrip(".").lower()
+    if ext not in FORMATS:
+        raise MechError(f"-o {out}: unknown image format '{ext}'; use one of "
+                        + ", ".join(sorted(FORMATS)))
+    labels = None
+    if args.only:
+        labels = [x.strip() for x in args.only.split(",") if x.strip()]
+        unknown = [x for x in labels if x not in results.data]
+        if unknown:
+            raise MechError(f"--only: {args.file} has no column '{unknown[0]}'"
+                            + suggest(unknown[0], results.data))
+    try:
+        plot_results(results, out, title=os.path.basename(args.file), labels=labels)
+    except OSError as err:
+        raise MechError(f"cannot write {err.filename or out}: {err.strerror}") from None
+    return 0

@@ -130,6 +130,42 @@ def atomic_write_text(path: str, writer) -> None:
         raise
 
 
+def read_csv(path: str) -> Results:
+    """Read a CSV written by :func:`write_csv` back into Results: the columns before ``t``
+    are swept params (one variant per combination of their values, in the order met), the
+    columns after it the outputs."""
+    from .errors import MechError
+
+    try:
+        with open(path, newline="") as f:
+            header = f.readline().strip().split(",")
+            rows = np.loadtxt(f, delimiter=",", ndmin=2) if header != [""] else None
+    except OSError as err:
+        raise MechError(f"cannot read {path}: {err.strerror}") from None
+    except ValueError as err:
+        raise MechError(f"{path}: not a CSV of numbers written by mechdsl run: {err}") from None
+    if "t" not in header or rows is None or (rows.size and rows.shape[1] != len(header)):
+        raise MechError(f"{path}: not a CSV written by mechdsl run (it needs a column 't' and "
+                        "a number in every column)")
+    it = header.index("t")
+    swept, labels = header[:it], header[it + 1:]
+    keys = [tuple(r) for r in rows[:, :it]] if rows.size else []
+    variants = list(dict.fromkeys(keys)) or [()]
+    groups = [rows[[k == v for k in keys]] if rows.size else rows for v in variants]
+    longest = max(groups, key=len)
+    times = longest[:, it] if len(longest) else np.zeros(0)
+    n_solved = np.array([len(g) for g in groups])
+    data = {}
+    for j, label in enumerate(labels):
+        a = np.full((len(variants), len(times)), np.nan)
+        for v, g in enumerate(groups):
+            a[v, : len(g)] = g[:, it + 1 + j]
+        data[label] = a
+    sweep = {name: np.array([v[i] for v in variants]) for i, name in enumerate(swept)}
+    return Results(times=times, data=data, sweep=sweep, n_solved=n_solved, status="ok",
+                   messages=(), solve_time=0.0, residual=float("nan"), source_name=path)
+
+
 def summary(results: Results) -> str:
     """A few lines for the terminal: instants, time, residual, range of each output."""
     k = int(results.n_solved.max(initial=0))

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -90,11 +91,13 @@ def _predict(st: _State, T: np.ndarray, order: int = 2) -> np.ndarray:
 
 
 def simulate(system: System, options: SolverOptions | None = None, *,
-             poses: bool = False, rates: bool = False) -> Results:
+             poses: bool = False, rates: bool = False,
+             progress: Callable[[int, int], None] | None = None) -> Results:
     """Solve positions (and, where outputs need them, velocities and accelerations) at every
     instant of ``system.times``, for every variant; with ``poses``, also keep every body's
     (x, y, phi) at every instant (``Results.poses``), for drawings and exports, and with
-    ``rates`` their first and second time derivatives too (``Results.rates``).
+    ``rates`` their first and second time derivatives too (``Results.rates``). ``progress``
+    is called as progress(instants_done, instants) as the run goes on.
 
     Raises MechError if the model is not fully driven. Numerical failures do not raise: the
     failing variant stops, the instants solved before are kept, and ``Results.status`` is
@@ -137,7 +140,7 @@ def simulate(system: System, options: SolverOptions | None = None, *,
             st.active &= ~singular
             st.sign = fac.sign[:, 0]
             _accept(system, st, q0, t0, np.array([0]), fac, st.active.copy(), data, opts)
-            _march(system, st, opts, data)
+            _march(system, st, opts, data, progress)
     except KeyboardInterrupt:
         status = "interrupted"
     elapsed = time.perf_counter() - start
@@ -236,7 +239,8 @@ def _watch_redundant(system: System, st: _State, phi: np.ndarray, t: np.ndarray,
         mask[v] = False
 
 
-def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
+def _march(system: System, st: _State, opts: SolverOptions, data: dict,
+           progress: Callable[[int, int], None] | None = None) -> None:
     times = system.times
     V, n, K = system.n_variants, system.n, len(times)
     D = col_scale(system)
@@ -252,6 +256,8 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict) -> None:
     attempts = 0
     floor = np.sqrt(opts.newton_tol)
     while k < K and st.active.any():
+        if progress is not None:
+            progress(k, K)
         t_now = float(st.t[st.active][0])  # the active variants move in lockstep
         h_out = times[k] - times[k - 1]
         if hsub is None:

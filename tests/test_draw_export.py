@@ -142,3 +142,59 @@ def test_vtu_files_and_pvd_index(tmp_path, load_example):
         mesh = meshio.read(tmp_path / e.get("file"))
         np.testing.assert_allclose(mesh.points[j, :2], pos[k], atol=1e-12)
         np.testing.assert_allclose(mesh.point_data["velocity"][j, :2], vel[k], atol=1e-11)
+
+
+class _Tty:
+    def __init__(self, tty: bool) -> None:
+        self.tty, self.text = tty, ""
+
+    def isatty(self) -> bool:
+        return self.tty
+
+    def write(self, s: str) -> None:
+        self.text += s
+
+    def flush(self) -> None:
+        pass
+
+
+def test_progress_bar_only_on_a_terminal_and_only_for_long_runs(load_example):
+    from mechdsl.commands import ProgressBar
+    from mechdsl.solve import simulate
+
+    system = load_example("slider_crank.mech").compile()
+    tty, pipe, short = _Tty(True), _Tty(False), _Tty(True)
+    for stream, delay in ((tty, 0.0), (pipe, 0.0), (short, 3600.0)):
+        bar = ProgressBar(stream, delay=delay, rate=1e9)
+        assert simulate(system, progress=bar).ok
+        bar.close()
+    assert "%" in tty.text and "instants" in tty.text and tty.text.endswith("\r")
+    assert pipe.text == "" and short.text == ""
+
+
+def test_plot_redraws_a_sweep_csv_without_solving(tmp_path):
+    from PIL import Image
+
+    from closed_forms import slider_crank
+    from mechdsl.results import read_csv
+
+    csv = tmp_path / "sweep.csv"
+    r = mechdsl("run", EXAMPLES / "slider_crank.mech", "--sweep", "l=3.5,2.5", "--step", "0.01",
+                "-o", csv, "-q")
+    assert r.returncode == 0, r.stderr
+    res = read_csv(str(csv))
+    assert list(res.sweep["l"]) == [3.5, 2.5] and res.labels == ("slider.x", "slider.vx",
+                                                                 "slider.ax")
+    for v, l in enumerate((3.5, 2.5)):
+        x, _, ax = slider_crank(2.0, l, np.pi / 4 + 4 * np.pi * res["t"], 4 * np.pi, 0.0)
+        np.testing.assert_allclose(res["slider.x"][v], x, atol=1e-12)
+        np.testing.assert_allclose(res["slider.ax"][v], ax, rtol=1e-10, atol=1e-9)
+    r = mechdsl("plot", csv, "--only", "slider.x,slider.ax")
+    assert r.returncode == 0, r.stderr
+    with Image.open(tmp_path / "sweep.png") as im:
+        assert im.format == "PNG"
+    r = mechdsl("plot", csv, "--only", "slider.q")
+    assert r.returncode == 1 and "no column 'slider.q'" in r.stderr
+    (tmp_path / "bad.csv").write_text("a,b\n1,x\n")
+    r = mechdsl("plot", tmp_path / "bad.csv")
+    assert r.returncode == 1 and "Traceback" not in r.stderr
