@@ -11,7 +11,7 @@ from . import expr as E
 from .errors import MechError, Source, Span, suggest
 from .model import (
     BODY_QUANTITIES, GROUND, ORIGIN, Body, Drive, Joint, Model, OutputRef, Param, Point,
-    Simulate, Sweep, Vector,
+    Polygon, Simulate, Sweep, Vector,
 )
 
 TIME = "t"
@@ -92,18 +92,37 @@ class _Names:
         self.seen[name] = span
 
 
+def _once(current, item: tuple, what: str, body: str, refused: str | None):
+    """The value of a body item that may be given once, and (``refused`` None) here at all."""
+    if refused is not None:
+        raise MechError(refused, item[2])
+    if current is not None:
+        raise MechError(f"body '{body}' has two {what}", item[2])
+    return item[1]
+
+
 def _build_body(name: str, name_span: Span, items: list, span: Span, is_ground: bool,
                 params: set[str]) -> Body:
     points: list[Point] = []
     names = _Names(f"point of {name}")
-    guess = None
+    guess = shape = density = None
     for item in items:
-        if isinstance(item, tuple) and item and item[0] == "guess":
-            if is_ground:
-                raise MechError("the ground is fixed at (0, 0, 0); it takes no guess", item[2])
-            if guess is not None:
-                raise MechError(f"body '{name}' has two guesses", item[2])
-            guess = item[1]
+        kind = item[0] if isinstance(item, tuple) and item else None
+        if kind == "shape":
+            shape = _once(shape, item, "shapes", name, None)
+            if isinstance(shape, Polygon):
+                if len(shape.vertices) < 3:
+                    raise MechError("a polygon needs at least three vertices", shape.span)
+                for v in shape.vertices:
+                    _check_vector(v, 2, "a vertex (x, y)", params)
+        elif kind == "density":
+            density = _once(density, item, "densities", name,
+                            "the ground does not move: it takes no density" if is_ground else None)
+            check_expr(density, params, f"the density of {name}")
+        elif kind == "guess":
+            guess = _once(guess, item, "guesses", name,
+                          "the ground is fixed at (0, 0, 0); it takes no guess" if is_ground
+                          else None)
             _check_vector(guess, 3, "a guess (x, y, phi)", params)
         elif isinstance(item, tuple):
             point, pspan = item
@@ -116,7 +135,10 @@ def _build_body(name: str, name_span: Span, items: list, span: Span, is_ground: 
             names.add(point.name, pspan)
             _check_vector(point.coords, 2, "a point (x, y)", params)
             points.append(point)
-    return Body(name, tuple(points), guess, span, is_ground)
+    if density is not None and shape is None:
+        raise MechError(f"body '{name}' has a density but no shape: give it "
+                        "shape = polygon(...) or shape = \"file.msh\"", span)
+    return Body(name, tuple(points), guess, span, is_ground, shape, density)
 
 
 def build_model(source: Source, statements: list) -> Model:

@@ -303,6 +303,16 @@ def _structure(mech: Mechanism, system: System) -> str:
         extra = f"  = {to_text(drives[c.name].function)}" if c.name in drives else ""
         lines.append(f"  {c.kind:<5} {c.name:<14} {c.type_name:<10} {', '.join(c.bodies):<22} "
                      f"{neq} equation{'s' if neq != 1 else ''}{extra}")
+    shaped = [(name, mp) for name, mp in zip(system.body_names, system.mass) if mp is not None]
+    if shaped:
+        lines.append("shapes (body frame; polar moment J about the centroid):")
+        for name, mp in shaped:
+            mass = ("" if not np.isfinite(mp.mass[0]) else
+                    f"  mass {mp.mass[0]:.6g}  inertia {mp.inertia[0]:.6g}")
+            size = float(np.sqrt(mp.area[0]))
+            centroid = np.where(np.abs(mp.centroid[0]) < 1e-12 * size, 0.0, mp.centroid[0])
+            lines.append(f"  {name:<12} area {mp.area[0]:.6g}  centroid {_fmt(centroid)}  "
+                         f"J {mp.polar[0]:.6g}{mass}")
     return "\n".join(lines)
 
 

@@ -1,7 +1,7 @@
 """Pictures of the mechanism itself: snapshots over traced paths, and animations.
 
 Each body is drawn as the polygon (three or more points) or the bar (two) through its points
-in declaration order, each point a joint or drive attaches as a small circle, the ground's
+in declaration order, with the outline of its shape where it has one, each point a joint or drive attaches as a small circle, the ground's
 points as hatched supports, and the points named by ``trace`` with their paths. Coordinates
 come from the run's poses: r^P = r + A(phi) s'^P for every point (Haug eq. 2.6.4).
 """
@@ -54,6 +54,8 @@ class _Frames:
     pins: list[np.ndarray]
     traces: dict[str, np.ndarray]
     ground: np.ndarray
+    #: per body with a shape: its outline's edges (V, K, E, 2, 2)
+    shapes: list[np.ndarray]
 
 
 def _frames(results: Results, system: System) -> _Frames:
@@ -62,7 +64,8 @@ def _frames(results: Results, system: System) -> _Frames:
     outlines = [world(results.poses, i, sk.outlines[i]) for i in range(nb)]
     ground = world(results.poses, nb, sk.outlines[nb])
     pins = [world(results.poses, body, xy) for body, xy in sk.pins]
-    return _Frames(outlines, pins, paths(results, sk), ground)
+    shapes = [world(results.poses, i, e) for i, e in enumerate(sk.shapes) if e is not None]
+    return _Frames(outlines, pins, paths(results, sk), ground, shapes)
 
 
 def _need_poses(results: Results) -> None:
@@ -71,7 +74,8 @@ def _need_poses(results: Results) -> None:
 
 
 def _limits(fr: _Frames) -> tuple[float, float, float, float]:
-    pts = [a.reshape(-1, 2) for a in (*fr.outlines, *fr.pins, *fr.traces.values(), fr.ground)]
+    pts = [a.reshape(-1, 2) for a in (*fr.outlines, *fr.pins, *fr.traces.values(), fr.ground,
+                                      *fr.shapes)]
     allp = np.concatenate(pts)
     allp = allp[np.isfinite(allp).all(axis=1)]
     lo, hi = allp.min(axis=0), allp.max(axis=0)
@@ -140,6 +144,8 @@ class _Artists:
         self.dot_art = ax.plot([], [], "s", color=color, ms=7, alpha=alpha, zorder=2)[0]
         self.pin_art = ax.plot([], [], "o", mfc="white", mec="black", mew=0.8, ms=6,
                                alpha=alpha, zorder=3)[0]
+        self.shape_art = ax.add_collection(LineCollection([], colors=["0.2"], linewidths=1.0,
+                                                          alpha=alpha, zorder=2))
 
     def update(self, v: int, k: int) -> list:
         fr = self.fr
@@ -149,7 +155,9 @@ class _Artists:
         self.dot_art.set_data(dots[:, 0], dots[:, 1])
         pins = np.array([p[v, k] for p in fr.pins]).reshape(-1, 2)
         self.pin_art.set_data(pins[:, 0], pins[:, 1])
-        return [self.bar_art, self.plate_art, self.dot_art, self.pin_art]
+        edges = [e for shape in fr.shapes for e in shape[v, k]]
+        self.shape_art.set_segments(edges)
+        return [self.bar_art, self.plate_art, self.dot_art, self.pin_art, self.shape_art]
 
 
 def snapshot(results: Results, system: System, path: str, at: list[float] | None = None,

@@ -1,7 +1,7 @@
 """Results as meshes for ParaView and other VTK tools, written with meshio.
 
 Every body becomes line cells through its points (one segment for a bar, the closed loop of
-edges for a plate), every point carries its velocity and acceleration
+edges for a plate) and along the outline of its shape, if it has one; every point carries its velocity and acceleration
 (rd^P = rd + phid B s', rdd^P = rdd + phidd B s' - phid^2 A s', Haug eq. 2.6.4 differentiated)
 and every cell the index of its body (-1 for the ground), so that ParaView can colour the
 mechanism by speed or by body.
@@ -52,6 +52,13 @@ def _layout(system: System) -> tuple[list[tuple[int, np.ndarray]], list, list]:
             pairs = [(a, (a + 1) % P) for a in range(P)]
         segments.extend([start + a, start + b] for a, b in pairs)
         cell_body.extend([i if i < nb else -1] * len(pairs))
+        edges = sk.shapes[i] if sk.shapes else None
+        if edges is not None:  # the shape's outline: a segment per edge
+            start = len(owners)
+            for e in range(edges.shape[1]):
+                owners.extend([(i, edges[:, e, 0]), (i, edges[:, e, 1])])
+                segments.append([start + 2 * e, start + 2 * e + 1])
+            cell_body.extend([i if i < nb else -1] * edges.shape[1])
     return (owners, [("line", np.array(segments, dtype=np.int64).reshape(-1, 2))],
             [np.array(cell_body, dtype=np.int64)])
 

@@ -45,14 +45,26 @@ class Point:
 
 
 @dataclass(frozen=True)
+class Polygon:
+    """``polygon((x1, y1), (x2, y2), ...)``: a shape's vertices in the body frame."""
+
+    vertices: tuple[Vector, ...]
+    span: Span
+
+
+@dataclass(frozen=True)
 class Body:
-    """A rigid body with q = (x, y, phi) of its frame; the ground is a body with ``is_ground``."""
+    """A rigid body with q = (x, y, phi) of its frame; the ground is a body with ``is_ground``.
+    ``shape`` is a Polygon or a mesh read from a file (shapes.MeshShape); ``density`` its mass
+    per unit area."""
 
     name: str
     points: tuple[Point, ...]
     guess: Vector | None
     span: Span
     is_ground: bool = False
+    shape: object | None = None
+    density: Expr | None = None
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,10 @@ from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput
 from . import expr as E
 from .checks import TIME, build_model, check_expr
 from .errors import MechError, Source, Span
-from .model import Arg, Drive, Joint, Model, OutputRef, Param, Point, Simulate, Sweep, Vector
+from .model import (
+    Arg, Drive, Joint, Model, OutputRef, Param, Point, Polygon, Simulate, Sweep, Vector,
+)
+from .shapes import read_mesh
 from .tables import PointList, make_table
 
 __all__ = ["parse", "parse_expr", "parse_expr_list", "check_expr", "TIME"]
@@ -167,6 +170,19 @@ class _ToModel(Transformer):
 
     def guess(self, meta, items):
         return ("guess", items[0], _span(meta))
+
+    def shape(self, meta, items):
+        (value,) = items
+        if isinstance(value, Token):  # a mesh file, read now: its errors point at the file name
+            return ("shape", read_mesh(str(value)[1:-1], self.base_dir, _tspan(value)),
+                    _span(meta))
+        return ("shape", value, _span(meta))
+
+    def polygon(self, meta, items):
+        return Polygon(tuple(items), _span(meta))
+
+    def density(self, meta, items):
+        return ("density", items[0], _span(meta))
 
     def ground(self, meta, items):
         return ("ground", items, _span(meta))

@@ -81,6 +81,8 @@ class Sketch:
     outlines: tuple[np.ndarray, ...]
     pins: tuple[tuple[int, np.ndarray], ...]
     traces: tuple[tuple[str, int, np.ndarray], ...]
+    #: per body (the ground last), the edges (V, E, 2, 2) of its shape's outline, or None
+    shapes: tuple[np.ndarray | None, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -107,6 +109,8 @@ class System:
     pattern: Pattern | None = None
     #: the geometry that drawings and exports show
     sketch: Sketch | None = None
+    #: per moving body, the mass properties of its shape (shapes.MassProperties) or None
+    mass: tuple = ()
 
     @property
     def n_bodies(self) -> int:

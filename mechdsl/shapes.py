@@ -1,0 +1,117 @@
+"""Body shapes and their mass properties: area, centroid and polar moment of area.
+
+For a polygon with vertices p_i = (x_i, y_i), i = 0..n-1 (p_n = p_0), and c_i = x_i y_(i+1) -
+x_(i+1) y_i (Green's theorem; exact):
+
+    A    = 1/2  sum c_i
+    x_c  = 1/(6A)  sum (x_i + x_(i+1)) c_i,      y_c likewise
+    I_x  = 1/12 sum (y_i^2 + y_i y_(i+1) + y_(i+1)^2) c_i     (= integral of y^2 dA)
+    I_y  = 1/12 sum (x_i^2 + x_i x_(i+1) + x_(i+1)^2) c_i     (= integral of x^2 dA)
+    J_O  = I_x + I_y,   J_c = J_O - A |r_c|^2    (polar moment about the centroid)
+
+A mesh is the sum of its triangles (each a polygon of three vertices), so its properties are
+exact for straight-sided shapes too. With a density rho (mass per area): m = rho A and the
+moment of inertia about the centroid is rho J_c.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import MechError, Span
+
+
+@dataclass(frozen=True)
+class MeshShape:
+    """A planar mesh read from a file: points (N, 2) and triangles (T, 3)."""
+
+    path: str
+    points: np.ndarray
+    triangles: np.ndarray
+    span: Span | None = None
+
+
+@dataclass(frozen=True)
+class MassProperties:
+    """Per variant: area A, centroid (x_c, y_c) in the body frame, polar moment of area J_c
+    about the centroid; mass and moment of inertia where a density is given (else NaN)."""
+
+    area: np.ndarray
+    centroid: np.ndarray
+    polar: np.ndarray
+    mass: np.ndarray
+    inertia: np.ndarray
+
+
+def polygon_properties(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(A, centroid (..., 2), J_c) of polygons ``xy`` (..., n, 2) by the formulas above; the
+    vertices may turn either way (the area is then taken positive)."""
+    x, y = xy[..., 0], xy[..., 1]
+    x1, y1 = np.roll(x, -1, axis=-1), np.roll(y, -1, axis=-1)
+    c = x * y1 - x1 * y
+    area = 0.5 * c.sum(axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a degenerate polygon: NaN centroid
+        cx = ((x + x1) * c).sum(axis=-1) / (6 * area)
+        cy = ((y + y1) * c).sum(axis=-1) / (6 * area)
+    ix = ((y * y + y * y1 + y1 * y1) * c).sum(axis=-1) / 12
+    iy = ((x * x + x * x1 + x1 * x1) * c).sum(axis=-1) / 12
+    sign = np.sign(area)  # clockwise vertices give negative signed integrals
+    area, j_o = sign * area, sign * (ix + iy)
+    return area, np.stack((cx, cy), axis=-1), j_o - area * (cx * cx + cy * cy)
+
+
+def mesh_properties(points: np.ndarray, triangles: np.ndarray
+                    ) -> tuple[float, np.ndarray, float]:
+    """(A, centroid (2,), J_c) of a triangle mesh: the sums over its triangles."""
+    a, c, j = polygon_properties(points[triangles])
+    area = float(a.sum())
+    centroid = (a[:, None] * c).sum(axis=0) / area
+    # each triangle's J about its own centroid, moved to the shape's centroid (parallel axes)
+    polar = float((j + a * ((c - centroid) ** 2).sum(axis=1)).sum())
+    return area, centroid, polar
+
+
+def boundary(triangles: np.ndarray) -> np.ndarray:
+    """The edges (E, 2) that belong to one triangle only: the outline of a mesh."""
+    edges = np.sort(np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]],
+                                    triangles[:, [2, 0]]]), axis=1)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    return unique[counts == 1]
+
+
+def read_mesh(path: str, base_dir: str, span: Span | None) -> MeshShape:
+    """Read a planar mesh with meshio (Gmsh, VTK/VTU, OBJ, ... anything meshio reads): its
+    triangles, and its quads split in two. A mesh that does not lie in the plane z = 0 (an
+    STL of a solid, say) is refused: a body's shape is planar."""
+    import meshio
+
+    full = path if os.path.isabs(path) else os.path.join(base_dir, path)
+    if not os.path.isfile(full):
+        raise MechError(f"cannot read the shape {path}: no such file (looked for {full})",
+                        span)
+    try:
+        with np.errstate(all="ignore"):  # meshio's format sniffing may overflow harmlessly
+            mesh = meshio.read(full)
+    except Exception as err:  # noqa: BLE001 - meshio raises many kinds for unreadable files
+        raise MechError(f"cannot read the shape {path}: {type(err).__name__}: {err}",
+                        span) from None
+    pts = np.asarray(mesh.points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] not in (2, 3) or not len(pts):
+        raise MechError(f"the shape {path} has no points", span)
+    if pts.shape[1] == 3:
+        extent = float(np.ptp(pts[:, :2], axis=0).max()) or 1.0
+        if np.abs(pts[:, 2]).max() > 1e-9 * extent:
+            raise MechError(f"the shape {path} is not planar (its points leave the plane z = 0): "
+                            "a body's shape is a 2-D mesh; projecting a 3-D one is not done "
+                            "for you", span)
+    tris = [c.data for c in mesh.cells if c.type == "triangle"]
+    tris += [q[:, [0, 1, 2]] for q in (c.data for c in mesh.cells if c.type == "quad")]
+    tris += [q[:, [0, 2, 3]] for q in (c.data for c in mesh.cells if c.type == "quad")]
+    if not tris:
+        raise MechError(f"the shape {path} has no triangles or quads (cells: "
+                        f"{', '.join(sorted({c.type for c in mesh.cells})) or 'none'})", span)
+    triangles = np.concatenate(tris).astype(np.int64)
+    return MeshShape(path, pts[:, :2].copy(), triangles, span)
