@@ -152,6 +152,7 @@ def build_model(source: Source, statements: list) -> Model:
     drives: list[Drive] = []
     outputs: list[OutputRef] = []
     traces: list[OutputRef] = []
+    units: dict[str, str] = {}
     sweeps: list[Sweep] = []
     sweep_names = _Names("sweep of")
     ground: Body | None = None
@@ -209,6 +210,11 @@ def build_model(source: Source, statements: list) -> Model:
             outputs.extend(st[1])
         elif isinstance(st, tuple) and st[0] == "trace":
             traces.extend(st[1])
+        elif isinstance(st, tuple) and st[0] == "units":
+            for dim, text, span in st[1]:
+                if dim in units:
+                    raise MechError(f"the unit of {dim} is given twice", span)
+                units[dim] = text
         elif isinstance(st, tuple) and isinstance(st[0], Sweep):
             sw, nspan = st
             sweep_names.add(sw.name, nspan)
@@ -226,7 +232,8 @@ def build_model(source: Source, statements: list) -> Model:
     if ground is None:
         ground = Body(GROUND, (), None, Span(1, 1, 1, 1), True)
     return Model(source, tuple(params), ground, tuple(bodies), tuple(joints), tuple(drives),
-                 simulate, tuple(outputs), tuple(sweeps), tuple(plugins), tuple(traces))
+                 simulate, tuple(outputs), tuple(sweeps), tuple(plugins), tuple(traces),
+                 tuple(units.items()))
 
 
 def _sweep_exprs(sw: Sweep) -> list[E.Expr]:

@@ -8,6 +8,8 @@ of its constraints, all instants of a block and all variants.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from . import expr as E
@@ -51,8 +53,6 @@ def _sparse_pattern(groups: list[Group], constraints: list[Constraint], n: int
                     ) -> tuple[list[Group], Pattern]:
     """The non-zero entries of Phi_q (the Jacobian blocks of the moving bodies), and for each
     group and attached body where its block's entries go among them (``Group.nz``)."""
-    from dataclasses import replace
-
     width = n + 3
     m = constraints[-1].rows[1] if constraints else 0
     flats = [f for g in groups for f in g.flat]
@@ -79,7 +79,9 @@ class _Compiler:
         self._bodies()
         constraints, groups, drive_rows, drive_fns = self._constraints()
         groups, pattern = _sparse_pattern(groups, constraints, 3 * len(self.bodies))
-        outputs = self._outputs()
+        units = dict(self.model.units)
+        outputs = [replace(o, unit=unit_of(o.quantity, units.get("length", ""),
+                                           units.get("time", ""))) for o in self._outputs()]
         times = (time_grid(self.model, self.ov, self.var, len(outputs)) if need_times
                  else None)
         order = max((o.order for o in outputs), default=0)
@@ -104,6 +106,7 @@ class _Compiler:
             pattern=pattern,
             sketch=self._sketch(groups),
             mass=tuple(self._mass(b) for b in self.bodies),
+            time_unit=dict(self.model.units).get("time", ""),
         )
 
     # -- params and sweeps ---------------------------------------------------------------------
@@ -456,6 +459,16 @@ class _Compiler:
                         "body.point.quantity", span)
 
     # -- time ----------------------------------------------------------------------------------
+
+def unit_of(quantity: str, length: str, time: str) -> str:
+    """The unit of an output quantity from the units of length and time ("" if one it needs
+    is not given): x -> m, vx -> m/s, ax -> m/s^2, phi -> rad, omega -> rad/s, alpha -> rad/s^2."""
+    order = _order(quantity)
+    base = "rad" if quantity in ("phi", "omega", "alpha") else length
+    if not base or (order and not time):
+        return ""
+    return base + ("", f"/{time}", f"/{time}^2")[order]
+
 
 def _order(quantity: str) -> int:
     if quantity in ("x", "y", "phi"):

@@ -145,3 +145,6 @@ class Model:
     plugins: tuple[tuple[str, Span], ...] = ()
     #: ``trace body.P`` statements: points whose paths snapshots and animations draw.
     traces: tuple[OutputRef, ...] = ()
+    #: ``units length = "m", time = "s"``: the names of the units, for labels only, as
+    #: (dimension, name) pairs.
+    units: tuple[tuple[str, str], ...] = ()

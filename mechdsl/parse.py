@@ -223,6 +223,16 @@ class _ToModel(Transformer):
     def trace(self, meta, items):
         return ("trace", tuple(items))
 
+    def unit(self, meta, items):
+        name, text = items
+        if str(name) not in ("length", "time"):
+            raise MechError(f"units are given for 'length' and 'time', not '{name}' (angles "
+                            "are in radians)", _tspan(name))
+        return str(name), str(text)[1:-1], _tspan(name)
+
+    def units(self, meta, items):
+        return ("units", tuple(items), _span(meta))
+
     def sweep_list(self, meta, items):
         return ("list", tuple(items))
 

@@ -57,7 +57,8 @@ def plot_results(results: Results, path: str | os.PathLike, title: str | None = 
             k = int(results.n_solved[v])
             ax.plot(t[:k], results.data[label][v, :k], lw=1.4,
                     label=_variant_label(results, v) if results.sweep else None)
-        ax.set_ylabel(label)
+        unit = results.units.get(label)
+        ax.set_ylabel(f"{label} [{unit}]" if unit else label)
         ax.grid(True, alpha=0.3)
         ax.margins(x=0)
         _constant_range(ax, results.data[label])
@@ -68,7 +69,7 @@ def plot_results(results: Results, path: str | os.PathLike, title: str | None = 
         shown = [i for i in range(col, len(labels), ncols)]
         if shown:
             bottom = axes[shown[-1]]
-            bottom.set_xlabel("t")
+            bottom.set_xlabel(f"t [{results.time_unit}]" if results.time_unit else "t")
             bottom.xaxis.set_tick_params(labelbottom=True)
     if results.sweep:
         axes[0].legend(fontsize="small", loc="best")

@@ -6,7 +6,7 @@ import io
 import os
 import sys
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import IO, Mapping
 
 import numpy as np
@@ -40,6 +40,9 @@ class Results:
     poses: np.ndarray | None = None
     #: (V, K, 2, bodies, 3): their velocities and accelerations, when kept (for exports).
     rates: np.ndarray | None = None
+    #: the unit of each output quantity and of time, where the model gives them (labels)
+    units: Mapping[str, str] = field(default_factory=dict)
+    time_unit: str = ""
 
     @property
     def ok(self) -> bool:

@@ -160,6 +160,7 @@ def simulate(system: System, options: SolverOptions | None = None, *,
         warnings=tuple(st.warnings), condition=1.0 / st.min_rcond,
         poses=None if st.poses is None else st.poses.reshape(V, K, -1, 3),
         rates=None if st.rates is None else st.rates.reshape(V, K, 2, -1, 3),
+        units={o.label: o.unit for o in system.outputs if o.unit}, time_unit=system.time_unit,
     )
 
 

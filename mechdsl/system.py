@@ -68,6 +68,8 @@ class OutputSpec:
     point: np.ndarray | None
     quantity: str
     order: int
+    #: its unit, from the model's ``units`` statement ("" where none is given)
+    unit: str = ""
 
 
 @dataclass(frozen=True)
@@ -111,6 +113,8 @@ class System:
     sketch: Sketch | None = None
     #: per moving body, the mass properties of its shape (shapes.MassProperties) or None
     mass: tuple = ()
+    #: the unit of time, from the model's ``units`` statement ("" where none is given)
+    time_unit: str = ""
 
     @property
     def n_bodies(self) -> int:
