@@ -13,16 +13,16 @@ from dataclasses import replace
 import numpy as np
 
 from . import expr as E
+from .derive import derivative
 from .errors import MechError, Span, suggest
 from .functions import ExprFunction
 from .model import (
-    BODY_QUANTITIES, GROUND, ORIGIN, POINT_QUANTITIES, Body, Drive, Joint, Model, Polygon,
-    Vector,
+    BODY_QUANTITIES, GROUND, ORIGIN, POINT_QUANTITIES, Body, Drive, Joint, Model, Vector,
 )
 from .checks import TIME, check_expr
 from .plugins.contract import REQUIRED, ArgError, ConstraintType
 from .plugins.registry import Registry
-from .shapes import MassProperties, boundary, mesh_properties, polygon_properties
+from .shapes import mass_properties, shape_edges
 from .sparse import Pattern
 from .system import Constraint, DriveFunction, Group, OutputSpec, Sketch, System
 from .variants import Overrides, evaluate, time_grid
@@ -105,7 +105,7 @@ class _Compiler:
             order=order,
             pattern=pattern,
             sketch=self._sketch(groups),
-            mass=tuple(self._mass(b) for b in self.bodies),
+            mass=tuple(mass_properties(b, self.var) for b in self.bodies),
             time_unit=dict(self.model.units).get("time", ""),
         )
 
@@ -333,8 +333,8 @@ class _Compiler:
 
     def _drive_function(self, d: Drive) -> DriveFunction:
         f = d.function
-        fd = E.derivative(f, TIME)
-        fdd = E.derivative(fd, TIME)
+        fd = derivative(f, TIME)
+        fdd = derivative(fd, TIME)
         return DriveFunction(E.compile_expr(f), E.compile_expr(fd), E.compile_expr(fdd),
                              (f, fd, fdd))
 
@@ -366,44 +366,8 @@ class _Compiler:
                 raise MechError(f"body '{body}' has no point '{point}'"
                                 + suggest(point, self.points[body], f"{body}."), r.span)
             traces.append(('.'.join(r.parts), i, _readonly(self.points[body][point])))
-        shapes = tuple(self._shape_edges(b) for b in [*self.bodies, self.model.ground])
+        shapes = tuple(shape_edges(b, self.var) for b in [*self.bodies, self.model.ground])
         return Sketch(tuple(outlines), tuple(pins), tuple(traces), shapes)
-
-    def _polygon(self, b: Body) -> np.ndarray:
-        """The vertices (V, n, 2) of a body's polygon shape."""
-        return np.stack([self.var.vector(v, f"a vertex of the shape of {b.name}")
-                         for v in b.shape.vertices], axis=1)
-
-    def _shape_edges(self, b: Body) -> np.ndarray | None:
-        if b.shape is None:
-            return None
-        if isinstance(b.shape, Polygon):
-            xy = self._polygon(b)
-            return _readonly(np.stack((xy, np.roll(xy, -1, axis=1)), axis=2))
-        edges = b.shape.points[boundary(b.shape.triangles)]  # (E, 2, 2)
-        return _readonly(np.broadcast_to(edges, (self.V,) + edges.shape).copy())
-
-    def _mass(self, b: Body) -> MassProperties | None:
-        """Area, centroid and polar moment of a body's shape; mass and inertia from its
-        density (see :mod:`mechdsl.shapes`)."""
-        if b.shape is None:
-            return None
-        if isinstance(b.shape, Polygon):
-            area, centroid, polar = polygon_properties(self._polygon(b))
-            span = b.shape.span
-        else:
-            a, c, j = mesh_properties(b.shape.points, b.shape.triangles)
-            area, centroid, polar = (np.full(self.V, a), np.broadcast_to(c, (self.V, 2)),
-                                     np.full(self.V, j))
-            span = b.shape.span
-        if not np.all(area > 0):
-            raise MechError(f"the shape of {b.name} has no area", span)
-        rho = (self.var.values(b.density, f"the density of {b.name}", b.density.span)
-               if b.density is not None else np.full(self.V, np.nan))
-        if b.density is not None and not np.all(rho > 0):
-            raise MechError(f"the density of {b.name} must be positive", b.density.span)
-        return MassProperties(*(_readonly(np.array(x, dtype=float)) for x in
-                                (area, centroid, polar, rho * area, rho * polar)))
 
     def _outputs(self) -> list[OutputSpec]:
         refs = self.model.outputs

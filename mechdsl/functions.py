@@ -14,6 +14,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from . import expr as E
+from .derive import derivative
 
 
 class ExprFunction:
@@ -28,9 +29,9 @@ class ExprFunction:
         self.elementwise = elementwise
         self._fns = []
         for e in self.exprs:
-            d1 = E.derivative(e, var)
+            d1 = derivative(e, var)
             self._fns.append((E.compile_expr(e), E.compile_expr(d1),
-                              E.compile_expr(E.derivative(d1, var))))
+                              E.compile_expr(derivative(d1, var))))
 
     @classmethod
     def of(cls, text: str, var: str, **params: float) -> "ExprFunction":

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import MechError, Span
+from .model import Body, Polygon
+from .variants import Variants
 
 
 @dataclass(frozen=True)
@@ -115,3 +117,48 @@ def read_mesh(path: str, base_dir: str, span: Span | None) -> MeshShape:
                         f"{', '.join(sorted({c.type for c in mesh.cells})) or 'none'})", span)
     triangles = np.concatenate(tris).astype(np.int64)
     return MeshShape(path, pts[:, :2].copy(), triangles, span)
+
+
+def _readonly(a) -> np.ndarray:
+    a = np.ascontiguousarray(a, dtype=float)
+    a.flags.writeable = False
+    return a
+
+
+def _vertices(body: Body, var: Variants) -> np.ndarray:
+    """The vertices (V, n, 2) of a body's polygon shape, for every sweep variant."""
+    return np.stack([var.vector(v, f"a vertex of the shape of {body.name}")
+                     for v in body.shape.vertices], axis=1)
+
+
+def shape_edges(body: Body, var: Variants) -> np.ndarray | None:
+    """The edges (V, E, 2, 2) of a body's shape outline in its frame (None without a shape):
+    a polygon's sides, or the edges of a mesh that belong to one triangle only."""
+    if body.shape is None:
+        return None
+    if isinstance(body.shape, Polygon):
+        xy = _vertices(body, var)
+        return _readonly(np.stack((xy, np.roll(xy, -1, axis=1)), axis=2))
+    edges = body.shape.points[boundary(body.shape.triangles)]  # (E, 2, 2)
+    return _readonly(np.broadcast_to(edges, (var.count,) + edges.shape))
+
+
+def mass_properties(body: Body, var: Variants) -> MassProperties | None:
+    """Area, centroid and polar moment of a body's shape, and mass and inertia from its
+    density, for every sweep variant (``var``: the evaluated params); None without a shape."""
+    if body.shape is None:
+        return None
+    V = var.count
+    if isinstance(body.shape, Polygon):
+        area, centroid, polar = polygon_properties(_vertices(body, var))
+    else:
+        a, c, j = mesh_properties(body.shape.points, body.shape.triangles)
+        area, centroid, polar = np.full(V, a), np.broadcast_to(c, (V, 2)), np.full(V, j)
+    if not np.all(area > 0):
+        raise MechError(f"the shape of {body.name} has no area", body.shape.span)
+    rho = (var.values(body.density, f"the density of {body.name}", body.density.span)
+           if body.density is not None else np.full(V, np.nan))
+    if body.density is not None and not np.all(rho > 0):
+        raise MechError(f"the density of {body.name} must be positive", body.density.span)
+    return MassProperties(*(_readonly(x) for x in
+                            (area, centroid, polar, rho * area, rho * polar)))

@@ -1,0 +1,104 @@
+"""Exact derivatives of expression trees: d e / d var as a new, simplified tree.
+
+The drives' f'(t) and f''(t) (for nu and gamma) and the derivatives of function arguments of
+plugins come from here: derived from the expression, never by finite differences.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Callable
+
+from .expr import (
+    Binary, Call, Compare, Cond, Expr, Name, Num, Ref, Table, Unary, add, call, cond, div,
+    free_names, mul, neg, power, sub,
+)
+
+
+def derivative(e: Expr, var: str = "t") -> Expr:
+    """The exact derivative d e / d var as a new (simplified) tree.
+
+    Piecewise expressions differentiate branch by branch: d/dt (if C then A else B) =
+    if C then A' else B' (the derivative where it exists; at a switch point the branch the
+    condition selects). ``min``, ``max`` and ``abs`` become such conditionals
+    (``abs(u)' = if u >= 0 then u' else -u'``).
+    """
+    if isinstance(e, Num) or isinstance(e, Ref):
+        return Num(0.0)
+    if isinstance(e, Name):
+        return Num(1.0 if e.id == var else 0.0)
+    if var not in free_names(e):
+        return Num(0.0)
+    d = lambda x: derivative(x, var)  # noqa: E731
+    if isinstance(e, Unary):
+        if e.op == "-":
+            return neg(d(e.operand))
+        raise ValueError("a truth value has no derivative")
+    if isinstance(e, Binary):
+        a, b = e.left, e.right
+        if e.op == "+":
+            return add(d(a), d(b))
+        if e.op == "-":
+            return sub(d(a), d(b))
+        if e.op == "*":
+            return add(mul(d(a), b), mul(a, d(b)))
+        if e.op == "/":
+            # (a/b)' = a'/b - a b'/b^2
+            return sub(div(d(a), b), div(mul(a, d(b)), power(b, Num(2.0))))
+        if e.op == "^":
+            if var not in free_names(b):
+                # (a^c)' = c a^(c-1) a'
+                return mul(mul(b, power(a, sub(b, Num(1.0)))), d(a))
+            # (a^b)' = a^b (b' log a + b a'/a)
+            return mul(e, add(mul(d(b), call("log", a)), div(mul(b, d(a)), a)))
+    if isinstance(e, Cond):
+        return cond(e.test, d(e.then), d(e.orelse))
+    if isinstance(e, Call):
+        return _call_derivative(e, d)
+    if isinstance(e, Table):
+        # a cubic's fourth derivative vanishes; the chain rule for the argument
+        outer = replace(e, order=e.order + 1, span=None) if e.order < 3 else Num(0.0)
+        return mul(outer, d(e.arg))
+    raise ValueError(f"cannot differentiate {type(e).__name__}")
+
+
+def _call_derivative(e: Call, d: Callable[[Expr], Expr]) -> Expr:
+    f, args = e.func, e.args
+    if f in ("min", "max"):
+        if len(args) > 2:
+            return d(Call(f, (Call(f, args[:-1]), args[-1])))
+        a, b = args
+        return cond(Compare("<=" if f == "min" else ">=", a, b), d(a), d(b))
+    if f == "atan2":
+        y, x = args  # (x y' - y x') / (x^2 + y^2)
+        return div(sub(mul(x, d(y)), mul(y, d(x))),
+                   add(power(x, Num(2.0)), power(y, Num(2.0))))
+    (u,) = args
+    du = d(u)
+    if f == "sin":
+        outer = call("cos", u)
+    elif f == "cos":
+        outer = neg(call("sin", u))
+    elif f == "tan":
+        outer = add(Num(1.0), power(call("tan", u), Num(2.0)))
+    elif f == "asin":
+        outer = div(Num(1.0), call("sqrt", sub(Num(1.0), power(u, Num(2.0)))))
+    elif f == "acos":
+        outer = neg(div(Num(1.0), call("sqrt", sub(Num(1.0), power(u, Num(2.0))))))
+    elif f == "atan":
+        outer = div(Num(1.0), add(Num(1.0), power(u, Num(2.0))))
+    elif f == "sqrt":
+        outer = div(Num(0.5), e)
+    elif f == "exp":
+        outer = e
+    elif f == "log":
+        outer = div(Num(1.0), u)
+    elif f == "abs":
+        # branch by branch, as a conditional: sign(u) would give 0 at u = 0 even where
+        # abs(u)^2 and the like are smooth
+        return cond(Compare(">=", u, Num(0.0)), du, neg(du))
+    elif f == "sign":
+        outer = Num(0.0)
+    else:  # pragma: no cover - FUNCTIONS and this table are kept in step by the tests
+        raise ValueError(f"no derivative rule for {f}")
+    return mul(outer, du)
