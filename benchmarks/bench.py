@@ -272,8 +272,12 @@ def startup(rep: Report, quick: bool) -> None:
         out = Path(tmp) / "out.csv"
         cmd = [sys.executable, "-m", "mechdsl", "run", str(ROOT / "examples" / "slider_crank.mech"),
                "-o", str(out), "-q"]
-        t_run, _ = median_time(lambda: subprocess.run(cmd, check=True), repeat)
+        t_run, _ = median_time(
+            lambda: subprocess.run(cmd, check=True, env=peers.user_env()), repeat)
+        t_cold, _ = median_time(
+            lambda: subprocess.run(cmd, check=True, env=peers.user_env(bytecode=False)), repeat)
     rows = [["mechdsl run examples/slider_crank.mech -o out.csv", f"{1e3 * t_run:.0f}"],
+            ["the same, bytecode cache off (PYTHONDONTWRITEBYTECODE=1)", f"{1e3 * t_cold:.0f}"],
             ["python -c 'import mechdsl'", f"{1e3 * peers.import_time('mechdsl', repeat):.0f}"],
             ["python -c 'import numpy'", f"{1e3 * peers.import_time('numpy', repeat):.0f}"],
             ["python -c 'pass'", f"{1e3 * peers.import_time('sys', repeat):.0f}"]]

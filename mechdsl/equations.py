@@ -146,7 +146,9 @@ def solver_jacobian(system: System, q: np.ndarray, rows: np.ndarray, sparse: boo
     sparse (all rows) for a large mechanism."""
     if sparse:
         return jacobian_values(system, q)
-    return jacobian(system, q)[..., rows, :]
+    jac = jacobian(system, q)
+    # all rows (the usual case): the view, not a fancy-indexed copy
+    return jac if len(rows) == system.m else jac[..., rows, :]
 
 
 def velocity_rhs(system: System, t: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:

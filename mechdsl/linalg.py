@@ -111,13 +111,14 @@ def factor(jac: np.ndarray | SparseJac, col_scale: np.ndarray) -> Factor:
         return _factor_sparse(jac, col_scale)
     with np.errstate(all="ignore"):
         a = jac * col_scale[..., None, :]
-        norms = np.linalg.norm(a, axis=-1)
+        norms = np.sqrt(np.einsum("...ij,...ij->...i", a, a))
         r = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
         a = a * r[..., :, None]
     if a.shape[-2] > a.shape[-1]:
         return _factor_redundant(np.nan_to_num(a), r, col_scale)
     with np.errstate(all="ignore"):
-        sign = np.linalg.slogdet(np.nan_to_num(a))[0]
+        finite = np.isfinite(a).all()
+        sign = np.linalg.slogdet(a if finite else np.nan_to_num(a))[0]
         ainv = inverse(a)
         norm_a = np.abs(a).sum(axis=-2).max(axis=-1)
         norm_inv = np.abs(ainv).sum(axis=-2).max(axis=-1)

@@ -77,7 +77,7 @@ def square(system: System) -> Mobility:
 def report(system: System, q: np.ndarray, col_scale: np.ndarray) -> tuple[int, int, str]:
     """(mobility, rank of the joint equations, the redundant ones named) at ``q`` (n,) of a
     one-variant ``system``; nothing is raised (for ``mechdsl check``)."""
-    joint_rows = np.setdiff1d(np.arange(system.m), system.drive_rows)
+    joint_rows = system.joint_rows
     with np.errstate(all="ignore"):
         jac = eq.jacobian(system, q.reshape(1, 1, -1))[0, 0] * col_scale
     kept, dropped = independent_rows(jac[joint_rows])
@@ -119,7 +119,7 @@ def analyse(system: System, q: np.ndarray, col_scale: np.ndarray) -> Mobility:
     the count only because the configuration is singular (a dead point or change point)."""
     n = system.n
     drive_rows = np.asarray(system.drive_rows, dtype=int)
-    joint_rows = np.setdiff1d(np.arange(system.m), drive_rows)
+    joint_rows = system.joint_rows
     with np.errstate(all="ignore"):
         jac = eq.jacobian(system, q.reshape(1, 1, n))[0, 0] * col_scale
     kept, dropped = independent_rows(jac[joint_rows])

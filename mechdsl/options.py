@@ -53,6 +53,16 @@ class SolverOptions:
     #: Instants solved together at most, and at the start.
     max_block: int = 256
     initial_block: int = 8
+    #: Two-level march: every this-many-th instant is solved first (a scouting pass), the
+    #: rest from the quintic Hermite interpolation of those states, all at once; 1 turns it
+    #: off. benchmarks/bench.py (work-precision) measures the choice.
+    coarse_stride: int = 16
+    #: Newton's tolerance (scaled as newton_tol) in the scouting pass of the two-level march;
+    #: its states are only starting points, from which the second pass converges fully.
+    coarse_newton_tol: float = 1e-4
+    #: Instants handled per window of the two-level march (the granularity at which a run
+    #: that is interrupted keeps its results).
+    window: int = 4096
     #: Cap on V * b * m * n, the size of a batched Jacobian (memory bound).
     max_batch_elements: int = 2**22
     #: From this many coordinates (3 per moving body) on, a mechanism without redundant
@@ -90,6 +100,6 @@ class SolverOptions:
         if not 0 < self.singular_rcond < 1:
             raise ValueError(f"singular_rcond must be in (0, 1), not {self.singular_rcond!r}")
         for name in ("max_iterations", "assembly_max_iterations", "max_block", "initial_block",
-                     "max_batch_elements"):
+                     "max_batch_elements", "coarse_stride", "window"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1")

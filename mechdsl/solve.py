@@ -27,7 +27,7 @@ Refused states are bisected towards, then reported with the instant and the join
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -41,6 +41,7 @@ from .errors import MechError
 from .linalg import Factor, factor
 from .newton import correction_ratio, newton, use_sparse
 from .singular import singular_step
+from .hermite import quintic_hermite
 from .options import SolverOptions
 from .results import Results
 
@@ -76,6 +77,11 @@ class _State:
     #: (V, K, 2, n) their velocities and accelerations, when exports need them.
     poses: np.ndarray | None = None
     rates: np.ndarray | None = None
+    #: Instants per block of the march, grown while Newton converges fast.
+    block: int = 8
+    #: A scouting pass collects every accepted state here, as (t, q, qd, qdd) arrays of
+    #: shapes (V, c) and (V, c, n), for the interpolating predictor of the second pass.
+    nodes: list[tuple[np.ndarray, ...]] | None = None
 
 
 def _predict(st: _State, T: np.ndarray, order: int = 2) -> np.ndarray:
@@ -121,6 +127,7 @@ def simulate(system: System, options: SolverOptions | None = None, *,
                 n_solved=np.zeros(V, int), rows=rows, watched=watched,
                 watch_weights=weights, min_rcond=np.ones(V),
                 min_rcond_t=np.full(V, times[0]), failures=list(asm.messages),
+                block=opts.initial_block,
                 poses=np.full((V, K, n), np.nan) if poses or rates else None,
                 rates=np.full((V, K, 2, n), np.nan) if rates else None)
     if asm.mobility is not None:
@@ -140,7 +147,7 @@ def simulate(system: System, options: SolverOptions | None = None, *,
             st.active &= ~singular
             st.sign = fac.sign[:, 0]
             _accept(system, st, q0, t0, np.array([0]), fac, st.active.copy(), data, opts)
-            _march(system, st, opts, data, progress)
+            _run(system, st, opts, data, progress)
     except KeyboardInterrupt:
         status = "interrupted"
     elapsed = time.perf_counter() - start
@@ -172,7 +179,7 @@ def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.nd
     accelerations (at every column when an output needs them, else at the last column only,
     for the predictor), unless ``rates`` gives them; record the columns whose ``rec`` index is
     not negative. Redundant equations left out of the solve must still hold."""
-    order = 2 if st.rates is not None else system.order
+    order = 2 if st.rates is not None or st.nodes is not None else system.order
     rows = st.rows
     c = q.shape[1]
     if rates is not None:
@@ -203,6 +210,8 @@ def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.nd
         st.good = (st.t.copy(), st.qd.copy(), st.qdd.copy())
     gt, gqd, gqdd = st.good
     gt[regular], gqd[regular], gqdd[regular] = t[regular, -1], qd[regular, -1], qdd[regular, -1]
+    if st.nodes is not None:
+        st.nodes.append((t, q, qd, qdd))
     keep = rec >= 0
     if not keep.any():
         return
@@ -240,17 +249,121 @@ def _watch_redundant(system: System, st: _State, phi: np.ndarray, t: np.ndarray,
         mask[v] = False
 
 
-def _march(system: System, st: _State, opts: SolverOptions, data: dict,
-           progress: Callable[[int, int], None] | None = None) -> None:
+def _run(system: System, st: _State, opts: SolverOptions, data: dict,
+         progress: Callable[[int, int], None] | None) -> None:
+    """March from the state at instant 0 to the last instant, window by window.
+
+    Each window is first tried in two levels (:func:`_two_level`); what that does not settle
+    is marched instant by instant (:func:`_march`), which reports any failure exactly."""
+    K = len(system.times)
+    stride = opts.coarse_stride
+    two_level = stride > 1 and not use_sparse(system, opts, st.rows)
+    k = 1
+    while k < K and st.active.any():
+        end = min(K, k + max(opts.window, 2 * stride))
+        if two_level and end - k >= 2 * stride:
+            k = _two_level(system, st, opts, data, k, end)
+            if progress is not None:
+                progress(k, K)
+        if k < end and st.active.any():
+            _march(system, st, opts, data, progress, np.arange(k, end))
+        k = end
+
+
+def _two_level(system: System, st: _State, opts: SolverOptions, data: dict, k: int,
+               end: int) -> int:
+    """Solve the instants k .. end-1 in two levels; return the first instant not solved.
+
+    1. Scout: march every ``coarse_stride``-th instant (and end-1) from a copy of the state,
+       keeping each state's q, qd, qdd; the copy is discarded, nothing is recorded.
+    2. Settle: every instant of the window, started from the quintic Hermite interpolation
+       of the scouted states (:mod:`mechdsl.hermite`), is solved by batched Newton and put
+       through the march's checks against its predecessor (convergence, conditioning, sign
+       of det Phi_q, size of Newton's correction); the instants up to the first that fails
+       are recorded. Any failure of the scout stops here, and the ordinary march takes the
+       window over: it finds and reports the failure at its exact instant.
+    """
     times = system.times
+    grid = np.arange(k - 1 + opts.coarse_stride, end, opts.coarse_stride)
+    if grid[-1] != end - 1:
+        grid = np.append(grid, end - 1)
+    scout = _scout(st)
+    # the scouted states only start Newton in the second pass, which converges fully from
+    # them: a loose tolerance saves iterations and lets the scout's blocks grow
+    loose = replace(opts, newton_tol=max(opts.newton_tol, opts.coarse_newton_tol))
+    _march(system, scout, loose, {}, None, grid, record=False)
+    if scout.failures or scout.passages or (scout.active != st.active).any():
+        return k
+    st.block = scout.block
+    first = int(np.flatnonzero(st.active)[0])
+    parts = [(st.t[:, None], st.q[:, None], st.qd[:, None], st.qdd[:, None])] + scout.nodes
+    tn, qn, qdn, qddn = (np.concatenate([p[i] for p in parts], axis=1) for i in range(4))
+    tn = tn[first]
+    V, n = system.n_variants, system.n
+    D, rows = col_scale(system), st.rows
+    floor = np.sqrt(opts.newton_tol)
+    act = st.active[:, None]
+    cap = max(1, opts.max_batch_elements // max(1, V * system.m * n))
+    for j0 in range(k, end, cap):
+        idx = np.arange(j0, min(j0 + cap, end))
+        T = np.where(act, times[idx][None, :], st.t[:, None])
+        if (_undefined_drives(system, T) & act).any():
+            return j0
+        with np.errstate(all="ignore"):
+            pred = quintic_hermite(tn, qn, qdn, qddn, times[idx])
+        q, ok, _ = newton(system, pred, T, D, st.active, opts, rows)
+        fac = factor(eq.solver_jacobian(system, q, rows, False), D)
+        previous = np.concatenate((st.q[:, None], q[:, :-1]), axis=1)
+        ratio = correction_ratio(q, pred, previous, D, floor)
+        before = np.concatenate((st.sign[:, None], fac.sign[:, :-1]), axis=1)
+        good = (ok & (fac.rcond >= opts.singular_rcond) & (fac.sign == before)
+                & (ratio <= opts.branch_ratio)) | ~act
+        col_ok = good.all(axis=0)
+        nacc = len(idx) if col_ok.all() else int(np.argmin(col_ok))
+        if nacc:
+            _accept(system, st, q[:, :nacc], T[:, :nacc], idx[:nacc],
+                    fac.columns(slice(0, nacc)), st.active.copy(), data, opts)
+        if nacc < len(idx) or not st.active.any():
+            return j0 + nacc
+    return end
+
+
+def _scout(st: _State) -> _State:
+    """A copy of the state for a scouting pass: same last state, nothing recorded."""
+    return _State(t=st.t.copy(), q=st.q.copy(), qd=st.qd.copy(), qdd=st.qdd.copy(),
+                  sign=st.sign.copy(), active=st.active.copy(), n_solved=st.n_solved.copy(),
+                  rows=st.rows, watched=st.watched, watch_weights=st.watch_weights,
+                  min_rcond=st.min_rcond.copy(), min_rcond_t=st.min_rcond_t.copy(),
+                  good=None if st.good is None else tuple(a.copy() for a in st.good),
+                  block=st.block, nodes=[])
+
+
+def _recorded(instant: np.ndarray, rec: np.ndarray, record: bool) -> np.ndarray:
+    """The instants (indices into system.times) that the march's positions ``rec`` record;
+    -1 for substeps, and for everything in a scouting pass."""
+    if not record:
+        return np.full(len(rec), -1)
+    return np.where(rec >= 0, instant[np.maximum(rec, 0)], -1)
+
+
+def _march(system: System, st: _State, opts: SolverOptions, data: dict,
+           progress: Callable[[int, int], None] | None, grid: np.ndarray,
+           record: bool = True) -> None:
+    """Solve the instants ``grid`` (indices into ``system.times``, increasing, after the
+    state's time) one block after another, each block predicted from the last state; record
+    them unless ``record`` is False (a scouting pass that only collects states)."""
+    # position 0 is the state's own time; position j >= 1 is instant grid[j - 1]
+    times = np.concatenate(([float(st.t[st.active][0])], system.times[grid]))
+    instant = np.concatenate(([-1], np.asarray(grid)))
     V, n, K = system.n_variants, system.n, len(times)
+    K_all = len(system.times)
     D = col_scale(system)
     rows = st.rows
     stop_at_singular = opts.at_singular == "stop"
     sparse = use_sparse(system, opts, rows)
     cap = max(1, opts.max_batch_elements // max(1, V * system.m * n))
-    b = max(1, min(opts.initial_block, cap))
-    k = 1  # the next instant to record
+    b = max(1, min(st.block, cap))
+    k = 1  # the next position of ``times`` to solve
     # between output instants that cannot be reached in one step the interval is crossed in
     # substeps of adaptive size hsub (halved on failure, doubled on success)
     hsub: float | None = None
@@ -258,7 +371,7 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict,
     floor = np.sqrt(opts.newton_tol)
     while k < K and st.active.any():
         if progress is not None:
-            progress(k, K)
+            progress(int(instant[k]), K_all)
         t_now = float(st.t[st.active][0])  # the active variants move in lockstep
         h_out = times[k] - times[k - 1]
         if hsub is None:
@@ -287,7 +400,7 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict,
         if hsub is not None:
             attempts += 1
         if nacc:
-            _accept(system, st, qn[:, :nacc], T[:, :nacc], rec[:nacc],
+            _accept(system, st, qn[:, :nacc], T[:, :nacc], _recorded(instant, rec[:nacc], record),
                     fac.columns(slice(0, nacc)), st.active.copy(), data, opts)
             if hsub is None:
                 k += nacc
@@ -301,6 +414,7 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict,
                     b = min(2 * b, opts.max_block, cap)
                 elif iters >= 6:
                     b = max(1, b // 2)
+                st.block = b
             continue
         if bb > 1:
             b = max(1, min(nacc, bb // 2))
@@ -310,7 +424,8 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict,
         gap = target - t_now
         if attempts > opts.max_substeps:
             for v in np.flatnonzero(st.active):
-                st.failures.append(_too_coarse(system, int(v), t_now, k, opts.max_substeps))
+                st.failures.append(_too_coarse(system, int(v), t_now, int(instant[k]),
+                                               opts.max_substeps))
             st.active[:] = False
             break
         if gap > h_out / 2**opts.max_bisections and not undefined.any():
@@ -328,15 +443,17 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict,
         bad = st.active & ~good[:, 0]
         for v in np.flatnonzero(bad):
             if undefined[v, 0]:
-                st.failures.append(_undefined_message(system, int(v), target, k))
+                st.failures.append(_undefined_message(system, int(v), target, int(instant[k])))
                 continue
             why = ("singular" if singular[v, 0] else "crossing" if crossing[v, 0]
                    else "jump" if jump[v, 0] else "diverged")
-            st.failures.append(failure(system, st.q[v], float(st.t[v]), int(v), target, k, why))
+            st.failures.append(failure(system, st.q[v], float(st.t[v]), int(v), target,
+                                       int(instant[k]), why))
         st.active &= ~bad
         if st.active.any():
             fac = factor(eq.solver_jacobian(system, qn, rows, sparse), D)
-            _accept(system, st, qn, T, rec, fac, st.active.copy(), data, opts, rates)
+            _accept(system, st, qn, T, _recorded(instant, rec, record), fac, st.active.copy(),
+                    data, opts, rates)
             if rec[0] >= 0:
                 hsub, attempts, k = None, 0, k + 1
             else:

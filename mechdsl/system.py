@@ -120,6 +120,14 @@ class System:
     def n_bodies(self) -> int:
         return len(self.body_names)
 
+    @property
+    def joint_rows(self) -> np.ndarray:
+        """The equations that are not drives, in order."""
+        # a mask, not np.setdiff1d: that imports numpy.ma (10 ms of every start-up)
+        mask = np.ones(self.m, bool)
+        mask[self.drive_rows] = False
+        return np.flatnonzero(mask)
+
     def row_owner(self, row: int) -> Constraint:
         """The joint or drive that owns equation ``row``."""
         for c in self.constraints:

@@ -121,7 +121,16 @@ def test_velocities_and_accelerations_are_skipped_when_not_requested(loads, monk
                         lambda s, q, *a: calls.append(q.shape) or real(s, q, *a))
     res = solve.simulate(system)
     assert res.ok
-    # gamma is evaluated once per block, at its last instant only (for the predictor)
+    assert np.allclose(res["crank.x"], np.cos(res["t"]), atol=1e-12)
+    # gamma is evaluated only where the predictors need it: at the last instant of each
+    # block of the plain march, and at the scouted instants of the two-level march, never
+    # at the instants that are only recorded
+    stride = solve.SolverOptions().coarse_stride
+    evaluated = sum(shape[1] for shape in calls)
+    assert evaluated <= 1001 // stride + len(calls)
+    assert all(shape[1] <= solve.SolverOptions().max_block for shape in calls)
+    calls.clear()
+    res = solve.simulate(system, solve.SolverOptions(coarse_stride=1))
     assert all(shape[1] == 1 for shape in calls)
     assert len(calls) < 40
 

@@ -14,12 +14,13 @@ explicitly are registered), as pytest does for its own plugins.
 from __future__ import annotations
 
 import os
-from importlib import import_module, metadata
+from importlib import import_module
 from typing import Collection, Iterable
 
 import pluggy
 
 from . import hookspecs
+from .discover import entry_points as find_entry_points
 from .registry import BrokenPlugin, PluginConflict, Provider, Registry
 
 ENTRY_POINT_GROUP = "mechdsl"
@@ -63,7 +64,7 @@ def build_registry(
         _register(pm, registry, plugin, Provider(name), providers)
 
     if entry_points:
-        eps = list(metadata.entry_points(group=ENTRY_POINT_GROUP))
+        eps = find_entry_points(ENTRY_POINT_GROUP)
         if wanted is not None:
             first = [ep for ep in eps if ep.name in wanted]
             _load_entry_points(pm, registry, first, providers)
@@ -98,10 +99,8 @@ def _register(pm, registry: Registry, plugin: object, provider: Provider,
 
 def _load_entry_points(pm, registry: Registry, eps: list, providers: dict[str, Provider]) -> None:
     for ep in eps:
-        dist = getattr(ep, "dist", None)
         module_name = ep.value.split(":")[0].strip()
-        provider = Provider(module_name, dist.name if dist else None,
-                            dist.version if dist else None)
+        provider = Provider(module_name, ep.dist_name, ep.dist_version)
         if module_name in providers or pm.has_plugin(module_name):
             continue
         try:
