@@ -81,7 +81,15 @@ def newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray, active: 
                                 theta * step / (1 - theta), np.inf)
                 if it >= 2 and not (theta[~done & ~failed] < opts.reuse_ratio).all():
                     reuse = None  # too slow: fresh Jacobians from here on
-        converged = live & ((step <= opts.newton_tol) | (left <= opts.newton_error))
+        if stale:
+            # a reused Jacobian converges linearly: the error after a small step is about
+            # theta |dq|, not |dq|^2, so a step below the tolerance is finished by fresh
+            # Jacobians (quadratic again) rather than taken as convergence
+            converged = live & (left <= opts.newton_error)
+            if (live & ~converged & (step <= opts.newton_tol)).any():
+                reuse = None
+        else:
+            converged = live & ((step <= opts.newton_tol) | (left <= opts.newton_error))
         done |= converged
         if it >= 3 and not stale:
             failed |= live & ~converged & (step > 0.5 * prev)

@@ -69,6 +69,8 @@ def mesh_properties(points: np.ndarray, triangles: np.ndarray
                     ) -> tuple[float, np.ndarray, float]:
     """(A, centroid (2,), J_c) of a triangle mesh: the sums over its triangles."""
     a, c, j = polygon_properties(points[triangles])
+    flat = ~(a > 0)  # a cell of no area contributes nothing (and has no centroid)
+    a, c, j = np.where(flat, 0.0, a), np.where(flat[:, None], 0.0, c), np.where(flat, 0.0, j)
     area = float(a.sum())
     centroid = (a[:, None] * c).sum(axis=0) / area
     # each triangle's J about its own centroid, moved to the shape's centroid (parallel axes)
@@ -116,7 +118,17 @@ def read_mesh(path: str, base_dir: str, span: Span | None) -> MeshShape:
         raise MechError(f"the shape {path} has no triangles or quads (cells: "
                         f"{', '.join(sorted({c.type for c in mesh.cells})) or 'none'})", span)
     triangles = np.concatenate(tris).astype(np.int64)
-    return MeshShape(path, pts[:, :2].copy(), triangles, span)
+    # cells of no area (a triangle written as a quad with a repeated vertex, say) add nothing
+    # to the shape but would make its centroid 0/0 and hide edges of its outline
+    xy = pts[:, :2]
+    extent = float(np.ptp(xy, axis=0).max()) or 1.0
+    p0, p1, p2 = (xy[triangles[:, k]] for k in range(3))
+    doubled = np.abs((p1[:, 0] - p0[:, 0]) * (p2[:, 1] - p0[:, 1])
+                     - (p1[:, 1] - p0[:, 1]) * (p2[:, 0] - p0[:, 0]))
+    triangles = triangles[doubled > 1e-12 * extent * extent]
+    if not len(triangles):
+        raise MechError(f"the shape {path} has no area: all its cells are degenerate", span)
+    return MeshShape(path, xy.copy(), triangles, span)
 
 
 def _readonly(a) -> np.ndarray:

@@ -203,7 +203,8 @@ def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.nd
     st.q[mask], st.t[mask] = q[mask, -1], t[mask, -1]
     st.qd[mask], st.qdd[mask] = qd[mask, -1], qdd[mask, -1]
     st.sign[mask] = fac.sign[mask, -1]
-    if fac.lus is not None and mask.all() and (fac.rcond[:, -1] > 0).all():
+    # per variant: the variants that stopped are skipped by Newton, whatever their entry
+    if fac.lus is not None and mask.any() and (fac.rcond[mask, -1] > 0).all():
         st.fac = fac.columns(slice(c - 1, c))
     regular = mask & (fac.rcond[:, -1] >= opts.warn_rcond) & (qd.shape[1] == c)
     if st.good is None:

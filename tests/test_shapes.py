@@ -66,6 +66,30 @@ def test_meshed_rectangle_matches_closed_form(loads, tmp_path, ext, quads):
     assert mp.inertia[0] == pytest.approx(2700 * polar, rel=1e-13)
 
 
+def test_degenerate_cells_add_nothing(loads, tmp_path):
+    """Cells of no area, as some mesh writers produce (a triangle written as a quad with a
+    repeated vertex, a sliver on an edge), leave the properties and the outline exact."""
+    import meshio
+
+    # the square [0, 2] x [0, 1] as two quads with their last vertex repeated (triangles),
+    # plus a zero-area triangle on its bottom edge
+    pts = np.array([[0, 0, 0], [2, 0, 0], [2, 1, 0], [0, 1, 0], [1, 0, 0.0]])
+    meshio.write_points_cells(str(tmp_path / "sq.vtu"), pts, [
+        ("quad", np.array([[0, 1, 2, 2], [0, 2, 3, 3]])), ("triangle", np.array([[0, 4, 1]]))])
+    (tmp_path / "link.mech").write_text(
+        BODY.format(items='shape = "sq.vtu"\n    density = 2'))
+    import mechdsl
+    system = mechdsl.load(tmp_path / "link.mech", registry=loads("").registry).compile()
+    area, centroid, polar = rectangle(0.0, 0.0, 2.0, 1.0)
+    mp = props(system)
+    assert mp.area[0] == pytest.approx(area, rel=1e-14)
+    np.testing.assert_allclose(mp.centroid[0], centroid, rtol=1e-14)
+    assert mp.polar[0] == pytest.approx(polar, rel=1e-13)
+    edges = system.sketch.shapes[system.body_names.index("link")][0]
+    assert len(edges) == 4  # the square's four sides, the diagonal and the sliver gone
+    assert sum(np.linalg.norm(e[1] - e[0]) for e in edges) == pytest.approx(6.0)
+
+
 def test_polygon_triangle_and_rectangle_in_a_sweep(loads):
     # a right triangle with legs b (swept) and 1.5, vertices clockwise: orientation must not
     # matter

@@ -144,3 +144,25 @@ def test_condition_limits_grow_with_size():
     big = opts.for_size(1001)
     assert big.singular_rcond == pytest.approx(opts.singular_rcond / 100.1**2)
     assert big.warn_rcond == pytest.approx(opts.warn_rcond / 100.1**2)
+
+
+def test_simplified_newton_converges_to_round_off(load_example):
+    """Reusing a factorisation converges linearly; it must still end at round-off, as the
+    dense path does (the slider-crank solved on the sparse path against its closed form)."""
+    res = load_example("slider_crank.mech").simulate(options=SPARSE)
+    assert res.ok
+    x, vx, ax = models.slider_crank_exact(res["t"])
+    assert np.abs(res["slider.x"] - x).max() / np.abs(x).max() < 1e-15
+    assert np.abs(res["slider.vx"] - vx).max() / np.abs(vx).max() < 1e-14
+    assert np.abs(res["slider.ax"] - ax).max() / np.abs(ax).max() < 1e-14
+    assert res.residual < 1e-14
+
+
+def test_a_variant_that_stops_leaves_the_others_exact_on_the_sparse_path(load_example):
+    # rod 1.9 < crank 2: that variant locks up early; the other goes on reusing its own
+    # factorisations, not the ones from before the lock-up
+    res = load_example("slider_crank.mech").simulate(sweep={"l": [3.5, 1.9]}, options=SPARSE)
+    assert res.n_solved[0] == 1001 and res.n_solved[1] < 100
+    x, vx, ax = models.slider_crank_exact(res["t"])
+    assert np.abs(res["slider.x"][0] - x).max() / np.abs(x).max() < 1e-15
+    assert np.abs(res["slider.ax"][0] - ax).max() / np.abs(ax).max() < 1e-14
