@@ -109,23 +109,28 @@ def factor(jac: np.ndarray | SparseJac, col_scale: np.ndarray) -> Factor:
     largest singular value), and sign 1 (no determinant). Sparse: SuperLU per state."""
     if isinstance(jac, SparseJac):
         return _factor_sparse(jac, col_scale)
+    # in place where possible: for a sweep these arrays hold millions of entries, and each
+    # pass over them costs more than the arithmetic
     with np.errstate(all="ignore"):
         a = jac * col_scale[..., None, :]
         norms = np.sqrt(np.einsum("...ij,...ij->...i", a, a))
         r = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
-        a = a * r[..., :, None]
+        a *= r[..., :, None]
     if a.shape[-2] > a.shape[-1]:
         return _factor_redundant(np.nan_to_num(a), r, col_scale)
     with np.errstate(all="ignore"):
-        finite = np.isfinite(a).all()
-        sign = np.linalg.slogdet(a if finite else np.nan_to_num(a))[0]
+        # a NaN or infinite entry makes its row's norm so: no pass over every entry
+        if not np.isfinite(norms).all():
+            a = np.nan_to_num(a)
+        sign = np.linalg.slogdet(a)[0]
         ainv = inverse(a)
-        norm_a = np.abs(a).sum(axis=-2).max(axis=-1)
+        norm_a = np.abs(a, out=a).sum(axis=-2).max(axis=-1)  # a is not needed after this
         norm_inv = np.abs(ainv).sum(axis=-2).max(axis=-1)
         rcond = 1.0 / (norm_a * norm_inv)
     rcond = np.where(np.isfinite(rcond), rcond, 0.0)
-    phi_q_inv = col_scale[..., :, None] * ainv * r[..., None, :]
-    return Factor(phi_q_inv, rcond, np.where(rcond > 0, sign, 0.0))
+    ainv *= r[..., None, :]
+    ainv *= col_scale[..., :, None]
+    return Factor(ainv, rcond, np.where(rcond > 0, sign, 0.0))
 
 
 def _factor_sparse(jac: SparseJac, col_scale: np.ndarray) -> Factor:
