@@ -162,6 +162,7 @@ def work_precision(rep: Report, quick: bool) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
 
     tols = [1e-4, 1e-6, 1e-8, 1e-10, 1e-12] if not quick else [1e-4, 1e-8, 1e-12]
     n_chain = 50
@@ -195,6 +196,8 @@ def work_precision(rep: Report, quick: bool) -> None:
                 ax.loglog(pts[:, 0], np.maximum(pts[:, 1 + k], 1e-17), "o-",
                           label=f"step {system.times[1] - system.times[0]:g}, predictor {order}")
                 ax.set_title(f"{name}: {what}")
+                # less than a decade of run time: minor tick labels would overlap
+                ax.xaxis.set_minor_formatter(NullFormatter())
                 ax.set_xlabel("run time (s)")
                 ax.set_ylabel("max relative error")
                 ax.axhline(1e-12, color="grey", lw=0.5, ls="--")
