@@ -54,6 +54,7 @@ def test_an_entry_point_loads_the_object_it_names(tmp_path, monkeypatch):
     (tmp_path / "pkg_x.py").write_text("class Hooks:\n    inner = 42\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     dist_info(tmp_path, "pkg_x-1.0.dist-info", "Name: pkg-x\nVersion: 1.0\n",
-              "[mechdsl]\nx = pkg_x:Hooks.inner\n")
-    (ep,) = entry_points("mechdsl", [str(tmp_path)])
-    assert ep.load() == 42
+              "[mechdsl]\nx = pkg_x:Hooks.inner\ny = pkg_x : Hooks.inner [fast, extra]\n")
+    eps = entry_points("mechdsl", [str(tmp_path)])
+    assert [ep.load() for ep in eps] == [42, 42]
+    assert eps[1].value == "pkg_x : Hooks.inner"

@@ -101,5 +101,6 @@ def _group(file: str, group: str) -> list[tuple[str, str]]:
             inside = line[1:-1].strip() == group
         elif inside and "=" in line:
             name, _, value = line.partition("=")
-            out.append((name.strip(), value.strip()))
+            # "module:attr [extra1, extra2]": extras name optional dependencies, not the object
+            out.append((name.strip(), re.sub(r"\s*\[.*\]\s*$", "", value).strip()))
     return out
