@@ -127,7 +127,8 @@ def factor(jac: np.ndarray | SparseJac, col_scale: np.ndarray) -> Factor:
         norm_a = np.abs(a, out=a).sum(axis=-2).max(axis=-1)  # a is not needed after this
         norm_inv = np.abs(ainv).sum(axis=-2).max(axis=-1)
         rcond = 1.0 / (norm_a * norm_inv)
-    rcond = np.where(np.isfinite(rcond), rcond, 0.0)
+    # a Jacobian that is not a number somewhere is singular, whatever its cleaned copy is
+    rcond = np.where(np.isfinite(rcond) & np.isfinite(norms).all(axis=-1), rcond, 0.0)
     ainv *= r[..., None, :]
     ainv *= col_scale[..., :, None]
     return Factor(ainv, rcond, np.where(rcond > 0, sign, 0.0))

@@ -93,6 +93,9 @@ class SolverOptions:
     def __post_init__(self) -> None:
         if not 0 < self.newton_tol <= 1e-4:
             raise ValueError(f"newton_tol must be in (0, 1e-4], not {self.newton_tol!r}")
+        if not 0 < self.coarse_newton_tol <= 1e-4:
+            raise ValueError("coarse_newton_tol must be in (0, 1e-4], not "
+                             f"{self.coarse_newton_tol!r}")
         if self.predictor_order not in (1, 2):
             raise ValueError(f"predictor_order must be 1 or 2, not {self.predictor_order!r}")
         if self.at_singular not in ("stop", "continue"):

@@ -81,3 +81,16 @@ def test_a_sweep_with_one_failing_variant_keeps_the_others(load_example):
         x, vx, ax = slider_crank(2.0, l, th, 4 * np.pi, 0.0)
         assert rel_err(res["slider.x"][v], x) < 1e-13
         assert rel_err(res["slider.ax"][v], ax) < 1e-12
+
+
+@pytest.mark.parametrize("value", [0.0, -1e-6, 1e-3, float("nan")])
+def test_the_scout_tolerance_is_checked_where_it_is_set(value):
+    with pytest.raises(ValueError, match="coarse_newton_tol"):
+        SolverOptions(coarse_newton_tol=value)
+
+
+def test_a_jacobian_with_a_nan_entry_is_singular():
+    from mechdsl.linalg import factor
+
+    fac = factor(np.array([[np.nan, 1.0], [1.0, 1.0]])[None, None], np.ones((1, 1, 2)))
+    assert fac.rcond[0, 0] == 0.0 and fac.sign[0, 0] == 0.0
