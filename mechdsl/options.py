@@ -55,7 +55,7 @@ class SolverOptions:
     initial_block: int = 8
     #: Two-level march: every this-many-th instant is solved first (a scouting pass), the
     #: rest from the quintic Hermite interpolation of those states, all at once; 1 turns it
-    #: off. benchmarks/bench.py (work-precision) measures the choice.
+    #: off. The levers section of benchmarks/bench.py measures its effect.
     coarse_stride: int = 16
     #: Newton's tolerance (scaled as newton_tol) in the scouting pass of the two-level march;
     #: its states are only starting points, from which the second pass converges fully.

@@ -68,9 +68,7 @@ def polygon_properties(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
 def mesh_properties(points: np.ndarray, triangles: np.ndarray
                     ) -> tuple[float, np.ndarray, float]:
     """(A, centroid (2,), J_c) of a triangle mesh: the sums over its triangles."""
-    a, c, j = polygon_properties(points[triangles])
-    flat = ~(a > 0)  # a cell of no area contributes nothing (and has no centroid)
-    a, c, j = np.where(flat, 0.0, a), np.where(flat[:, None], 0.0, c), np.where(flat, 0.0, j)
+    a, c, j = polygon_properties(points[triangles])  # no cell of no area: see read_mesh
     area = float(a.sum())
     centroid = (a[:, None] * c).sum(axis=0) / area
     # each triangle's J about its own centroid, moved to the shape's centroid (parallel axes)

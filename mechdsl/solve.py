@@ -300,11 +300,10 @@ def _two_level(system: System, st: _State, opts: SolverOptions, data: dict, k: i
     parts = [(st.t[:, None], st.q[:, None], st.qd[:, None], st.qdd[:, None])] + scout.nodes
     tn, qn, qdn, qddn = (np.concatenate([p[i] for p in parts], axis=1) for i in range(4))
     tn = tn[first]
-    V, n = system.n_variants, system.n
     D, rows = col_scale(system), st.rows
     floor = np.sqrt(opts.newton_tol)
     act = st.active[:, None]
-    cap = max(1, opts.max_batch_elements // max(1, V * system.m * n))
+    cap = _batch_cap(system, opts)
     for j0 in range(k, end, cap):
         idx = np.arange(j0, min(j0 + cap, end))
         T = np.where(act, times[idx][None, :], st.t[:, None])
@@ -316,11 +315,9 @@ def _two_level(system: System, st: _State, opts: SolverOptions, data: dict, k: i
         fac = factor(eq.solver_jacobian(system, q, rows, False), D)
         previous = np.concatenate((st.q[:, None], q[:, :-1]), axis=1)
         ratio = correction_ratio(q, pred, previous, D, floor)
-        before = np.concatenate((st.sign[:, None], fac.sign[:, :-1]), axis=1)
-        good = (ok & (fac.rcond >= opts.singular_rcond) & (fac.sign == before)
+        good = (ok & (fac.rcond >= opts.singular_rcond) & (fac.sign == _signs_before(st, fac))
                 & (ratio <= opts.branch_ratio)) | ~act
-        col_ok = good.all(axis=0)
-        nacc = len(idx) if col_ok.all() else int(np.argmin(col_ok))
+        nacc = _good_prefix(good)
         if nacc:
             _accept(system, st, q[:, :nacc], T[:, :nacc], idx[:nacc],
                     fac.columns(slice(0, nacc)), st.active.copy(), data, opts)
@@ -331,12 +328,29 @@ def _two_level(system: System, st: _State, opts: SolverOptions, data: dict, k: i
 
 def _scout(st: _State) -> _State:
     """A copy of the state for a scouting pass: same last state, nothing recorded."""
-    return _State(t=st.t.copy(), q=st.q.copy(), qd=st.qd.copy(), qdd=st.qdd.copy(),
-                  sign=st.sign.copy(), active=st.active.copy(), n_solved=st.n_solved.copy(),
-                  rows=st.rows, watched=st.watched, watch_weights=st.watch_weights,
-                  min_rcond=st.min_rcond.copy(), min_rcond_t=st.min_rcond_t.copy(),
-                  good=None if st.good is None else tuple(a.copy() for a in st.good),
-                  block=st.block, nodes=[])
+    return replace(st, t=st.t.copy(), q=st.q.copy(), qd=st.qd.copy(), qdd=st.qdd.copy(),
+                   sign=st.sign.copy(), active=st.active.copy(), n_solved=st.n_solved.copy(),
+                   min_rcond=st.min_rcond.copy(), min_rcond_t=st.min_rcond_t.copy(),
+                   failures=[], warnings=[], passages=[], residual=0.0, fac=None,
+                   good=None if st.good is None else tuple(a.copy() for a in st.good),
+                   poses=None, rates=None, nodes=[])
+
+
+def _batch_cap(system: System, opts: SolverOptions) -> int:
+    """Instants solved together at most: V * b * m * n within ``max_batch_elements``."""
+    per_instant = system.n_variants * system.m * system.n
+    return max(1, opts.max_batch_elements // max(1, per_instant))
+
+
+def _signs_before(st: _State, fac: Factor) -> np.ndarray:
+    """(V, b): the sign of det Phi_q at the state before each column of a block."""
+    return np.concatenate((st.sign[:, None], fac.sign[:, :-1]), axis=1)
+
+
+def _good_prefix(good: np.ndarray) -> int:
+    """How many leading columns of a block (V, b) are good in every variant."""
+    col_ok = good.all(axis=0)
+    return len(col_ok) if col_ok.all() else int(np.argmin(col_ok))
 
 
 def _recorded(instant: np.ndarray, rec: np.ndarray, record: bool) -> np.ndarray:
@@ -356,13 +370,12 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict,
     # position 0 is the state's own time; position j >= 1 is instant grid[j - 1]
     times = np.concatenate(([float(st.t[st.active][0])], system.times[grid]))
     instant = np.concatenate(([-1], np.asarray(grid)))
-    V, n, K = system.n_variants, system.n, len(times)
-    K_all = len(system.times)
+    K, K_all = len(times), len(system.times)
     D = col_scale(system)
     rows = st.rows
     stop_at_singular = opts.at_singular == "stop"
     sparse = use_sparse(system, opts, rows)
-    cap = max(1, opts.max_batch_elements // max(1, V * system.m * n))
+    cap = _batch_cap(system, opts)
     b = max(1, min(st.block, cap))
     k = 1  # the next position of ``times`` to solve
     # between output instants that cannot be reached in one step the interval is crossed in
@@ -392,12 +405,10 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict,
         fac = factor(eq.solver_jacobian(system, qn, rows, sparse), D)
         ratio = correction_ratio(qn, pred, st.q[:, None], D, floor)
         singular = ok & ~(fac.rcond >= opts.singular_rcond)
-        before = np.concatenate((st.sign[:, None], fac.sign[:, :-1]), axis=1)
-        crossing = ok & ~singular & (fac.sign != before) & stop_at_singular
+        crossing = ok & ~singular & (fac.sign != _signs_before(st, fac)) & stop_at_singular
         jump = ok & ~singular & ~crossing & ~(ratio <= opts.branch_ratio)
         good = (ok & ~singular & ~crossing & ~jump & ~undefined) | ~act
-        col_ok = good.all(axis=0)
-        nacc = bb if col_ok.all() else int(np.argmin(col_ok))
+        nacc = _good_prefix(good)
         if hsub is not None:
             attempts += 1
         if nacc:
