@@ -67,7 +67,7 @@ class SolverOptions:
     max_batch_elements: int = 2**22
     #: From this many coordinates (3 per moving body) on, a mechanism without redundant
     #: constraints is solved with sparse LU (SuperLU), one state at a time, instead of dense
-    #: batched linear algebra; benchmarks/scaling.py measures the cross-over.
+    #: batched linear algebra; the scaling section of benchmarks/bench.py measures the cross-over.
     sparse_from: int = 90
     #: Sparse systems: simplified Newton reuses the last state's factorised Jacobian while
     #: each step is at most this fraction of the one before; beyond, it refactorises.
