@@ -43,6 +43,8 @@ class Results:
     #: the unit of each output quantity and of time, where the model gives them (labels)
     units: Mapping[str, str] = field(default_factory=dict)
     time_unit: str = ""
+    #: With status "error": the located error (a MechError naming the plugin and the joint)
+    error: Exception | None = None
 
     @property
     def ok(self) -> bool:
