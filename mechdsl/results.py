@@ -18,7 +18,8 @@ class Results:
 
     ``data[label]`` has shape ``(V, K)`` (variants, instants); values after a variant's
     ``n_solved[v]`` instants are NaN. ``status`` is ``"ok"``, ``"failed"`` (a numerical
-    failure; ``messages`` says where and why) or ``"interrupted"``.
+    failure; ``messages`` says where and why), ``"error"`` (a plugin raised while solving;
+    ``error`` is the located error naming it) or ``"interrupted"``.
     """
 
     times: np.ndarray
