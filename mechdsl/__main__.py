@@ -1,5 +1,14 @@
+"""``python -m mechdsl``: the command line (:mod:`mechdsl.cli`)."""
+
+import os
 import sys
 
-from .cli import main
+# `python -m` puts the current folder first on sys.path, so that a module there named like a
+# plugin (or like anything imported later) would be imported instead of the installed one:
+# drop it, as `python -P` does. The package itself is found already.
+if not getattr(sys.flags, "safe_path", False) and sys.path and sys.path[0] in ("", os.getcwd()):
+    del sys.path[0]
+
+from mechdsl.cli import main  # noqa: E402 - after the sys.path fix
 
 sys.exit(main())

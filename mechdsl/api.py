@@ -16,7 +16,7 @@ from .compile import compile_model
 from .errors import MechError, Source, Span
 from .model import Model
 from .parse import parse
-from .plugins.manager import build_registry
+from .plugins.manager import allowed_plugins, build_registry
 from .plugins.registry import Registry
 from .results import Results
 from .system import System
@@ -30,13 +30,19 @@ class Mechanism:
 
     The registry is built on first use from the entry points (importing only the plugins of
     the types the model uses), plus ``plugins`` given here; pass ``registry`` to share one.
+    The model's own ``plugin "module"`` lines import a module only if it is an installed
+    entry-point plugin, is given in ``plugins``, or is named in ``allow_plugins`` (or in the
+    environment variable ``MECHDSL_ALLOW_PLUGINS``): a model file runs no code by itself.
     """
 
     def __init__(self, model: Model, *, registry: Registry | None = None,
-                 plugins: Iterable[object | str] = ()) -> None:
+                 plugins: Iterable[object | str] = (),
+                 allow_plugins: Iterable[str] = ()) -> None:
         self.model = model
         self._registry = registry
         self._plugins = tuple(plugins)
+        self._allowed = tuple(allow_plugins) + tuple(p for p in self._plugins
+                                                     if isinstance(p, str))
         # a registry given by the caller still needs the model's own plugin lines
         self._pending_model_plugins = registry is not None and bool(model.plugins)
 
@@ -45,6 +51,16 @@ class Mechanism:
         """The plugin registry: entry points (only the plugins of the types the model uses),
         the plugins given to the constructor and the model's ``plugin "module"`` lines."""
         if self._registry is None or self._pending_model_plugins:
+            refused = allowed_plugins(self.model.plugins, self._allowed)
+            if refused:
+                module, span = refused[0]
+                raise MechError(
+                    f"the model asks to import the Python module '{module}', which is not an "
+                    "installed mechdsl plugin; a model file runs no code unless you allow it",
+                    span, self.model.source,
+                    notes=[f"if you trust it: mechdsl run --allow-plugin {module} ..., "
+                           f"MECHDSL_ALLOW_PLUGINS={module}, or "
+                           f"mechdsl.load(..., allow_plugins=['{module}'])"])
             asked = list(self._plugins) + [m for m, _ in self.model.plugins]
             if self._registry is None:
                 wanted = {c.type_name for c in (*self.model.joints, *self.model.drives)}
@@ -97,20 +113,24 @@ def loads(text: str, name: str = "<string>", **kwargs) -> Mechanism:
 
 
 def load(path: str | os.PathLike, **kwargs) -> Mechanism:
-    """Read and parse a ``.mech`` file; keyword arguments go to :class:`Mechanism`."""
+    """Read and parse a ``.mech`` file; keyword arguments go to :class:`Mechanism`.
+
+    The file is read as data (:func:`mechdsl.reading.read_data`): a regular file of at most
+    :data:`mechdsl.reading.MAX_MODEL_BYTES`, else a :class:`MechError` naming it.
+    """
+    from .parse import normalise
+    from .reading import read_data
+
     path = os.fspath(path)
-    try:
-        with open(path, "rb") as f:
-            raw = f.read()
-    except OSError as err:
-        raise MechError(f"cannot read {path}: {err.strerror}") from None
+    raw = read_data(path, "", "MAX_MODEL_BYTES")
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as err:
-        before = raw[: err.start]
-        line = before.count(b"\n") + 1
-        col = err.start - (before.rfind(b"\n") + 1) + 1
+        # where an editor shows the byte: lines and columns of the text before it, as parsed
+        before = normalise(raw[: err.start].decode("utf-8"))
+        line = before.count("\n") + 1
+        col = len(before) - (before.rfind("\n") + 1) + 1
         raise MechError(f"the file is not valid UTF-8 (byte 0x{raw[err.start]:02x})",
                         Span(line, col, line, col + 1),
-                        Source(path, raw.decode("utf-8", "replace"))) from None
+                        Source(path, normalise(raw.decode("utf-8", "replace")))) from None
     return loads(text, path, **kwargs)

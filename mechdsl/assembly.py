@@ -8,7 +8,9 @@ import numpy as np
 
 from . import equations as eq
 from .system import System
-from .diagnose import col_scale, constraint_names, one_variant, variant_label
+from .diagnose import (
+    col_scale, constraint_names, jacobian_defects, one_variant, variant_label,
+)
 from .linalg import factor
 from .mobility import Mobility, analyse, count_check, square
 from .newton import correction_ratio, newton, use_sparse
@@ -120,6 +122,12 @@ def assemble(system: System, t0: float, options: SolverOptions | None = None) ->
         if over:
             what += (f" ({len(joint_rows)} joint equations for {n} coordinates: they may "
                      "over-constrain the mechanism)")
+        closest = np.where(ok1[v], q[v, 0], q1[v, 0])
+        defects = jacobian_defects(system, closest, float(t0), int(v))
+        if defects:
+            messages.append(f"the mechanism cannot be assembled at t = {t0:g}"
+                            f"{variant_label(system, v)}: {defects}")
+            continue
         messages.append(
             f"the mechanism cannot be assembled at t = {t0:g}{variant_label(system, v)}: "
             f"{what}; the closest configuration found leaves equations of "

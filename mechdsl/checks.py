@@ -8,7 +8,7 @@ a :class:`~mechdsl.errors.MechError` located at the offending text.
 from __future__ import annotations
 
 from . import expr as E
-from .errors import MechError, Source, Span, suggest
+from .errors import MechError, Source, Span, cut, suggest
 from .model import (
     BODY_QUANTITIES, GROUND, ORIGIN, Body, Drive, Joint, Model, OutputRef, Param, Point,
     Polygon, Simulate, Sweep, Vector,
@@ -23,8 +23,34 @@ def check_expr(e: E.Expr, allowed: set[str], context: str, numeric: bool = True)
     wrong number of arguments, or mixes truth values and numbers.
 
     ``allowed`` holds the names that may appear (params so far, plus ``t`` in a drive).
-    ``numeric`` says whether ``e`` must be a number (True) or a condition (False).
+    ``numeric`` says whether ``e`` must be a number (True) or a condition (False). The first
+    mistake in reading order is reported; the walk keeps its own stack (no recursion limit).
     """
+    stack = [(e, numeric)]
+    while stack:
+        node, num = stack.pop()
+        _check_node(node, num, allowed, context)
+        stack.extend(reversed(_operands(node)))
+
+
+def _operands(e: E.Expr) -> list[tuple[E.Expr, bool]]:
+    """The sub-expressions of ``e`` that are checked, each with whether it must be a number."""
+    if isinstance(e, E.Call):
+        return [(a, True) for a in e.args]
+    if isinstance(e, E.Cond):
+        return [(e.test, False), (e.then, True), (e.orelse, True)]
+    if isinstance(e, (E.Compare, E.Binary)):
+        return [(e.left, True), (e.right, True)]
+    if isinstance(e, E.Logic):
+        return [(e.left, False), (e.right, False)]
+    if isinstance(e, E.Unary):
+        return [(e.operand, e.op == "-")]
+    if isinstance(e, E.Table):
+        return [(e.arg, True)]
+    return []
+
+
+def _check_node(e: E.Expr, numeric: bool, allowed: set[str], context: str) -> None:
     if numeric and E.is_boolean(e):
         raise MechError("a comparison is not a number; use it as the condition of an 'if'",
                         e.span)
@@ -35,39 +61,21 @@ def check_expr(e: E.Expr, allowed: set[str], context: str, numeric: bool = True)
             if e.id == TIME:
                 raise MechError(f"time 't' cannot appear in {context}; only a drive's function "
                                 "may depend on time", e.span)
-            raise MechError(f"unknown name '{e.id}' in {context}"
+            raise MechError(f"unknown name '{cut(e.id)}' in {context}"
                             + suggest(e.id, allowed - {TIME}), e.span)
     elif isinstance(e, E.Ref):
-        raise MechError(f"'{'.'.join(e.parts)}' is a reference, not a number; "
+        raise MechError(f"'{cut('.'.join(e.parts))}' is a reference, not a number; "
                         "references can only be joint or drive arguments", e.span)
     elif isinstance(e, E.Call):
         if e.func not in E.FUNCTIONS:
-            raise MechError(f"unknown function '{e.func}'" + suggest(e.func, E.FUNCTIONS), e.span)
+            raise MechError(f"unknown function '{cut(e.func)}'" + suggest(e.func, E.FUNCTIONS),
+                            e.span)
         lo, hi = E.FUNCTIONS[e.func]
         n = len(e.args)
         if n < lo or (hi is not None and n > hi):
             want = f"{lo}" if lo == hi else f"at least {lo}"
             raise MechError(f"{e.func}() takes {want} argument{'s' if lo > 1 else ''}, "
                             f"got {n}", e.span)
-        for a in e.args:
-            check_expr(a, allowed, context)
-    elif isinstance(e, E.Cond):
-        check_expr(e.test, allowed, context, numeric=False)
-        check_expr(e.then, allowed, context)
-        check_expr(e.orelse, allowed, context)
-    elif isinstance(e, E.Compare):
-        check_expr(e.left, allowed, context)
-        check_expr(e.right, allowed, context)
-    elif isinstance(e, E.Logic):
-        check_expr(e.left, allowed, context, numeric=False)
-        check_expr(e.right, allowed, context, numeric=False)
-    elif isinstance(e, E.Unary):
-        check_expr(e.operand, allowed, context, numeric=(e.op == "-"))
-    elif isinstance(e, E.Table):
-        check_expr(e.arg, allowed, context)
-    elif isinstance(e, E.Binary):
-        check_expr(e.left, allowed, context)
-        check_expr(e.right, allowed, context)
 
 
 def _check_vector(v: Vector, size: int, what: str, allowed: set[str]) -> None:
@@ -87,7 +95,7 @@ class _Names:
     def add(self, name: str, span: Span) -> None:
         if name in self.seen:
             first = self.seen[name]
-            raise MechError(f"{self.what} '{name}' is declared twice", span,
+            raise MechError(f"{self.what} '{cut(name)}' is declared twice", span,
                             notes=[f"first declared at line {first.line}"])
         self.seen[name] = span
 
@@ -97,14 +105,14 @@ def _once(current, item: tuple, what: str, body: str, refused: str | None):
     if refused is not None:
         raise MechError(refused, item[2])
     if current is not None:
-        raise MechError(f"body '{body}' has two {what}", item[2])
+        raise MechError(f"body '{cut(body)}' has two {what}", item[2])
     return item[1]
 
 
 def _build_body(name: str, name_span: Span, items: list, span: Span, is_ground: bool,
                 params: set[str]) -> Body:
     points: list[Point] = []
-    names = _Names(f"point of {name}")
+    names = _Names(f"point of {cut(name)}")
     guess = shape = density = None
     for item in items:
         kind = item[0] if isinstance(item, tuple) and item else None
@@ -118,7 +126,7 @@ def _build_body(name: str, name_span: Span, items: list, span: Span, is_ground: 
         elif kind == "density":
             density = _once(density, item, "densities", name,
                             "the ground does not move: it takes no density" if is_ground else None)
-            check_expr(density, params, f"the density of {name}")
+            check_expr(density, params, f"the density of {cut(name)}")
         elif kind == "guess":
             guess = _once(guess, item, "guesses", name,
                           "the ground is fixed at (0, 0, 0); it takes no guess" if is_ground
@@ -130,18 +138,21 @@ def _build_body(name: str, name_span: Span, items: list, span: Span, is_ground: 
                 raise MechError("'origin' is implicit: every body has the point origin = (0, 0)",
                                 pspan)
             if point.name in BODY_QUANTITIES:
-                raise MechError(f"a point cannot be named '{point.name}': {name}.{point.name} is "
-                                "an output quantity of the body", pspan)
+                raise MechError(f"a point cannot be named '{point.name}': "
+                                f"{cut(name)}.{point.name} is an output quantity of the body",
+                                pspan)
             names.add(point.name, pspan)
             _check_vector(point.coords, 2, "a point (x, y)", params)
             points.append(point)
     if density is not None and shape is None:
-        raise MechError(f"body '{name}' has a density but no shape: give it "
+        raise MechError(f"body '{cut(name)}' has a density but no shape: give it "
                         "shape = polygon(...) or shape = \"file.msh\"", span)
     return Body(name, tuple(points), guess, span, is_ground, shape, density)
 
 
-def build_model(source: Source, statements: list) -> Model:
+def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -> Model:
+    """The :class:`Model` of the statements the parser gives, checked; ``files`` are the
+    real paths of the files the model read."""
     params: list[Param] = []
     param_names = _Names("param")
     bodies: list[Body] = []
@@ -165,9 +176,9 @@ def build_model(source: Source, statements: list) -> Model:
         if isinstance(st, tuple) and isinstance(st[0], Param):
             p, nspan = st
             if p.name in RESERVED:
-                raise MechError(f"'{p.name}' is reserved and cannot name a param", nspan)
+                raise MechError(f"'{cut(p.name)}' is reserved and cannot name a param", nspan)
             param_names.add(p.name, nspan)
-            check_expr(p.value, defined, f"param '{p.name}'")
+            check_expr(p.value, defined, f"param '{cut(p.name)}'")
             defined.add(p.name)
             params.append(p)
         elif isinstance(st, tuple) and st[0] == "ground":
@@ -185,12 +196,18 @@ def build_model(source: Source, statements: list) -> Model:
         elif isinstance(st, tuple) and isinstance(st[0], (Joint, Drive)):
             c, nspan = st
             constraint_names.add(c.name, nspan)
-            kw = _Names(f"argument of {c.name}")
+            kw = _Names(f"argument of {cut(c.name)}")
             for a in c.args:
                 if a.name is not None:
                     kw.add(a.name, a.span)
             if isinstance(c, Drive):
-                check_expr(c.function, defined | {TIME}, f"the function of drive '{c.name}'")
+                # t joins the params for this check only (a copy per drive would be
+                # quadratic in a model of many params and drives); t is never a param
+                defined.add(TIME)
+                try:
+                    check_expr(c.function, defined, f"the function of drive '{cut(c.name)}'")
+                finally:
+                    defined.discard(TIME)
                 drives.append(c)
             else:
                 joints.append(c)
@@ -204,7 +221,7 @@ def build_model(source: Source, statements: list) -> Model:
         elif isinstance(st, tuple) and st[0] == "plugin":
             _, module, span = st
             if not all(part.isidentifier() for part in module.split(".")):
-                raise MechError(f"'{module}' is not a module name", span)
+                raise MechError(f"'{cut(module)}' is not a module name", span)
             plugins.append((module, span))
         elif isinstance(st, tuple) and st[0] == "output":
             outputs.extend(st[1])
@@ -220,20 +237,20 @@ def build_model(source: Source, statements: list) -> Model:
             sweep_names.add(sw.name, nspan)
             pending_sweeps.append((sw, nspan))
             for e in _sweep_exprs(sw):
-                check_expr(e, defined, f"the sweep of '{sw.name}'")
+                check_expr(e, defined, f"the sweep of '{cut(sw.name)}'")
             sweeps.append(sw)
         else:  # pragma: no cover - the transformer returns only the kinds above
             raise TypeError(f"unexpected statement {st!r}")
 
     for sw, nspan in pending_sweeps:
         if sw.name not in param_names.seen:
-            raise MechError(f"'{sw.name}' is not a param; only params can be swept"
+            raise MechError(f"'{cut(sw.name)}' is not a param; only params can be swept"
                             + suggest(sw.name, param_names.seen), nspan)
     if ground is None:
         ground = Body(GROUND, (), None, Span(1, 1, 1, 1), True)
     return Model(source, tuple(params), ground, tuple(bodies), tuple(joints), tuple(drives),
                  simulate, tuple(outputs), tuple(sweeps), tuple(plugins), tuple(traces),
-                 tuple(units.items()))
+                 tuple(units.items()), tuple(files))
 
 
 def _sweep_exprs(sw: Sweep) -> list[E.Expr]:

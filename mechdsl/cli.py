@@ -1,20 +1,26 @@
-"""The ``mechdsl`` command: ``run``, ``check`` and ``plugins``.
+"""The ``mechdsl`` command: ``run``, ``check``, ``plot`` and ``plugins``.
 
 Exit status (:class:`ExitCode`): 0 success; 1 the input is wrong (printed as
-``FILE:LINE:COL: error: ...`` with the source line and a caret); 2 a numerical failure (no
-assembly, lock-up, singular Jacobian), after writing every instant solved before it;
-130 interrupted (Ctrl-C), after writing the instants solved so far; 3 an internal error.
+``FILE:LINE:COL: error: ...`` with the source line and a caret), an output cannot be written,
+or a plugin failed while solving; 2 a numerical failure (no assembly, lock-up, singular
+Jacobian); 130 interrupted (Ctrl-C) and 143 terminated (SIGTERM); 141 standard output's
+reader went away (``mechdsl run X -o - | head``), quietly; 3 an internal error. Every one of
+them after writing every instant solved before it.
 """
 
 from __future__ import annotations
 
 import argparse
 import enum
+import errno
 import os
 import sys
 from typing import Sequence
 
 from .errors import MechError, format_error
+from .writing import (
+    SignalGuard, StdoutError, emit, exit_status, silence_stdout, stdout_errors,
+)
 
 
 class ExitCode(enum.IntEnum):
@@ -22,7 +28,9 @@ class ExitCode(enum.IntEnum):
     USER_ERROR = 1
     NUMERICAL_FAILURE = 2
     INTERNAL_ERROR = 3
-    INTERRUPTED = 130
+    INTERRUPTED = 130  # 128 + SIGINT
+    BROKEN_PIPE = 141  # 128 + SIGPIPE: what a Unix tool ends with when its reader has gone
+    TERMINATED = 143  # 128 + SIGTERM
 
 
 class _Parser(argparse.ArgumentParser):
@@ -46,6 +54,9 @@ def _parser() -> argparse.ArgumentParser:
                         help="run once per value of a param (several: every combination)")
         sp.add_argument("--plugin", metavar="MODULE", action="append", default=[],
                         help="also load the plugin module MODULE")
+        sp.add_argument("--allow-plugin", metavar="MODULE", action="append", default=[],
+                        help="let the model's 'plugin \"MODULE\"' line import MODULE (a model "
+                             "file imports no module that is not an installed plugin otherwise)")
 
     run = sub.add_parser("run", help="solve a mechanism over time; write CSV and plots")
     model_options(run)
@@ -62,7 +73,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="write the motion as meshes for ParaView: .xdmf (a time series) or "
                           ".vtu (a file per instant and a .pvd index)")
     run.add_argument("--frames", type=int, default=100, metavar="N",
-                     help="frames of the animation at most (default 100)")
+                     help="frames of the animation at most, at least 2 (default 100)")
     run.add_argument("--trace", metavar="BODY.POINT", action="append", default=[],
                      help="draw the path of this point (repeatable; adds to 'trace' lines)")
     run.add_argument("--t0", type=float, help="start time (overrides the file)")
@@ -74,6 +85,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--through-singular", action="store_true",
                      help="at a singular position (dead point, change point) continue on the "
                           "branch the motion was on, instead of stopping")
+    run.add_argument("--keep-nonfinite", action="store_true",
+                     help="keep positions, velocities or accelerations that are not finite "
+                          "numbers (inf, nan) in the results and go on, instead of stopping")
     run.add_argument("--max-memory", metavar="SIZE",
                      help="refuse runs whose results would take more memory than this "
                           "(e.g. 16G; default 4G)")
@@ -94,41 +108,84 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line with ``argv`` (default: ``sys.argv[1:]``); return the exit status."""
-    args = _parser().parse_args(argv)
-    if args.version:
-        from . import __version__
+    """Run the command line with ``argv`` (default: ``sys.argv[1:]``); return the exit status.
 
-        print(f"mechdsl {__version__}")
-        return ExitCode.OK
-    if args.command is None:
-        _parser().print_help()
-        return ExitCode.USER_ERROR
+    While a command runs, SIGTERM stops it as Ctrl-C does (:class:`~mechdsl.writing.
+    SignalGuard`), and standard output is flushed before returning, so that a full disk or a
+    closed pipe is reported here, not by the interpreter's shutdown."""
     try:
+        args = _parser().parse_args(argv)
+    except SystemExit:  # --help, or a usage error already printed
+        _flush_stdout()
+        raise
+    with SignalGuard() as signals:
+        status = _command(args, signals)
+        return _flush_stdout() or status
+
+
+def _flush_stdout() -> int:
+    """Flush standard output; 0, or the exit status of its failure."""
+    try:
+        with stdout_errors():
+            if sys.stdout is not None:
+                sys.stdout.flush()
+    except StdoutError as err:
+        return _stdout_failed(err)
+    return 0
+
+
+def _stdout_failed(err: StdoutError) -> int:
+    # what is still buffered goes to /dev/null at exit, instead of failing again there
+    silence_stdout()
+    if err.errno == errno.EPIPE:
+        return ExitCode.BROKEN_PIPE  # the reader has what it wanted (| head): end quietly
+    print(f"mechdsl: error: {err}", file=sys.stderr)
+    return ExitCode.USER_ERROR
+
+
+def _command(args, signals: SignalGuard) -> int:
+    """Run the command of ``args``; report what stopped it; return the exit status."""
+    try:
+        if args.version:
+            from . import __version__
+
+            emit(f"mechdsl {__version__}")
+            return ExitCode.OK
+        if args.command is None:
+            _parser().print_help()
+            return ExitCode.USER_ERROR
         if args.command == "plugins":
             from .commands import plugins_command
 
             return plugins_command()
         from . import commands
 
+        if args.command == "run":
+            return commands.run_command(args, signals)
         return getattr(commands, f"{args.command}_command")(args)
+    except StdoutError as err:
+        return _stdout_failed(err)
+    except BrokenPipeError:  # printed to a closed pipe elsewhere than through emit()
+        silence_stdout()
+        return ExitCode.BROKEN_PIPE
     except MechError as err:
-        print(format_error(err), file=sys.stderr)
+        text = format_error(err)
+        print(text if err.source is not None else f"mechdsl: {text}", file=sys.stderr)
         from .errors import NumericalError
 
-        return ExitCode.NUMERICAL_FAILURE if isinstance(err, NumericalError) else ExitCode.USER_ERROR
-    except KeyboardInterrupt:
-        print("mechdsl: interrupted", file=sys.stderr)
-        return ExitCode.INTERRUPTED
+        if isinstance(err, NumericalError):
+            return ExitCode.NUMERICAL_FAILURE
+        return ExitCode.USER_ERROR
+    except KeyboardInterrupt as err:  # before the solver started, or outside a run
+        status = exit_status(err)
+        verb = "terminated" if status == ExitCode.TERMINATED else "interrupted"
+        print(f"mechdsl: {verb}", file=sys.stderr)
+        return status
     except MemoryError:
         print(f"{getattr(args, 'file', 'mechdsl')}: error: not enough memory for this run; take "
               "a longer step, fewer outputs or fewer sweep variants (--max-memory is the limit "
               "checked beforehand)", file=sys.stderr)
         return ExitCode.USER_ERROR
-    except BrokenPipeError:
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-        return ExitCode.OK
     except Exception as err:  # noqa: BLE001 - a bug: say so plainly, with the details
         import traceback
 

@@ -3,12 +3,17 @@ returns an exit status. Errors are raised as MechError and formatted by the call
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import sys
+from typing import Iterator
 
 import numpy as np
 
 from .api import Mechanism, load
+from .results import summary
+from .writing import Output, SignalGuard, check_distinct, emit
 from .system import System
 from .variants import Overrides
 from .errors import MechError, NumericalError, Source, format_error, suggest
@@ -30,15 +35,23 @@ def _overrides(mech: Mechanism, args) -> Overrides:
         value = getattr(args, attr, None)
         if value is not None:
             setattr(ov, attr, value)
-    if getattr(args, "max_memory", None):
-        from .variants import parse_size
-
-        try:
-            ov.max_memory = parse_size(args.max_memory)
-        except (ValueError, IndexError):
-            raise MechError(f"--max-memory takes a size such as 16G or 500M, not "
-                            f"'{args.max_memory}'") from None
+    limit = _max_memory(args)
+    if limit is not None:
+        ov.max_memory = limit
     return ov
+
+
+def _max_memory(args) -> int | None:
+    """The bytes of --max-memory, if given."""
+    if not getattr(args, "max_memory", None):
+        return None
+    from .variants import parse_size
+
+    try:
+        return parse_size(args.max_memory)
+    except (ValueError, IndexError):
+        raise MechError(f"--max-memory takes a size such as 16G or 500M, not "
+                        f"'{args.max_memory}'") from None
 
 
 def _options(args):
@@ -49,28 +62,44 @@ def _options(args):
         given["newton_tol"] = args.newton_tol
     if getattr(args, "through_singular", False):
         given["at_singular"] = "continue"
+    if getattr(args, "keep_nonfinite", False):
+        given["nonfinite"] = "keep"
+    limit = _max_memory(args)
+    if limit is not None:
+        given["max_memory"] = limit
     try:
         return SolverOptions(**given)
     except ValueError as err:
         raise MechError(f"--newton-tol: {err}") from None
 
 
-def _check_targets(args) -> None:
-    """Refuse unwritable output paths and unknown plot formats before solving anything."""
-    from .plot import FORMATS
+def _outputs(args) -> list[tuple[str, str]]:
+    """The files ``mechdsl run`` is asked to write, as (option, path), in the order written."""
+    given = (("-o", args.output), ("--plot", args.plot), ("--snapshot", args.snapshot),
+             ("--animate", args.animate), ("--export", args.export))
+    return [(option, path) for option, path in given if path and path != "-"]
 
-    for option, path in (("-o", args.output), ("--plot", args.plot),
-                         ("--snapshot", args.snapshot), ("--animate", args.animate),
-                         ("--export", args.export)):
-        if not path or path == "-":
-            continue
-        if os.path.exists(path) and not os.path.isfile(path):
-            continue  # a device or a pipe: written directly
-        folder = os.path.dirname(os.path.abspath(path))
+
+def _check_targets(args) -> None:
+    """Refuse unwritable output paths, unknown formats and bad drawing options before
+    loading anything."""
+    from .plot import FORMATS
+    from .writing import is_direct
+
+    for option, path in _outputs(args):
+        if is_direct(path):
+            continue  # a device, a pipe, a stream: written in place
+        target = os.path.realpath(path)  # a link is written through: check what it names
+        if os.path.isdir(target):
+            raise MechError(f"{option} {path}: that is a folder; give a file name")
+        folder = os.path.dirname(target)
         if not os.path.isdir(folder):
             raise MechError(f"{option} {path}: the folder {folder} does not exist")
-        if not os.access(folder, os.W_OK):
+        if not os.access(folder, os.W_OK | os.X_OK):
             raise MechError(f"{option} {path}: the folder {folder} is not writable")
+        if os.path.exists(target) and not os.access(target, os.W_OK):
+            # a plain open() would fail; replacing the read-only file would defeat its mode
+            raise MechError(f"{option} {path}: the file is read-only")
     for option, path in (("--plot", args.plot), ("--snapshot", args.snapshot)):
         ext = os.path.splitext(path or "")[1].lstrip(".").lower()
         if path and ext not in FORMATS:
@@ -85,11 +114,36 @@ def _check_targets(args) -> None:
             if not animation.writers.is_available("ffmpeg"):
                 raise MechError(f"--animate {args.animate}: an .mp4 needs ffmpeg on the PATH, "
                                 "which is not there; install ffmpeg or write a .gif")
+    if args.frames < 2:
+        raise MechError(f"--frames {args.frames}: an animation needs at least 2 frames")
     if args.export and os.path.splitext(args.export)[1].lower() not in (".xdmf", ".vtu"):
         raise MechError(f"--export {args.export}: use .xdmf (one time series) or .vtu (one "
                         "file per instant, with a .pvd index)")
     if args.at is not None and not args.snapshot:
         raise MechError("--at chooses the instants of --snapshot, which is not given")
+
+
+def _check_outputs(args, mech: Mechanism, system: System, at: list[float] | None) -> None:
+    """Once the model is read and the run known, before solving: refuse an output that is
+    the model file, a file the model reads, or another output of the run (every file of an
+    --export series included); refuse --at instants outside the run."""
+    from .export import series
+
+    inputs = [("the model file", args.file)]
+    # Model.files: the table and mesh files the model read (while that field is being added)
+    inputs += [("the model's data file", f) for f in getattr(mech.model, "files", ())]
+    outputs = [Output(option, path) for option, path in _outputs(args) if option != "--export"]
+    if args.export:
+        outputs.append(Output("--export", args.export,
+                              series(args.export, system.n_variants, len(system.times))))
+    check_distinct(inputs, outputs)
+    if at:
+        lo, hi = float(system.times[0]), float(system.times[-1])
+        slack = 1e-9 * max(abs(lo), abs(hi), hi - lo)
+        outside = [a for a in at if not lo - slack <= a <= hi + slack]
+        if outside:
+            raise MechError(f"--at {outside[0]:g}: outside the run, which goes from t = {lo:g} "
+                            f"to t = {hi:g}")
 
 
 class ProgressBar:
@@ -151,18 +205,23 @@ def _instants_option(text: str | None) -> list[float] | None:
                         "0,0.25,0.5") from None
     if not values:
         raise MechError("--at: give at least one time")
+    bad = [x for x in values if not np.isfinite(x)]
+    if bad:
+        raise MechError(f"--at {text}: {bad[0]} is not a time; give finite numbers")
     return values
 
 
-def run_command(args) -> int:
-    """``mechdsl run``: solve, write the CSV and the plot (also after a numerical failure,
-    with the instants solved before it), print a summary or the failure."""
-    from .results import summary, write_csv
+def run_command(args, signals: SignalGuard | None = None) -> int:
+    """``mechdsl run``: solve; write the CSV and the pictures, also after a numerical
+    failure, a plugin's error or an interrupt (with the instants solved before it); print a
+    summary or what stopped the run. ``signals``, entered by the caller, turns SIGTERM into
+    an interrupt as Ctrl-C and holds both back while the CSV is written."""
     from .solve import simulate
 
+    signals = signals or SignalGuard()
     _check_targets(args)
     at = _instants_option(args.at)
-    mech = load(args.file, plugins=args.plugin)
+    mech = load(args.file, plugins=args.plugin, allow_plugins=args.allow_plugin)
     if args.trace:
         from dataclasses import replace
 
@@ -170,64 +229,137 @@ def run_command(args) -> int:
         extra = tuple(OutputRef(tuple(_trace_ref(mech.model, r)), None) for r in args.trace)
         mech.model = replace(mech.model, traces=mech.model.traces + extra)
     system = mech.compile(_overrides(mech, args))
+    _check_outputs(args, mech, system, at)
     drawing = bool(args.snapshot or args.animate)
+    from .memory import outputs_bytes
+
+    extra = outputs_bytes(system, figures=bool(args.plot or args.snapshot),
+                          frames=min(args.frames, len(system.times)) if args.animate else 0,
+                          frames_kept=str(args.animate).lower().endswith(".gif"),
+                          export=bool(args.export))
     bar = ProgressBar(sys.stderr) if not args.quiet else None
     try:
         results = simulate(system, _options(args), poses=drawing, rates=bool(args.export),
-                           progress=bar)
+                           progress=bar, extra_memory=extra)
     finally:
         if bar is not None:
             bar.close()
+    written, stop = _write_outputs(args, system, results, at, signals)
+    return _report(args, results, written, stop, signals)
+
+
+@contextlib.contextmanager
+def _writing(option: str, path: str) -> Iterator[None]:
+    """An OSError while writing an output becomes a user error naming it."""
+    try:
+        yield
+    except OSError as err:
+        raise MechError(f"cannot write {path} ({option}): {err.strerror or err}") from None
+
+
+def _write_outputs(args, system: System, results, at: list[float] | None,
+                   signals: SignalGuard) -> tuple[list[str], KeyboardInterrupt | None]:
+    """Write every output asked for, the CSV first and whole: a signal while it is written
+    is held back until it is complete. Returns the outputs written and the interrupt that
+    stopped the others, if one did (their temporary files are removed as it goes up)."""
+    from .results import write_csv
+
+    written: list[str] = []
+    solved = results.n_solved.max(initial=0) > 0
     try:
         if args.output:
-            write_csv(results, args.output)
+            with signals.held(), _writing("-o", args.output):
+                write_csv(results, args.output)
+                written.append(args.output)
         if args.plot:
             from .plot import plot_results
 
             title = os.path.basename(args.file)
             if args.set:
                 title += " (" + ", ".join(s.replace("=", " = ", 1) for s in args.set) + ")"
-            plot_results(results, args.plot, title=title)
-        if drawing and results.n_solved.max(initial=0) > 0:
-            from .draw import animate, snapshot
+            with _writing("--plot", args.plot):
+                plot_results(results, args.plot, title=title)
+            written.append(args.plot)
+        if args.snapshot and solved:
+            from .draw import snapshot
 
-            if args.snapshot:
+            with _writing("--snapshot", args.snapshot):
                 snapshot(results, system, args.snapshot, at=at)
-            if args.animate:
+            written.append(args.snapshot)
+        if args.animate and solved:
+            from .draw import animate
+
+            with _writing("--animate", args.animate):
                 animate(results, system, args.animate, max_frames=args.frames)
-        if args.export and results.n_solved.max(initial=0) > 0:
+            written.append(args.animate)
+        if args.export and solved:
             from .export import export
 
-            export(results, system, args.export)
-    except OSError as err:
-        raise MechError(f"cannot write {err.filename or 'the output'}: {err.strerror}") from None
-    written = args.output and args.output != "-"
+            with _writing("--export", args.export):
+                export(results, system, args.export)
+            written.append(args.export)
+    except KeyboardInterrupt as err:
+        return written, err
+    return written, None
+
+
+def _solved_text(results) -> str:
+    """'the 57 instants' or, with a sweep, 'the 570 rows (10 variants)': the CSV's rows."""
+    if results.sweep:
+        return f"the {int(results.n_solved.sum())} rows ({results.n_variants} variants)"
+    return f"the {int(results.n_solved[0])} instants"
+
+
+def _report(args, results, written: list[str], stop: KeyboardInterrupt | None,
+            signals: SignalGuard) -> int:
+    """Print the warnings, what stopped the run and where its instants are; return the
+    exit status."""
+    in_file = args.output in written and args.output != "-"
     if not args.quiet:
         for w in results.warnings:
             print(f"{args.file}: warning: {w}", file=sys.stderr)
-    if not args.quiet and results.ok:
-        if not args.output:
-            print(summary(results))
-        elif written:
-            print(f"{args.output}: {len(results.table()[1])} rows "
-                  f"({results.solve_time * 1e3:.1f} ms)", file=sys.stderr)
-    if results.status == "interrupted":
-        saved = (f"; the {int(results.n_solved.max())} instants solved so far are in "
-                 f"{args.output}" if written else "")
-        print(f"mechdsl: interrupted{saved}", file=sys.stderr)
-        return 130
-    if not results.ok:
+    if results.status == "error":
+        print(format_error(results.error), file=sys.stderr)
+        if in_file:
+            print(f"  note: {_solved_text(results)} solved before the error are in "
+                  f"{args.output}", file=sys.stderr)
+    elif results.status == "failed":
         source = Source(args.file, "")
         for message in results.messages:
             print(format_error(NumericalError(message, source=source)), file=sys.stderr)
-        if written:
+        if in_file:
             if results.sweep:
                 note = "the instants each variant solved before it failed are in"
             else:
                 note = f"the {int(results.n_solved[0])} instants solved before the failure are in"
             print(f"  note: {note} {args.output}", file=sys.stderr)
-        return 2
-    return 0
+    if stop is not None or results.status == "interrupted":
+        signum = getattr(stop, "signum", None) or signals.received or signal.SIGINT
+        print(_interrupted_text(args, results, written, signum), file=sys.stderr)
+        return 128 + signum
+    if results.ok:
+        if not args.quiet and not args.output:
+            emit(summary(results))
+        elif not args.quiet and args.output != "-":
+            print(f"{args.output}: {int(results.n_solved.sum())} rows "
+                  f"({results.solve_time * 1e3:.1f} ms)", file=sys.stderr)
+        return 0
+    return 1 if results.status == "error" else 2
+
+
+def _interrupted_text(args, results, written: list[str], signum: int) -> str:
+    """'mechdsl: interrupted; the 57 instants solved so far are in out.csv' and the like."""
+    verb = "terminated" if signum == signal.SIGTERM else "interrupted"
+    solved = _solved_text(results)
+    if args.output in written:
+        where = "on standard output" if args.output == "-" else f"in {args.output}"
+        text = f"mechdsl: {verb}; {solved} solved so far are {where}"
+    elif written:
+        text = f"mechdsl: {verb}; {solved} solved so far are drawn in {', '.join(written)}"
+    else:
+        text = f"mechdsl: {verb} after {solved[4:]}; nothing was written"
+    missing = [p for _, p in _outputs(args) if p not in written]
+    return text + (f"; not written: {', '.join(missing)}" if missing else "")
 
 
 def check_command(args) -> int:
@@ -241,28 +373,28 @@ def check_command(args) -> int:
     from .newton import use_sparse
     from .options import SolverOptions
 
-    mech = load(args.file, plugins=args.plugin)
+    mech = load(args.file, plugins=args.plugin, allow_plugins=args.allow_plugin)
     system = mech.compile(_overrides(mech, args), need_times=mech.model.simulate is not None)
-    print(_structure(mech, system))
+    emit(_structure(mech, system))
     t0 = float(system.times[0]) if system.times is not None else 0.0
     opts = SolverOptions().for_size(system.n_bodies)
     asm = assemble(system, t0, opts)
     if not asm.ok.all():
         raise NumericalError(asm.messages[0], source=system.source)
-    print(f"assembled at t = {t0:g}:")
+    emit(f"assembled at t = {t0:g}:")
     width = max(len(b) for b in system.body_names)
     for i, b in enumerate(system.body_names):
         x, y, phi = (0.0 if abs(c) < 1e-14 * s else c for c, s in
                      zip(asm.q[0, 3 * i : 3 * i + 3], (system.scale[0], system.scale[0], 1)))
-        print(f"  {b:<{width}}  x = {x:< 12.6g} y = {y:< 12.6g} phi = {phi:.6g}")
+        emit(f"  {b:<{width}}  x = {x:< 12.6g} y = {y:< 12.6g} phi = {phi:.6g}")
     D = col_scale(system)
     mobility, rank, redundant = report(one_variant(system, 0), asm.q[0], D[0, 0])
     joints = system.m - len(system.drive_rows)
     drives = len(system.drive_rows)
-    print(f"mobility {mobility}: {system.n} coordinates, joint equations of rank {rank} "
-          f"(of {joints}); {drives} drive{'s' if drives != 1 else ''}")
+    emit(f"mobility {mobility}: {system.n} coordinates, joint equations of rank {rank} "
+         f"(of {joints}); {drives} drive{'s' if drives != 1 else ''}")
     if redundant:
-        print(f"redundant: {redundant}")
+        emit(f"redundant: {redundant}")
     warning = redundancy_warning(system, asm.mobility) if asm.mobility is not None else None
     if warning:
         print(f"{system.source.name}: warning: {warning}", file=sys.stderr)
@@ -277,8 +409,8 @@ def check_command(args) -> int:
                              f"(condition number {cond:.3g}); dependent equations involve "
                              f"{names}", source=system.source)
     variants = f" (all {system.n_variants} sweep variants)" if system.n_variants > 1 else ""
-    print(f"ok: fully driven, assembles at t = {t0:g}{variants}; scaled Jacobian condition "
-          f"number {1 / rcond.min():.3g}")
+    emit(f"ok: fully driven, assembles at t = {t0:g}{variants}; scaled Jacobian condition "
+         f"number {1 / rcond.min():.3g}")
     return 0
 
 
@@ -327,19 +459,19 @@ def plugins_command() -> int:
     registry = build_registry()
     for kind in ("joint", "drive"):
         names = registry.names(kind)
-        print(f"{kind} types:")
+        emit(f"{kind} types:")
         if not names:
-            print("  (none installed)")
+            emit("  (none installed)")
         for name in names:
             ctype = registry.get(kind, name)
             provider = registry.provider(kind, name)
-            print(f"  {ctype.describe()}")
-            print(f"      {ctype.n_eq} equation{'s' if ctype.n_eq != 1 else ''}; "
-                  f"{ctype.doc or ''}  [{provider}]")
+            emit(f"  {ctype.describe()}")
+            emit(f"      {ctype.n_eq} equation{'s' if ctype.n_eq != 1 else ''}; "
+                 f"{ctype.doc or ''}  [{provider}]")
     if registry.broken:
-        print("broken plugins:")
+        emit("broken plugins:")
         for b in registry.broken:
-            print(f"  {b.provider.plugin} ({b.provider}): {b.reason}")
+            emit(f"  {b.provider.plugin} ({b.provider}): {b.reason}")
     return 0
 
 
@@ -351,6 +483,7 @@ def plot_command(args) -> int:
 
     results = read_csv(args.file)
     out = args.output or os.path.splitext(args.file)[0] + ".png"
+    check_distinct([("the CSV file", args.file)], [Output("-o", out)])
     ext = os.path.splitext(out)[1].lstrip(".").lower()
     if ext not in FORMATS:
         raise MechError(f"-o {out}: unknown image format '{ext}'; use one of "
@@ -362,8 +495,6 @@ def plot_command(args) -> int:
         if unknown:
             raise MechError(f"--only: {args.file} has no column '{unknown[0]}'"
                             + suggest(unknown[0], results.data))
-    try:
+    with _writing("-o", out):
         plot_results(results, out, title=os.path.basename(args.file), labels=labels)
-    except OSError as err:
-        raise MechError(f"cannot write {err.filename or out}: {err.strerror}") from None
     return 0

@@ -16,11 +16,13 @@ from . import expr as E
 from .derive import derivative
 from .errors import MechError, Span, suggest
 from .functions import ExprFunction
+from .memory import check_compile
 from .model import (
     BODY_QUANTITIES, GROUND, ORIGIN, POINT_QUANTITIES, Body, Drive, Joint, Model, Vector,
 )
 from .checks import TIME, check_expr
 from .plugins.contract import REQUIRED, ArgError, ConstraintType
+from .plugins.manager import PLUGIN_FAILURES
 from .plugins.registry import Registry
 from .shapes import mass_properties, shape_edges
 from .sparse import Pattern
@@ -73,17 +75,22 @@ def _sparse_pattern(groups: list[Group], constraints: list[Constraint], n: int
 class _Compiler:
     def __init__(self, model: Model, registry: Registry, ov: Overrides) -> None:
         self.model, self.registry, self.ov = model, registry, ov
+        self._units: dict[str, str] = {}
         self.param_names = [p.name for p in model.params]
 
     def run(self, need_times: bool) -> System:
         self.var = evaluate(self.model, self.ov)
         self.V = self.var.count
+        if self.V > 1:
+            model = self.model
+            values = (2 * sum(len(b.points) + 1 for b in (*model.bodies, model.ground))
+                      + 2 * sum(len(c.args) for c in (*model.joints, *model.drives))
+                      + 6 * len(model.bodies) + len(model.params))
+            check_compile(self.V, values, self.ov.max_memory)
         self._bodies()
         constraints, groups, drive_rows, drive_fns = self._constraints()
         groups, pattern = _sparse_pattern(groups, constraints, 3 * len(self.bodies))
-        units = dict(self.model.units)
-        outputs = [replace(o, unit=unit_of(o.quantity, units.get("length", ""),
-                                           units.get("time", ""))) for o in self._outputs()]
+        outputs = self._outputs()
         times = (time_grid(self.model, self.ov, self.var, len(outputs)) if need_times
                  else None)
         order = max((o.order for o in outputs), default=0)
@@ -291,6 +298,13 @@ class _Compiler:
         except ArgError as err:
             raise MechError(f"{ctype.name}: {err.message}{self._bad_variant(ctype, values)}",
                             spans.get(err.arg, c.span)) from None
+        except PLUGIN_FAILURES as err:
+            provider = self.registry.provider(ctype.kind, ctype.name)
+            raise MechError(
+                f"the {ctype.kind} type '{ctype.name}' failed in validate() for {c.name}: "
+                f"{type(err).__name__}: {str(err)[:200]}", c.span,
+                notes=[f"the type comes from the plugin {provider.plugin if provider else '?'}"
+                       "; this is a defect of the plugin, not of the .mech file"]) from None
         return slots, params
 
     def _bad_variant(self, ctype: ConstraintType, values: dict) -> str:
@@ -303,7 +317,7 @@ class _Compiler:
             try:
                 with np.errstate(all="ignore"):
                     ctype.validate(one)
-            except ArgError:
+            except PLUGIN_FAILURES:
                 return " (for " + ", ".join(f"{k} = {a[v]:g}" for k, a in
                                             self.var.sweep.items()) + ")"
         return ""
@@ -388,14 +402,23 @@ class _Compiler:
             out.extend(specs)
         return out
 
+    def _unit(self, quantity: str) -> str:
+        if quantity not in self._units:
+            units = dict(self.model.units)
+            self._units[quantity] = unit_of(quantity, units.get("length", ""),
+                                            units.get("time", ""))
+        return self._units[quantity]
+
     def _body_quantities(self, body: str, quantities) -> list[OutputSpec]:
         i = self.body_index[body]
-        return [OutputSpec(f"{body}.{q}", i, None, q, _order(q)) for q in quantities]
+        return [OutputSpec(f"{body}.{q}", i, None, q, _order(q), self._unit(q))
+                for q in quantities]
 
     def _point_quantities(self, body: str, point: str, quantities) -> list[OutputSpec]:
         i = self.body_index[body]
         xy = _readonly(self.points[body][point][:, None])
-        return [OutputSpec(f"{body}.{point}.{q}", i, xy, q, _order(q)) for q in quantities]
+        return [OutputSpec(f"{body}.{point}.{q}", i, xy, q, _order(q), self._unit(q))
+                for q in quantities]
 
     def _output(self, parts: tuple[str, ...], span: Span) -> list[OutputSpec]:
         body = parts[0]

@@ -10,8 +10,8 @@ from dataclasses import replace
 from typing import Callable
 
 from .expr import (
-    Binary, Call, Compare, Cond, Expr, Name, Num, Ref, Table, Unary, add, call, cond, div,
-    free_names, mul, neg, power, sub,
+    Binary, Call, Compare, Cond, Expr, Logic, Name, Num, Table, Unary, add, call, children,
+    cond, div, mul, neg, postorder, power, sub,
 )
 
 
@@ -22,14 +22,39 @@ def derivative(e: Expr, var: str = "t") -> Expr:
     if C then A' else B' (the derivative where it exists; at a switch point the branch the
     condition selects). ``min``, ``max`` and ``abs`` become such conditionals
     (``abs(u)' = if u >= 0 then u' else -u'``).
+
+    The rules are applied node by node in post-order, without recursion (a sum of thousands
+    of terms is as deep); a subtree shared by several parents is derived once, and the
+    result shares the operands of ``e``.
     """
-    if isinstance(e, Num) or isinstance(e, Ref):
+    depends: dict[int, bool] = {}  # node -> does it read var?
+    for node in postorder(e):
+        depends[id(node)] = (node.id == var if isinstance(node, Name)
+                             else any(depends[id(k)] for k in children(node)))
+
+    def needed(node: Expr) -> tuple:
+        # the operands whose derivatives the rule of ``node`` uses: none where the node does
+        # not read var (its derivative is 0), never the condition of an 'if'
+        if not depends[id(node)] or isinstance(node, (Compare, Logic)) or (
+                isinstance(node, Unary) and node.op == "not"):
+            return ()
+        if isinstance(node, Cond):
+            return (node.then, node.orelse)
+        return children(node)
+
+    done: dict[int, Expr] = {}
+    d = lambda x: done[id(x)]  # noqa: E731
+    for node in postorder(e, needed):
+        done[id(node)] = _rule(node, d, depends, var)
+    return done[id(e)]
+
+
+def _rule(e: Expr, d: Callable[[Expr], Expr], depends: dict[int, bool], var: str) -> Expr:
+    """The derivative of ``e`` given ``d``, the derivatives of its operands."""
+    if not depends[id(e)]:  # numbers, references, other names, constant subtrees
         return Num(0.0)
     if isinstance(e, Name):
-        return Num(1.0 if e.id == var else 0.0)
-    if var not in free_names(e):
-        return Num(0.0)
-    d = lambda x: derivative(x, var)  # noqa: E731
+        return Num(1.0)
     if isinstance(e, Unary):
         if e.op == "-":
             return neg(d(e.operand))
@@ -46,7 +71,7 @@ def derivative(e: Expr, var: str = "t") -> Expr:
             # (a/b)' = a'/b - a b'/b^2
             return sub(div(d(a), b), div(mul(a, d(b)), power(b, Num(2.0))))
         if e.op == "^":
-            if var not in free_names(b):
+            if not depends[id(b)]:
                 # (a^c)' = c a^(c-1) a'
                 return mul(mul(b, power(a, sub(b, Num(1.0)))), d(a))
             # (a^b)' = a^b (b' log a + b a'/a)
@@ -65,10 +90,16 @@ def derivative(e: Expr, var: str = "t") -> Expr:
 def _call_derivative(e: Call, d: Callable[[Expr], Expr]) -> Expr:
     f, args = e.func, e.args
     if f in ("min", "max"):
-        if len(args) > 2:
-            return d(Call(f, (Call(f, args[:-1]), args[-1])))
-        a, b = args
-        return cond(Compare("<=" if f == "min" else ">=", a, b), d(a), d(b))
+        # min(a1, ..., an) = min(min(a1, ..., a(n-1)), an): the branch of each pair in turn,
+        # the running min as a chain of two-argument calls (the same values, in the same
+        # order, as the n-ary call; prefixes copied as n-ary calls would cost n^2)
+        op = "<=" if f == "min" else ">="
+        out = cond(Compare(op, args[0], args[1]), d(args[0]), d(args[1]))
+        running = Call(f, args[:2])
+        for a in args[2:]:
+            out = cond(Compare(op, running, a), out, d(a))
+            running = Call(f, (running, a))
+        return out
     if f == "atan2":
         y, x = args  # (x y' - y x') / (x^2 + y^2)
         return div(sub(mul(x, d(y)), mul(y, d(x))),

@@ -24,15 +24,21 @@ def variant_label(system: System, v: int) -> str:
     return " (" + ", ".join(f"{k} = {a[v]:g}" for k, a in system.sweep.items()) + ")"
 
 
+#: Joints and drives named in one message at most; the rest are counted.
+MAX_NAMED = 8
+
+
 def constraint_names(system: System, rows) -> str:
-    """'joint B (revolute, line 24), ...' for the owners of equation ``rows``, in order."""
-    seen: list[str] = []
+    """'joint B (revolute, line 24), ...' for the owners of equation ``rows``, in order; after
+    MAX_NAMED of them, 'and N more'."""
+    seen: dict[str, None] = {}
     for r in rows:
         c = system.row_owner(int(r))
-        label = f"{c.kind} {c.name} ({c.type_name}, line {c.span.line})"
-        if label not in seen:
-            seen.append(label)
-    return ", ".join(seen)
+        seen[f"{c.kind} {c.name} ({c.type_name}, line {c.span.line})"] = None
+    names = list(seen)
+    if len(names) > MAX_NAMED:
+        return ", ".join(names[:MAX_NAMED]) + f" and {len(names) - MAX_NAMED} more"
+    return ", ".join(names)
 
 
 def col_scale(system: System) -> np.ndarray:
@@ -102,10 +108,18 @@ def one_variant(system: System, v: int) -> System:
 
 
 def failure(system: System, q_last: np.ndarray, t_last: float, v: int, target: float,
-            k: int, why: str) -> str:
+            k: int, why: str, q_next: np.ndarray | None = None) -> str:
     """The message for variant ``v`` failing on its way from ``t_last`` to ``target``, before
-    recorded instant ``k``. ``why``: 'diverged', 'singular', 'crossing' or 'jump'."""
+    recorded instant ``k``. ``why``: 'diverged', 'singular', 'crossing' or 'jump'. Where
+    Newton diverged, the Jacobian is checked against Phi at the predicted state ``q_next``
+    (and at the last solved one): a plugin's wrong derivative is named as such."""
     times = system.times
+    if why == "diverged":
+        defects = (jacobian_defects(system, q_next, target, v) if q_next is not None
+                   else None) or jacobian_defects(system, q_last, t_last, v)
+        if defects:
+            return (f"Newton-Raphson does not converge at t = {target:.10g} (before instant "
+                    f"{k} of {len(times) - 1}){variant_label(system, v)}: {defects}")
     cond, names = singularity(system, q_last, v)
     if why == "diverged" and cond > NEAR_SINGULAR:
         why = "singular"  # Newton stalls right at a dead point: say what it is
@@ -129,3 +143,118 @@ def failure(system: System, q_last: np.ndarray, t_last: float, v: int, target: f
                 "singular position")
     return (f"{what}. At t = {t_last:.10g}, the last solved state, the Jacobian's condition "
             f"number is {cond:.3g}; the equations involved belong to {names}")
+
+
+_COORDS = (("x", "y", "phi"), ("vx", "vy", "omega"), ("ax", "ay", "alpha"))
+
+
+def nonfinite_message(system: System, v: int, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                      t: float, k: int) -> str:
+    """The message for variant ``v`` whose state (q, qd, qdd), each (n,), at time ``t`` (the
+    recorded instant ``k``, or -1 between instants) is not all finite: the first output (or
+    else body coordinate) that is not, and the equations whose right-hand side is not."""
+    values = (q, qd, qdd)
+    order = next(o for o, a in enumerate(values) if not np.isfinite(a).all())
+    what = None
+    for spec in system.outputs:
+        if spec.order < order:
+            continue
+        x = eq.output_values(system, spec, *(a.reshape(1, 1, -1) for a in values))[0, 0]
+        if not np.isfinite(x):
+            what = f"{spec.label} is {float(x)!r}"
+            break
+    if what is None:
+        i = int(np.flatnonzero(~np.isfinite(values[order]))[0])
+        x = float(values[order][i])
+        what = f"{system.body_names[i // 3]}.{_COORDS[order][i % 3]} is {x!r}"
+    when = (f"t = {t:.10g} (instant {k} of {len(system.times) - 1})" if k >= 0
+            else f"t = {t:.10g}, between instants")
+    cause = _nonfinite_cause(system, v, q, qd, t, order)
+    return (f"{what} at {when}{variant_label(system, v)}: "
+            f"{('a position', 'a velocity', 'an acceleration')[order]} that is not a finite "
+            f"number{cause}; the run stops there (SolverOptions(nonfinite='keep'), or "
+            "--keep-nonfinite, keeps such values and goes on)")
+
+
+def _nonfinite_cause(system: System, v: int, q: np.ndarray, qd: np.ndarray, t: float,
+                     order: int) -> str:
+    """', from the right-hand side of ...': the equations whose nu (order 1) or gamma
+    (order 2) is not finite at that state, if any."""
+    one = one_variant(system, v)
+    tt = np.full((1, 1), t)
+    with np.errstate(all="ignore"):
+        if order == 1:
+            rhs = eq.velocity_rhs(one, tt, (1, 1))[0, 0]
+            what = "the right-hand side of the velocity equation (nu) in"
+        elif order == 2:
+            rhs = eq.acceleration_rhs(one, q.reshape(1, 1, -1), qd.reshape(1, 1, -1), tt)[0, 0]
+            what = "the right-hand side of the acceleration equation (gamma) in"
+        else:
+            return ""
+    rows = np.flatnonzero(~np.isfinite(rhs))
+    if not rows.size:
+        return ""
+    return (f": {what} the equations of {constraint_names(system, rows[:5])} is not finite "
+            "there (a drive "
+            "function whose derivative is unbounded, such as sqrt(t) at t = 0, or a plugin "
+            "returning NaN or infinity)")
+
+
+#: Directions in which a Jacobian is compared with central differences of Phi, and the
+#: relative disagreement above which it is called inconsistent with Phi. Central differences
+#: with a step of 1e-6 (scaled) are good to about 1e-9; a defect is of order 1.
+JACOBIAN_CHECK_DIRECTIONS = 2
+JACOBIAN_CHECK_TOLERANCE = 1e-5
+
+
+def jacobian_defects(system: System, q: np.ndarray, t: float, v: int) -> str | None:
+    """Where the solver cannot converge: compare Phi_q d with (Phi(q + h d) - Phi(q - h d)) / 2h
+    at ``q`` (n,) of variant ``v`` for random scaled directions d; a row that disagrees means
+    the plugin's jacobian() is not the derivative of its phi(). Returns the message naming the
+    joints and their plugins, or None when the Jacobian agrees (two Phi evaluations and one
+    Jacobian per direction, whatever the size of the mechanism)."""
+    one = one_variant(system, v)
+    D = col_scale(one)[0, 0]
+    rng = np.random.default_rng(12345)
+    h = 1e-6
+    tt = np.full((1, 1), t)
+
+    def phi(x: np.ndarray) -> np.ndarray:
+        return eq.constraint_values(one, x.reshape(1, 1, -1), tt)[0, 0]
+
+    worst = np.zeros(system.m)
+    with np.errstate(all="ignore"):
+        for _ in range(JACOBIAN_CHECK_DIRECTIONS):
+            d = rng.standard_normal(system.n) * D
+            fd = (phi(q + h * d) - phi(q - h * d)) / (2 * h)
+            if system.n > DENSE_ANALYSIS_MAX and system.pattern is not None:
+                vals = eq.jacobian_values(one, q.reshape(1, 1, -1)).values[0, 0]
+                p = one.pattern
+                jd = np.bincount(p.rows, vals * d[p.cols], minlength=system.m)
+                size = np.sqrt(np.bincount(p.rows, (vals * D[p.cols]) ** 2, minlength=system.m))
+            else:
+                jac = eq.jacobian(one, q.reshape(1, 1, -1))[0, 0]
+                jd = jac @ d
+                size = np.linalg.norm(jac * D, axis=-1)
+            scale = size * np.linalg.norm(d / D) + np.abs(fd) + 1e-300
+            worst = np.maximum(worst, np.nan_to_num(np.abs(jd - fd) / scale, nan=np.inf))
+    rows = np.flatnonzero(worst > JACOBIAN_CHECK_TOLERANCE)
+    if not rows.size:
+        return None
+    owners = []
+    for r in rows:
+        c = system.row_owner(int(r))
+        if c not in owners:
+            owners.append(c)
+    plugins = sorted({_plugin_of(system, c.type_name) for c in owners})
+    return (f"the Jacobian of {constraint_names(system, rows[:20])} is not the derivative of "
+            f"its equations (a relative difference of {worst[rows].max():.3g} from central "
+            "differences of Phi): Newton-Raphson cannot converge with it. This is a defect of "
+            f"the plugin {', '.join(plugins)}, not of the .mech file")
+
+
+def _plugin_of(system: System, type_name: str) -> str:
+    for g in system.groups:
+        if g.ctype.name == type_name:
+            return type(g.ctype).__module__
+    return "?"

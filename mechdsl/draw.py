@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import MechError
+from .plot import literal, save_figure
 from .results import Results
 from .system import Sketch, System
 
@@ -110,7 +111,7 @@ def _figure(fr: _Frames, title: str):
     ax.set_aspect("equal", adjustable="box")
     ax.set_xlabel("x")
     ax.set_ylabel("y")
-    ax.set_title(title, fontsize=10)
+    ax.set_title(title, fontsize=10, parse_math=False)  # a file name is no mathtext
     ax.grid(True, lw=0.3, alpha=0.5)
     # ground supports: a hatched triangle under every ground point, fixed over time
     size = 0.03 * max(x1 - x0, y1 - y0)
@@ -186,7 +187,7 @@ def snapshot(results: Results, system: System, path: str, at: list[float] | None
             if k < results.n_solved[v]:
                 _Artists(ax, fr, colors[v], 0.25 + 0.75 * (i + 1) / len(ks), size).update(v, k)
     if fr.traces or results.sweep:
-        ax.legend(fontsize=7, loc="best")
+        literal(ax.legend(fontsize=7, loc="best"))
     _save(fig, path)
 
 
@@ -194,13 +195,14 @@ def animate(results: Results, system: System, path: str, fps: int = FPS,
             max_frames: int = MAX_FRAMES) -> None:
     """Write an animation (.gif with Pillow; .mp4 with ffmpeg): the mechanism moving, traced
     paths growing, the time shown; axes equal and fixed over the whole motion; the variants
-    of a sweep overlaid, each in its own colour."""
+    of a sweep overlaid, each in its own colour. The file is written atomically
+    (:func:`mechdsl.writing.atomic_path`): an error or an interrupt leaves no part of it."""
     from matplotlib import animation
 
     _need_poses(results)
     ext = os.path.splitext(path)[1].lower()
     if ext == ".gif":
-        writer = animation.PillowWriter(fps=fps)
+        writer = _gif_writer(fps)
     elif ext == ".mp4":
         if not animation.writers.is_available("ffmpeg"):
             raise MechError(f"cannot write {path}: an .mp4 needs ffmpeg on the PATH, which is "
@@ -218,7 +220,7 @@ def animate(results: Results, system: System, path: str, fps: int = FPS,
     if results.sweep:
         for v, label in enumerate(_variant_labels(results)):
             ax.plot([], [], "-", color=colors[v], lw=3, label=label)
-        ax.legend(fontsize=7, loc="upper right")
+        literal(ax.legend(fontsize=7, loc="upper right"))
     arts = [_Artists(ax, fr, colors[v], 1.0, size) for v in range(results.n_variants)]
 
     def frame(k: int):
@@ -233,15 +235,46 @@ def animate(results: Results, system: System, path: str, fps: int = FPS,
         clock.set_text(f"t = {results.times[k]:.4g}")
         return changed
 
-    anim = animation.FuncAnimation(fig, frame, frames=ks, blit=False)
-    folder = os.path.dirname(os.path.abspath(path))
-    tmp = os.path.join(folder, f".mechdsl-{os.getpid()}{ext}")
-    try:
-        anim.save(tmp, writer=writer)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    _write_frames(fig, writer, frame, ks, path)
+
+
+def _gif_writer(fps: int):
+    """Pillow's GIF writer, which writes its frames only once all were grabbed: its finish()
+    would otherwise write a partial GIF after an error or an interrupt (or fail, with none)."""
+    from matplotlib import animation
+
+    class Gif(animation.PillowWriter):
+        complete = False
+
+        def finish(self) -> None:
+            if self.complete:
+                super().finish()
+
+    return Gif(fps=fps)
+
+
+def _write_frames(fig, writer, frame, ks, path: str) -> None:
+    """Draw frame(k) for every k and give it to the animation ``writer``, into a temporary
+    file renamed to ``path`` when complete; after an error or an interrupt the writer is
+    stopped (ffmpeg is left to end) and the temporary file removed."""
+    import matplotlib
+
+    from .writing import atomic_path
+
+    with atomic_path(path) as tmp, matplotlib.rc_context({"savefig.bbox": None}):
+        writer.setup(fig, tmp, dpi=fig.dpi)
+        try:
+            for k in ks:
+                frame(k)
+                writer.grab_frame()
+        except BaseException:
+            try:  # stop the writer; the first error is the one to report
+                writer.finish()
+            except Exception:  # noqa: BLE001
+                pass
+            raise
+        writer.complete = True
+        writer.finish()
 
 
 def _colors(n: int) -> list:
@@ -251,5 +284,4 @@ def _colors(n: int) -> list:
 
 
 def _save(fig, path: str) -> None:
-    from .plot import save_figure
     save_figure(fig, path)

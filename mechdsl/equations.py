@@ -40,13 +40,13 @@ def _call(system: System, group: Group, method: str, *args):
     """Call a plugin method; turn its exceptions and wrong shapes into a located error."""
     try:
         return _checked(group, method, args)
-    except Exception as err:  # noqa: BLE001 - any plugin failure is reported as the plugin's
+    except (Exception, SystemExit) as err:  # any plugin failure is reported as the plugin's
         ctype = group.ctype
         member = _culprit(group, method, args)
         c = system.constraints[group.members[member]]
         raise PluginError(
             f"the {ctype.kind} type '{ctype.name}' failed in {method}() for {c.kind} "
-            f"'{c.name}': {type(err).__name__}: {err}", c.span, system.source,
+            f"'{c.name}': {type(err).__name__}: {str(err)[:200]}", c.span, system.source,
             notes=[f"the type comes from the plugin {type(ctype).__module__}; this is a "
                    "defect of the plugin, not of the .mech file"]) from None
 
@@ -82,7 +82,7 @@ def _culprit(group: Group, method: str, args) -> int:
                     else {k: member(j, k, v) for k, v in a.items()} for a in args)
         try:
             _checked(group, method, sub)
-        except Exception:  # noqa: BLE001
+        except (Exception, SystemExit):  # noqa: BLE001
             return j
     return 0
 

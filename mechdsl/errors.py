@@ -16,6 +16,18 @@ import difflib
 from dataclasses import dataclass
 from typing import Iterable
 
+#: Bounds on what an error shows, whatever the input: the longest message and note (cut with
+#: '...'), the notes shown, the characters of a source line shown around the spot, a token
+#: of the input echoed in a message (:func:`cut`), names in a list (:func:`listing`) and the
+#: longest name that gets a suggestion.
+MAX_MESSAGE_CHARS = 2000
+MAX_NOTE_CHARS = 1000
+MAX_NOTES = 20
+SOURCE_WINDOW = 100
+MAX_TOKEN_CHARS = 40
+MAX_LISTED = 5
+MAX_SUGGESTED = 100
+
 
 @dataclass(frozen=True)
 class Span:
@@ -72,28 +84,51 @@ class NumericalError(MechError):
 def suggest(name: str, candidates: Iterable[str], what: str = "") -> str:
     """A '; did you mean ...?' suffix naming the closest candidates (each prefixed with
     ``what``), or '' if none is close."""
-    candidates = list(candidates)
+    if len(name) > MAX_SUGGESTED:  # no misspelling is that long; difflib would be slow
+        return ""
+    lower = name.lower()
+    candidates = [c for c in candidates if len(c) <= MAX_SUGGESTED]
     by_lower: dict[str, str] = {}
     for c in candidates:
         by_lower.setdefault(c.lower(), c)
     # case differences (L for l) count as close; then spelling
-    close = [c for c in candidates if c.lower() == name.lower() and c != name]
-    close += [by_lower[c] for c in difflib.get_close_matches(name.lower(), list(by_lower),
+    close = [c for c in candidates if c != name and c.lower() == lower]
+    close += [by_lower[c] for c in difflib.get_close_matches(lower, list(by_lower),
                                                               n=3, cutoff=0.6)
               if by_lower[c] not in close and by_lower[c] != name]
     close = close[:3]
     if not close:
         return ""
-    quoted = " or ".join(f"'{what}{c}'" for c in close)
+    quoted = " or ".join(f"'{what}{cut(c)}'" for c in close)
     return f"; did you mean {quoted}?"
+
+
+def cut(text: str, width: int = MAX_TOKEN_CHARS) -> str:
+    """``text`` if it has at most ``width`` characters, else its first ``width`` and '...':
+    for echoing a token of the input in a message without echoing a whole line or file."""
+    text = str(text)
+    return text if len(text) <= width else text[:width] + "..."
+
+
+def listing(items: Iterable[str], first: int = MAX_LISTED) -> str:
+    """'a, b, c' or, for a longer list, 'a, b, c, d, e and 12 more': a bounded list of
+    names for a message."""
+    items = list(items)
+    if len(items) <= first + 1:
+        return ", ".join(items)
+    return ", ".join(items[:first]) + f" and {len(items) - first} more"
 
 
 def format_error(error: MechError, kind: str = "error") -> str:
     """Render ``error`` as ``FILE:LINE:COL: error: MESSAGE``, the source line and a caret.
 
     Without a span the location is the file name alone; without a source, the message alone.
+    The output is bounded whatever the input: the source line is shown as a window of
+    :data:`SOURCE_WINDOW` characters around the spot, the message and each note are cut, at
+    most :data:`MAX_NOTES` notes are shown, and control characters (a terminal's escape
+    sequences written in the file) are shown as '?'.
     """
-    head = f"{kind}: {error.message}"
+    head = f"{kind}: {_printable(cut(error.message, MAX_MESSAGE_CHARS))}"
     src, span = error.source, error.span
     if src is None:
         lines = [head]
@@ -107,8 +142,34 @@ def format_error(error: MechError, kind: str = "error") -> str:
                 width = max(1, span.end_column - span.column)
             else:
                 width = max(1, len(text) - span.column + 1)
+            shown, offset, width = _window(text, span.column - 1, width)
             gutter = f"{span.line:>5} | "
-            lines.append(gutter + text)
-            lines.append(" " * (len(gutter) - 2) + "| " + " " * (span.column - 1) + "^" * width)
-    lines.extend(f"  note: {n}" for n in error.notes)
+            lines.append(gutter + _printable(shown))
+            lines.append(" " * (len(gutter) - 2) + "| " + " " * offset + "^" * width)
+    notes = error.notes
+    lines.extend(f"  note: {_printable(cut(n, MAX_NOTE_CHARS))}" for n in notes[:MAX_NOTES])
+    if len(notes) > MAX_NOTES:
+        lines.append(f"  note: and {len(notes) - MAX_NOTES} more notes")
     return "\n".join(lines)
+
+
+def _window(text: str, start: int, width: int) -> tuple[str, int, int]:
+    """The part of ``text`` shown around ``start`` (0-based): (shown text with '...' where it
+    is cut, the caret's offset in it, the caret's width within it)."""
+    if len(text) <= SOURCE_WINDOW:
+        return text, start, width
+    # some context before the spot, most of the window after it
+    begin = max(0, min(start - SOURCE_WINDOW // 4, len(text) - SOURCE_WINDOW))
+    end = min(len(text), begin + SOURCE_WINDOW)
+    before = "..." if begin > 0 else ""
+    after = "..." if end < len(text) else ""
+    width = max(1, min(width, end - start))
+    return before + text[begin:end] + after, len(before) + start - begin, width
+
+
+_CONTROL = dict.fromkeys([*range(0x20), 0x7F, *range(0x80, 0xA0)], "?")
+_CONTROL.pop(ord("\n"))
+
+
+def _printable(text: str) -> str:
+    return text.translate(_CONTROL)

@@ -13,11 +13,19 @@ mechanism by speed or by body.
   where they are at that instant, and ``NAME.pvd``, the index ParaView opens as a series.
 
 With a sweep, every variant gets its own files: ``NAME_v0.xdmf``, ``NAME_v1.xdmf``, ...
+(``NAME_v0_0000.vtu``, ``NAME_v0.pvd``, ...); :func:`series` tells these names.
+
+Every file is written atomically (:func:`mechdsl.writing.atomic_path`), the XDMF with its data
+inline (no companion ``.h5`` file); the files of a series are written one after the other, so
+an interrupted ``.vtu`` export leaves the instants written so far, each file whole, and the
+``.pvd`` index, written last, of the previous export if there was one.
 """
 
 from __future__ import annotations
 
 import os
+import re
+from typing import Callable
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
@@ -25,8 +33,40 @@ import numpy as np
 from .errors import MechError
 from .results import Results
 from .system import System
+from .writing import atomic_path, write_text
 
 FORMATS = (".xdmf", ".vtu")
+
+
+def _variant_stem(stem: str, v: int, n_variants: int) -> str:
+    return stem if n_variants == 1 else f"{stem}_v{v}"
+
+
+def _vtu_name(stem: str, k: int) -> str:
+    return f"{stem}_{k:04d}.vtu"
+
+
+def series(path: str, n_variants: int, n_instants: int) -> Callable[[str], bool]:
+    """Whether a file name (in the folder of ``path``) is one :func:`export` may write for
+    ``path`` with ``n_variants`` variants of ``n_instants`` instants at most."""
+    stem, ext = os.path.splitext(os.path.basename(path))
+    ext = ext.lower()
+    variant = "" if n_variants == 1 else r"_v(?P<v>\d+)"
+    if ext == ".xdmf":
+        pattern = re.compile(re.escape(stem) + variant + r"\.xdmf")
+    else:
+        pattern = re.compile(re.escape(stem) + variant + r"(?:_(?P<k>\d+)\.vtu|\.pvd)")
+
+    def member(name: str) -> bool:
+        m = pattern.fullmatch(name)
+        if m is None:
+            return False
+        v, k = m.groupdict().get("v"), m.groupdict().get("k")
+        if v is not None and not (str(int(v)) == v and int(v) < n_variants):
+            return False
+        return k is None or (f"{int(k):04d}" == k and int(k) < n_instants)
+
+    return member
 
 
 def _layout(system: System) -> tuple[list[tuple[int, np.ndarray]], list, list]:
@@ -103,7 +143,7 @@ def export(results: Results, system: System, path: str) -> list[str]:
         k = int(results.n_solved[v])
         if k == 0:
             continue
-        name = stem if results.n_variants == 1 else f"{stem}_v{v}"
+        name = _variant_stem(stem, v, results.n_variants)
         pos, vel, acc = (a[:k] for a in _kinematics(results, owners, v))
         times = results.times[:k]
         if ext == ".xdmf":
@@ -114,11 +154,12 @@ def export(results: Results, system: System, path: str) -> list[str]:
 
 
 def _xdmf(meshio, path, pos, vel, acc, times, blocks, bodies) -> str:
-    # the data inline in the XML (HDF5 would need h5py, which meshio does not require)
-    with meshio.xdmf.TimeSeriesWriter(path, data_format="XML") as writer:
-        writer.write_points_cells(pos[0], blocks)
+    # the data inline in the XML (HDF5 would need h5py, which meshio does not require, and
+    # a companion .h5 file): the .xdmf names no other file, so its temporary copy is whole
+    with atomic_path(path) as tmp, meshio.xdmf.TimeSeriesWriter(tmp, data_format="XML") as w:
+        w.write_points_cells(pos[0], blocks)
         for k, t in enumerate(times):
-            writer.write_data(float(t), point_data={
+            w.write_data(float(t), point_data={
                 "position": pos[k], "displacement": pos[k] - pos[0], "velocity": vel[k],
                 "acceleration": acc[k], "speed": np.linalg.norm(vel[k], axis=1)},
                 cell_data={"body": bodies})
@@ -128,17 +169,18 @@ def _xdmf(meshio, path, pos, vel, acc, times, blocks, bodies) -> str:
 def _vtu(meshio, stem, pos, vel, acc, times, blocks, bodies) -> list[str]:
     files = []
     for k in range(len(times)):
-        name = f"{stem}_{k:04d}.vtu"
+        name = _vtu_name(stem, k)
         mesh = meshio.Mesh(pos[k], blocks, point_data={
             "velocity": vel[k], "acceleration": acc[k],
             "speed": np.linalg.norm(vel[k], axis=1)}, cell_data={"body": bodies})
-        mesh.write(name)
+        with atomic_path(name) as tmp:
+            mesh.write(tmp, file_format="vtu")
         files.append(name)
     index = stem + ".pvd"
     entries = "\n".join(
         f'    <DataSet timestep="{t:.17g}" part="0" file={quoteattr(os.path.basename(f))}/>'
         for t, f in zip(times, files))
-    with open(index, "w") as f:
-        f.write('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n'
-                f"  <Collection>\n{entries}\n  </Collection>\n</VTKFile>\n")
+    write_text(index, lambda f: f.write(
+        '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n'
+        f"  <Collection>\n{entries}\n  </Collection>\n</VTKFile>\n"))
     return [*files, index]

@@ -7,13 +7,18 @@ differences. Every node keeps the :class:`~mechdsl.errors.Span` it was written a
 Evaluation is vectorised: a compiled expression takes a mapping of names to floats or arrays
 and returns whatever numpy broadcasting of those gives (so one call serves every instant of a
 run and every variant of a sweep).
+
+No function here recurses over a tree: a sum of thousands of terms is thousands of levels
+deep, far beyond Python's recursion limit. Walks keep their own stacks, compilation makes a
+flat program of steps, and display runs generators on an explicit stack (:func:`_run`).
+Derived trees share subtrees (a DAG); the walks visit a shared node once.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Callable, Mapping, Union
+from dataclasses import dataclass, field, fields
+from typing import Callable, Generator, Mapping, Union
 
 import numpy as np
 
@@ -110,6 +115,8 @@ class Table:
 
 
 Expr = Union[Num, Name, Ref, Unary, Binary, Compare, Logic, Call, Cond, Table]
+_NODES = (Num, Name, Ref, Unary, Binary, Compare, Logic, Call, Cond, Table)
+_COMPARED = {t: tuple(f.name for f in fields(t) if f.compare) for t in _NODES}
 
 #: Function name -> (min args, max args or None for variadic). ``sign`` is the derivative of abs.
 FUNCTIONS: dict[str, tuple[int, int | None]] = {
@@ -143,12 +150,58 @@ def children(e: Expr) -> tuple[Expr, ...]:
 
 
 def walk(e: Expr):
-    """Every node of ``e``, parents before children."""
-    stack = [e]
+    """Every node of ``e``, parents before children (a subtree shared by several parents,
+    as in derived trees, once)."""
+    stack, seen = [e], set()
     while stack:
         node = stack.pop()
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
         yield node
         stack.extend(reversed(children(node)))
+
+
+def postorder(e: Expr, kids: Callable[[Expr], tuple] | None = None) -> list[Expr]:
+    """The nodes of ``e``, each once, children before parents (``kids`` gives the children
+    to visit; default :func:`children`)."""
+    kids = kids or children
+    order: list[Expr] = []
+    seen: set[int] = set()
+    stack: list[tuple[Expr, bool]] = [(e, False)]
+    while stack:
+        node, done = stack.pop()
+        if done:
+            order.append(node)
+        elif id(node) not in seen:
+            seen.add(id(node))
+            stack.append((node, True))
+            stack.extend((k, False) for k in reversed(kids(node)) if id(k) not in seen)
+    return order
+
+
+def equal(a: Expr, b: Expr) -> bool:
+    """``a == b`` as the dataclasses compare them (fields, spans included, except a table's),
+    without recursion."""
+    stack, seen = [(a, b)], set()
+    while stack:
+        x, y = stack.pop()
+        if x is y:
+            continue
+        if isinstance(x, _NODES) or isinstance(y, _NODES):
+            if type(x) is not type(y):
+                return False
+            if (id(x), id(y)) in seen:
+                continue
+            seen.add((id(x), id(y)))
+            stack.extend((getattr(x, f), getattr(y, f)) for f in _COMPARED[type(x)])
+        elif isinstance(x, tuple) and isinstance(y, tuple):
+            if len(x) != len(y):
+                return False
+            stack.extend(zip(x, y))
+        elif not x == y:
+            return False
+    return True
 
 
 def free_names(e: Expr) -> set[str]:
@@ -242,7 +295,7 @@ def call(func: str, *args: Expr) -> Expr:
 
 
 def cond(test: Expr, then: Expr, orelse: Expr) -> Expr:
-    if then == orelse:
+    if equal(then, orelse):
         return then
     return Cond(test, then, orelse)
 
@@ -270,6 +323,10 @@ def compile_expr(e: Expr) -> Compiled:
 
     The result broadcasts like numpy: names bound to arrays of shapes (V, 1) and (K,) give a
     (V, K) result. Domain errors give NaN (callers check finiteness where it matters).
+
+    The function runs a flat program, one step per node in post-order (the order, and so
+    the floating-point result, of evaluating the tree recursively), each shared node once;
+    a value is dropped after its last use, so that memory stays that of the recursion.
     """
     if isinstance(e, Num):
         v = float(e.value)
@@ -277,38 +334,73 @@ def compile_expr(e: Expr) -> Compiled:
     if isinstance(e, Name):
         key = e.id
         return lambda env: env[key]
+    order = postorder(e)
+    slot = {id(n): i for i, n in enumerate(order)}
+    steps = []
+    last_use = [0] * len(order)
+    for i, node in enumerate(order):
+        args = [slot[id(k)] for k in children(node)]
+        for a in args:
+            last_use[a] = i
+        steps.append(_step(node, args))
+    drops: list[list[int]] = [[] for _ in order]
+    for a, i in enumerate(last_use[:-1]):
+        drops[i].append(a)
+    program = list(zip(steps, drops))
+
+    def run(env: Env):
+        values: list = [None] * len(program)
+        for i, (step, drop) in enumerate(program):
+            values[i] = step(values, env)
+            for a in drop:
+                values[a] = None
+        return values[-1]
+
+    return run
+
+
+def _step(e: Expr, args: list[int]) -> Callable[[list, Env], object]:
+    """The step of the program computing node ``e`` from the values of its children, which
+    are in the slots ``args``."""
+    if isinstance(e, Num):
+        v = float(e.value)
+        return lambda values, env: v
+    if isinstance(e, Name):
+        key = e.id
+        return lambda values, env: env[key]
     if isinstance(e, Unary):
-        f = compile_expr(e.operand)
+        (a,) = args
         op = np.negative if e.op == "-" else np.logical_not
-        return lambda env: op(f(env))
+        return lambda values, env: op(values[a])
     if isinstance(e, (Binary, Compare, Logic)):
-        fl, fr, op = compile_expr(e.left), compile_expr(e.right), _BINOPS[e.op]
-        return lambda env: op(fl(env), fr(env))
+        a, b = args
+        op = _BINOPS[e.op]
+        return lambda values, env: op(values[a], values[b])
     if isinstance(e, Cond):
-        ft, fa, fb = compile_expr(e.test), compile_expr(e.then), compile_expr(e.orelse)
-        return lambda env: np.where(ft(env), fa(env), fb(env))
+        a, b, c = args
+        return lambda values, env: np.where(values[a], values[b], values[c])
     if isinstance(e, Table):
         spline = _spline(e)
-        fa = compile_expr(e.arg)
-        return lambda env: spline(fa(env))
+        (a,) = args
+        return lambda values, env: spline(values[a])
     if isinstance(e, Call):
-        fs = [compile_expr(a) for a in e.args]
         if e.func in ("min", "max"):
             red = np.minimum if e.func == "min" else np.maximum
+            first, rest = args[0], args[1:]
 
-            def minmax(env: Env):
-                out = fs[0](env)
-                for g in fs[1:]:
-                    out = red(out, g(env))
+            def minmax(values: list, env: Env):
+                out = values[first]
+                for a in rest:
+                    out = red(out, values[a])
                 return out
 
             return minmax
         uf = _UFUNCS[e.func]
-        if len(fs) == 1:
-            (g,) = fs
-            return lambda env: uf(g(env))
-        g, h = fs
-        return lambda env: uf(g(env), h(env))
+        if len(args) == 1:
+            (a,) = args
+            return lambda values, env: uf(values[a])
+        a, b = args
+        return lambda values, env: uf(values[a], values[b])
     raise TypeError(f"cannot evaluate {type(e).__name__}")
 
 
@@ -338,10 +430,26 @@ _PREC = {"or": 1, "and": 2, "<": 4, "<=": 4, ">": 4, ">=": 4, "+": 5, "-": 5, "*
 
 def to_text(e: Expr) -> str:
     """Render ``e`` in ``.mech`` syntax with the fewest parentheses that keep its meaning."""
-    return _text(e, 0)
+    return _run(_text(e, 0))
 
 
-def _text(e: Expr, outer: int) -> str:
+def _run(gen: Generator) -> object:
+    """Run a recursive generator function without recursion: where it would call itself it
+    yields the generator of the call, and receives that call's result (its return value)."""
+    stack, value = [gen], None
+    while stack:
+        try:
+            call = stack[-1].send(value)
+        except StopIteration as done:
+            stack.pop()
+            value = done.value
+        else:
+            stack.append(call)
+            value = None
+    return value
+
+
+def _text(e: Expr, outer: int) -> Generator:
     if isinstance(e, Num):
         v = e.value
         if v == math.pi:
@@ -355,24 +463,28 @@ def _text(e: Expr, outer: int) -> str:
         return ".".join(e.parts)
     if isinstance(e, Unary):
         if e.op == "not":
-            s = f"not {_text(e.operand, 3)}"
+            s = f"not {(yield _text(e.operand, 3))}"
             return f"({s})" if outer > 3 else s
-        s = f"-{_text(e.operand, 7)}"
+        s = f"-{(yield _text(e.operand, 7))}"
         return f"({s})" if outer > 5 else s
     if isinstance(e, (Binary, Compare, Logic)):
         p = _PREC[e.op]
         sep = e.op if e.op in ("*", "/", "^") else f" {e.op} "
         if e.op == "^":  # right-associative
-            s = f"{_text(e.left, p + 1)}{sep}{_text(e.right, p)}"
+            s = f"{(yield _text(e.left, p + 1))}{sep}{(yield _text(e.right, p))}"
         else:
-            s = f"{_text(e.left, p)}{sep}{_text(e.right, p + 1)}"
+            s = f"{(yield _text(e.left, p))}{sep}{(yield _text(e.right, p + 1))}"
         return f"({s})" if p < outer or (p == outer and isinstance(e, Compare)) else s
     if isinstance(e, Call):
-        return f"{e.func}({', '.join(_text(a, 0) for a in e.args)})"
+        args = []
+        for a in e.args:
+            args.append((yield _text(a, 0)))
+        return f"{e.func}({', '.join(args)})"
     if isinstance(e, Cond):
-        s = f"if {_text(e.test, 0)} then {_text(e.then, 0)} else {_text(e.orelse, 0)}"
+        s = (f"if {(yield _text(e.test, 0))} then {(yield _text(e.then, 0))} "
+             f"else {(yield _text(e.orelse, 0))}")
         return f"({s})" if outer > 0 else s
     if isinstance(e, Table):
         period = f", {e.period!r}" if e.period is not None else ""
-        return f"table({e.label}, {_text(e.arg, 0)}{period})" + "'" * e.order
+        return f"table({e.label}, {(yield _text(e.arg, 0))}{period})" + "'" * e.order
     raise TypeError(type(e).__name__)

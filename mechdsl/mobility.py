@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import equations as eq
+from .diagnose import MAX_NAMED
 from .errors import MechError, NumericalError
 from .system import System
 
@@ -33,8 +34,10 @@ def count_check(system: System) -> None:
     if n == 0:
         raise MechError("the model has no moving body", source=src)
     attached = {b for c in system.constraints for b in c.bodies}
-    notes = [f"body '{b}' is attached to nothing" for b in system.body_names
-             if b not in attached]
+    loose = [b for b in system.body_names if b not in attached]
+    notes = [f"body '{b}' is attached to nothing" for b in loose[:MAX_NAMED]]
+    if len(loose) > MAX_NAMED:
+        notes.append(f"and {len(loose) - MAX_NAMED} more bodies are attached to nothing")
     if m < n:
         dof = n - m
         s = "s" if dof > 1 else ""
@@ -170,11 +173,12 @@ def _names(system: System, rows) -> str:
         c = system.row_owner(int(r))
         counts.setdefault(c.name, [c, 0])[1] += 1
     parts = []
-    for c, k in counts.values():
+    for c, k in list(counts.values())[:MAX_NAMED]:
         total = c.rows[1] - c.rows[0]
         share = f"{k} of {total} equations" if total > 1 else "1 equation"
         parts.append(f"{c.kind} {c.name} ({share}, line {c.span.line})")
-    return ", ".join(parts)
+    more = len(counts) - MAX_NAMED
+    return ", ".join(parts) + (f" and {more} more" if more > 0 else "")
 
 
 def redundancy_warning(system: System, mob: Mobility) -> str | None:

@@ -148,3 +148,6 @@ class Model:
     #: ``units length = "m", time = "s"``: the names of the units, for labels only, as
     #: (dimension, name) pairs.
     units: tuple[tuple[str, str], ...] = ()
+    #: The files the model read (tables, meshes), as ``os.path.realpath`` gives them, each
+    #: once, in the order of the text: outputs must never overwrite them.
+    files: tuple[str, ...] = ()

@@ -42,6 +42,11 @@ class SolverOptions:
     #: instant exactly on the singular position, velocities and accelerations are then
     #: completed along the Jacobian's null space from their predicted values, to O(step).
     at_singular: str = "stop"
+    #: A position, velocity or acceleration that is not a finite number (a drive whose
+    #: derivative is unbounded, such as sqrt(t) at t = 0; a plugin returning NaN): "stop" the
+    #: variant there with a numerical failure naming the quantity and the instant, or "keep"
+    #: it in the results and go on.
+    nonfinite: str = "stop"
     #: Largest accepted ratio of Newton's correction to the predictor over the motion since
     #: the last solved state. Above it the interval is bisected; if the position is still
     #: discontinuous at the finest bisection, the solution has jumped branch.
@@ -63,8 +68,11 @@ class SolverOptions:
     #: Instants handled per window of the two-level march (the granularity at which a run
     #: that is interrupted keeps its results).
     window: int = 4096
-    #: Cap on V * b * m * n, the size of a batched Jacobian (memory bound).
+    #: Cap on V * b * m * n, the size of a batched Jacobian (lowered to fit max_memory).
     max_batch_elements: int = 2**22
+    #: Peak resident memory of the whole process, in bytes: a run estimated to need more
+    #: is refused before it starts (:mod:`mechdsl.memory`).
+    max_memory: int = 4 * 2**30
     #: From this many coordinates (3 per moving body) on, a mechanism without redundant
     #: constraints is solved with sparse LU (SuperLU), one state at a time, instead of dense
     #: batched linear algebra; the scaling section of benchmarks/bench.py measures the cross-over.
@@ -100,8 +108,13 @@ class SolverOptions:
             raise ValueError(f"predictor_order must be 1 or 2, not {self.predictor_order!r}")
         if self.at_singular not in ("stop", "continue"):
             raise ValueError(f"at_singular must be 'stop' or 'continue', not {self.at_singular!r}")
+        if self.nonfinite not in ("stop", "keep"):
+            raise ValueError(f"nonfinite must be 'stop' or 'keep', not {self.nonfinite!r}")
         if not 0 < self.singular_rcond < 1:
             raise ValueError(f"singular_rcond must be in (0, 1), not {self.singular_rcond!r}")
+        if not 0 < self.max_memory < 2**63:
+            raise ValueError(f"max_memory must be a positive number of bytes, not "
+                             f"{self.max_memory!r}")
         for name in ("max_iterations", "assembly_max_iterations", "max_block", "initial_block",
                      "max_batch_elements", "coarse_stride", "window"):
             if getattr(self, name) < 1:

@@ -4,6 +4,13 @@ The lark grammar (``grammar/mech.lark``) gives a parse tree; a Transformer turns
 model's dataclasses, and :mod:`.checks` checks what can be checked without plugins. lark's
 exceptions are translated here and nowhere else: every error leaves this module as a
 :class:`~mechdsl.errors.MechError` with a span.
+
+Nothing here recurses over the input: lark's LALR parser is iterative, the parse tree goes to
+the model through lark's non-recursive Transformer, and the passes over expressions in
+:mod:`.expr`, :mod:`.derive` and :mod:`.checks` keep their own stacks. The nesting depth is
+bounded all the same (:data:`MAX_DEPTH`), checked while the parser builds the tree, so that
+a pathological expression is refused as soon as it goes too deep rather than after filling
+the memory.
 """
 
 from __future__ import annotations
@@ -12,35 +19,97 @@ import functools
 import os
 from typing import Iterable
 
-from lark import Lark, Token, Transformer, v_args
+from lark import Lark, Token, Transformer_NonRecursive, v_args
+from lark import __version__ as lark_version
 from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken
+from lark.grammar import Rule
+from lark.lexer import TerminalDef
+from lark.tree import SlottedTree
 
 from . import expr as E
 from .checks import TIME, build_model, check_expr
-from .errors import MechError, Source, Span
+from .errors import MechError, Source, Span, cut
+from .grammar_cache import cached_tables
 from .model import (
     Arg, Drive, Joint, Model, OutputRef, Param, Point, Polygon, Simulate, Sweep, Vector,
 )
 from .shapes import read_mesh
 from .tables import PointList, make_table
 
-__all__ = ["parse", "parse_expr", "parse_expr_list", "check_expr", "TIME"]
+__all__ = ["parse", "parse_expr", "parse_expr_list", "check_expr", "TIME", "MAX_DEPTH"]
+
+#: The deepest nesting of an expression (a level per operation: a sum of n terms nests n
+#: deep, as does ``sin(sin(...))`` n times). A 2,000-term Fourier series is well within it;
+#: an expression beyond it is an error located where it goes too deep.
+MAX_DEPTH = 10_000
+
+_OPTIONS = dict(parser="lalr", start=["start", "expr_only", "expr_list"],
+                propagate_positions=True, maybe_placeholders=False)
+
+
+class _Tree(SlottedTree):
+    """lark's parse tree node, knowing its depth; the parser builds each node after its
+    children, so the depth limit is checked as the tree grows."""
+
+    __slots__ = ("depth",)
+
+    def __init__(self, data, children, meta=None) -> None:
+        super().__init__(data, children, meta)
+        if data[0] == "_":
+            # lark's repetitions (``__start_star_0``) are rebuilt at each item and expanded
+            # into their parent: the parent counts their items, once (counting them here
+            # would make a file of n statements cost n^2)
+            self.depth = 0
+            return
+        depth = 0
+        for c in children:
+            if type(c) is _Tree and c.depth > depth:
+                depth = c.depth
+        self.depth = depth + 1
+        if depth >= MAX_DEPTH:
+            raise MechError(f"the expression is nested too deeply: {depth + 1:,} levels here, "
+                            f"more than the limit of {MAX_DEPTH:,} (a sum of n terms counts n "
+                            "levels; split it with params)", _first_span(children))
+
+
+def _first_span(children) -> Span | None:
+    for c in children:
+        if isinstance(c, Token):
+            return Span(c.line, c.column, c.line, c.column + 1)
+        if isinstance(c, _Tree) and not c.meta.empty:
+            return Span(c.meta.line, c.meta.column, c.meta.line, c.meta.column + 1)
+    return None  # pragma: no cover - an expression node has a positioned child
+
+
+def _grammar() -> str:
+    # read beside this module (importlib.resources would add 13 ms to every start-up)
+    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "grammar", "mech.lark")
+    with open(path, encoding="utf-8") as f:
+        return f.read()
+
+
+def _tables(grammar: str) -> dict:
+    """The LALR tables of ``grammar``, built (about 50 ms) and serialised as plain data."""
+    data, memo = Lark(grammar, **_OPTIONS).memo_serialize([TerminalDef, Rule])
+    return {"data": data, "memo": memo}
+
+
+def _build_parser() -> Lark:
+    """The parser, from the per-user cache of its tables (see :mod:`.grammar_cache`; never
+    lark's own cache, a pickle in the shared temporary folder) or built in memory."""
+    grammar = _grammar()
+    key = "\n".join([lark_version, repr(sorted(_OPTIONS.items())), grammar])
+    tables = cached_tables(key, lambda: _tables(grammar))
+    try:
+        return Lark._load_from_dict(tables["data"], tables["memo"], tree_class=_Tree)
+    except Exception:  # noqa: BLE001 - a cache file lark cannot use: build the tables
+        tables = _tables(grammar)
+        return Lark._load_from_dict(tables["data"], tables["memo"], tree_class=_Tree)
 
 
 @functools.cache
 def _parser() -> Lark:
-    # read beside this module (importlib.resources would add 13 ms to every start-up)
-    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "grammar", "mech.lark")
-    with open(path, encoding="utf-8") as f:
-        grammar = f.read()
-    return Lark(
-        grammar,
-        parser="lalr",
-        start=["start", "expr_only", "expr_list"],
-        propagate_positions=True,
-        maybe_placeholders=False,
-        cache=True,
-    )
+    return _build_parser()
 
 
 def _span(meta) -> Span:
@@ -56,8 +125,9 @@ def _join(a: Span, b: Span) -> Span:
 
 
 @v_args(meta=True)
-class _ToModel(Transformer):
-    """Parse tree -> model nodes (statements are returned as a flat list)."""
+class _ToModel(Transformer_NonRecursive):
+    """Parse tree -> model nodes (statements are returned as a flat list). ``files`` collects
+    the real paths of the tables and meshes read, in the order of the text."""
 
     def start(self, meta, items):
         return [i for i in items if not isinstance(i, Token)]
@@ -79,6 +149,12 @@ class _ToModel(Transformer):
     def __init__(self, base_dir: str) -> None:
         super().__init__()
         self.base_dir = base_dir
+        self.files: list[str] = []
+
+    def _read(self, name: str) -> None:
+        path = os.path.realpath(os.path.join(self.base_dir, name))
+        if path not in self.files:
+            self.files.append(path)
 
     def call(self, meta, items):
         func, *args = items
@@ -88,7 +164,7 @@ class _ToModel(Transformer):
         for a in args:
             if isinstance(a, (Token, PointList)):
                 raise MechError(f"only table() takes a file name or a list of points, not "
-                                f"{name}()", _tspan(a) if isinstance(a, Token) else a.span)
+                                f"{cut(name)}()", _tspan(a) if isinstance(a, Token) else a.span)
         return E.Call(name, tuple(args), _span(meta))
 
     def _table(self, args, span):
@@ -99,6 +175,7 @@ class _ToModel(Transformer):
         data = args[0]
         if isinstance(data, Token) and data.type == "STRING":
             data, data_span = str(data)[1:-1], _tspan(data)
+            self._read(data)
         elif isinstance(data, PointList):
             data_span = data.span
         else:
@@ -176,6 +253,7 @@ class _ToModel(Transformer):
     def shape(self, meta, items):
         (value,) = items
         if isinstance(value, Token):  # a mesh file, read now: its errors point at the file name
+            self._read(str(value)[1:-1])
             return ("shape", read_mesh(str(value)[1:-1], self.base_dir, _tspan(value)),
                     _span(meta))
         return ("shape", value, _span(meta))
@@ -213,7 +291,8 @@ class _ToModel(Transformer):
     def simulate(self, meta, items):
         var, t0, t1, step = items
         if str(var) != TIME:
-            raise MechError(f"the simulated variable is time 't', not '{var}'", _tspan(var))
+            raise MechError(f"the simulated variable is time 't', not '{cut(var)}'",
+                            _tspan(var))
         return Simulate(t0, t1, step, _span(meta))
 
     def ref_or_name(self, meta, items):
@@ -228,7 +307,7 @@ class _ToModel(Transformer):
     def unit(self, meta, items):
         name, text = items
         if str(name) not in ("length", "time"):
-            raise MechError(f"units are given for 'length' and 'time', not '{name}' (angles "
+            raise MechError(f"units are given for 'length' and 'time', not '{cut(name)}' (angles "
                             "are in radians)", _tspan(name))
         return str(name), str(text)[1:-1], _tspan(name)
 
@@ -280,9 +359,9 @@ def _syntax_error(err: UnexpectedInput, source: Source) -> MechError:
         return MechError("unexpected end of file" + _describe_expected(err.expected), span, source)
     if isinstance(err, UnexpectedToken):
         tok = err.token
-        what = f"'{tok}'" if tok.type != "NUMBER" else f"number {tok}"
+        what = f"'{cut(tok)}'" if tok.type != "NUMBER" else f"number {cut(tok)}"
         if tok.type == "NAME":
-            what = f"name '{tok}'"
+            what = f"name '{cut(tok)}'"
         msg = f"unexpected {what}" + _describe_expected(err.accepts or err.expected)
         return MechError(msg, _tspan(tok), source)
     if isinstance(err, UnexpectedCharacters):
@@ -294,13 +373,27 @@ def _syntax_error(err: UnexpectedInput, source: Source) -> MechError:
     return MechError(str(err), None, source)  # pragma: no cover - lark has no other kinds
 
 
-def _lark_parse(text: str, source: Source, start: str):
+def normalise(text: str) -> str:
+    """The text as the parser reads it: without a UTF-8 byte-order mark (Windows editors
+    write one), with '\\r\\n' and a lone '\\r' as line ends ('\\n'), so that lines and columns
+    count as an editor shows them."""
+    if text.startswith("\ufeff"):
+        text = text[1:]
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    return text
+
+
+def _lark_parse(source: Source, start: str):
+    """Parse ``source.text`` from the rule ``start`` and transform it; returns the result and
+    the real paths of the files read."""
     # tables are read relative to the .mech file (the working folder for text without a file)
     base_dir = os.getcwd() if source.name.startswith("<") else os.path.dirname(
         os.path.abspath(source.name))
+    to_model = _ToModel(base_dir)
     try:
-        tree = _parser().parse(text, start=start)
-        return _ToModel(base_dir).transform(tree)
+        tree = _parser().parse(source.text, start=start)
+        return to_model.transform(tree), tuple(to_model.files)
     except UnexpectedInput as err:
         raise _syntax_error(err, source) from None
     except MechError as err:
@@ -318,18 +411,18 @@ def parse(text: str, name: str = "<string>") -> Model:
     Raises :class:`MechError` (with span and source) for syntax errors and for every mistake
     that can be found without the plugin registry.
     """
-    source = Source(name, text)
-    statements = _lark_parse(text, source, "start")
+    source = Source(name, normalise(text))
+    statements, files = _lark_parse(source, "start")
     try:
-        return build_model(source, statements)
+        return build_model(source, statements, files)
     except MechError as err:
         raise err.with_source(source) from None
 
 
 def parse_expr(text: str, name: str, params: Iterable[str]) -> E.Expr:
     """Parse one expression given on the command line (``--set l=2*r``) against ``params``."""
-    source = Source(name, text)
-    e = _lark_parse(text, source, "expr_only")
+    source = Source(name, normalise(text))
+    e, _ = _lark_parse(source, "expr_only")
     try:
         check_expr(e, set(params), name)
     except MechError as err:
@@ -339,13 +432,11 @@ def parse_expr(text: str, name: str, params: Iterable[str]) -> E.Expr:
 
 def parse_expr_list(text: str, name: str, params: Iterable[str]) -> list[E.Expr]:
     """Parse a comma-separated list of expressions (``--sweep l=3.5,2.5``)."""
-    source = Source(name, text)
-    items = _lark_parse(text, source, "expr_list")
+    source = Source(name, normalise(text))
+    items, _ = _lark_parse(source, "expr_list")
     try:
         for e in items:
             check_expr(e, set(params), name)
     except MechError as err:
         raise err.with_source(source) from None
     return items
-
-

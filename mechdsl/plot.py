@@ -1,5 +1,9 @@
 """Time-history figures of results. matplotlib is imported here and nowhere else, and only
-when a figure is drawn."""
+when a figure is drawn.
+
+Every text mechdsl gives matplotlib (labels with the model's units, titles with file names
+and --set values, legends) is drawn with ``parse_math=False``, as written: matplotlib would
+read text between two '$' as mathtext, and fail on a bad formula when saving."""
 
 from __future__ import annotations
 
@@ -58,7 +62,7 @@ def plot_results(results: Results, path: str | os.PathLike, title: str | None = 
             ax.plot(t[:k], results.data[label][v, :k], lw=1.4,
                     label=_variant_label(results, v) if results.sweep else None)
         unit = results.units.get(label)
-        ax.set_ylabel(f"{label} [{unit}]" if unit else label)
+        ax.set_ylabel(f"{label} [{unit}]" if unit else label, parse_math=False)
         ax.grid(True, alpha=0.3)
         ax.margins(x=0)
         _constant_range(ax, results.data[label])
@@ -69,12 +73,20 @@ def plot_results(results: Results, path: str | os.PathLike, title: str | None = 
         shown = [i for i in range(col, len(labels), ncols)]
         if shown:
             bottom = axes[shown[-1]]
-            bottom.set_xlabel(f"t [{results.time_unit}]" if results.time_unit else "t")
+            bottom.set_xlabel(f"t [{results.time_unit}]" if results.time_unit else "t",
+                              parse_math=False)
             bottom.xaxis.set_tick_params(labelbottom=True)
     if results.sweep:
-        axes[0].legend(fontsize="small", loc="best")
-    fig.suptitle(title or os.path.basename(results.source_name))
+        literal(axes[0].legend(fontsize="small", loc="best"))
+    fig.suptitle(title or os.path.basename(results.source_name), parse_math=False)
     save_figure(fig, path)
+
+
+def literal(legend):
+    """Show a legend's entries as written: a '$' in them is no mathtext. Returns the legend."""
+    for text in legend.get_texts():
+        text.set_parse_math(False)
+    return legend
 
 
 def new_figure(**kwargs):
@@ -88,16 +100,12 @@ def new_figure(**kwargs):
 
 
 def save_figure(fig, path: str | os.PathLike) -> None:
-    """Save in the format of the file name's extension (png by default), under a temporary
-    name renamed when complete."""
+    """Save in the format of the file name's extension (png by default), atomically
+    (:func:`mechdsl.writing.atomic_path`)."""
+    from .writing import atomic_path
+
     path = os.fspath(path)
     ext = os.path.splitext(path)[1].lstrip(".").lower() or "png"
-    tmp = os.path.join(os.path.dirname(os.path.abspath(path)),
-                       f".{os.path.basename(path)}.{os.getpid()}.tmp")
-    try:
+    with atomic_path(path) as tmp:
         fig.savefig(tmp, format=ext, dpi=110)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 

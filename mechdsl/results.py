@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import io
 import os
 import sys
-import tempfile
 from dataclasses import dataclass, field
 from typing import IO, Mapping
 
@@ -92,48 +90,49 @@ class Results:
         return header, rows
 
 
+#: Values formatted at a time by the CSV writer: its memory stays bounded (about a megabyte
+#: of text) whatever the length of the run.
+CHUNK_VALUES = 2**16
+
+
 def write_csv(results: Results, target: str | os.PathLike | IO[str]) -> None:
-    """Write the results as CSV (17 significant digits). ``"-"`` writes to standard output;
-    a path is written to a temporary file first and renamed when complete, so that a reader
-    never sees a half-written file."""
-    header, rows = results.table()
+    """Write the results as CSV (17 significant digits), streaming rows in bounded chunks.
+    ``"-"`` writes to standard output (a failure there raises
+    :class:`~mechdsl.writing.StdoutError`); a path is written atomically
+    (:func:`~mechdsl.writing.write_text`): a reader never sees a half-written file."""
+    from .writing import stdout_errors, write_text
+
     if target == "-":
-        _write(sys.stdout, header, rows)
-        sys.stdout.flush()
+        with stdout_errors():
+            write_rows(results, sys.stdout)
+            sys.stdout.flush()
         return
     if hasattr(target, "write"):
-        _write(target, header, rows)  # type: ignore[arg-type]
+        write_rows(results, target)  # type: ignore[arg-type]
         return
-    atomic_write_text(os.fspath(target), lambda f: _write(f, header, rows))
+    write_text(os.fspath(target), lambda f: write_rows(results, f))
 
 
-def _write(f: IO[str], header: list[str], rows: np.ndarray) -> None:
+def write_rows(results: Results, f: IO[str]) -> None:
+    """The CSV of :meth:`Results.table` written into ``f`` a chunk of rows at a time."""
+    header = [*results.sweep, "t", *results.data]
     f.write(",".join(header) + "\n")
-    if rows.size:
-        buf = io.StringIO()
-        np.savetxt(buf, rows, fmt="%.17g", delimiter=",")
-        f.write(buf.getvalue())
-
-
-def atomic_write_text(path: str, writer) -> None:
-    """Call ``writer(file)`` on a temporary file beside ``path``, then rename it to ``path``.
-
-    A target that exists and is not a regular file (/dev/null, a named pipe) is written
-    directly: it cannot be replaced, and its folder is no place for temporary files."""
-    if os.path.exists(path) and not os.path.isfile(path):
-        with open(path, "w", newline="") as f:
-            writer(f)
-        return
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".mechdsl-", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "w", newline="") as f:
-            writer(f)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    ncols = len(header)
+    # the format np.savetxt(fmt="%.17g", delimiter=",") gives each row
+    row_format = ",".join(["%.17g"] * ncols) + "\n"
+    chunk = max(1, CHUNK_VALUES // max(ncols, 1))
+    for v in range(results.n_variants):
+        k = int(results.n_solved[v])
+        for start in range(0, k, chunk):
+            stop = min(k, start + chunk)
+            block = np.empty((stop - start, ncols))
+            for j, s in enumerate(results.sweep):
+                block[:, j] = results.sweep[s][v]
+            j = len(results.sweep)
+            block[:, j] = results.times[start:stop]
+            for i, label in enumerate(results.data, start=j + 1):
+                block[:, i] = results.data[label][v, start:stop]
+            f.write((row_format * len(block)) % tuple(block.ravel().tolist()))
 
 
 def read_csv(path: str) -> Results:

@@ -16,12 +16,17 @@ moment of inertia about the centroid is rho J_c.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
+import pathlib
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import MechError, Span
+from .errors import MechError, Span, cut, listing
+from .reading import check_data
 from .model import Body, Polygon
 from .variants import Variants
 
@@ -84,38 +89,71 @@ def boundary(triangles: np.ndarray) -> np.ndarray:
     return unique[counts == 1]
 
 
+#: meshio formats refused for a shape: they make meshio read files the model does not name
+#: (XDMF's data files, Abaqus' *INCLUDE, TetGen's sibling file, HDF5's external links), which
+#: could be a FIFO, a device or anybody's file, beyond the checks of :mod:`.reading`.
+FORMATS_READING_OTHER_FILES = frozenset(
+    {"xdmf", "abaqus", "tetgen", "h5m", "hmf", "med", "cgns", "exodus"})
+
+
 def read_mesh(path: str, base_dir: str, span: Span | None) -> MeshShape:
-    """Read a planar mesh with meshio (Gmsh, VTK/VTU, OBJ, ... anything meshio reads): its
+    """Read a planar mesh with meshio (Gmsh, VTK/VTU, OBJ, ... most of what meshio reads): its
     triangles, and its quads split in two. A mesh that does not lie in the plane z = 0 (an
-    STL of a solid, say) is refused: a body's shape is planar."""
+    STL of a solid, say) is refused: a body's shape is planar.
+
+    The file is read as data (:mod:`.reading`: a regular file within
+    :data:`~mechdsl.reading.MAX_DATA_BYTES`); formats that would read other files, and
+    compressed ones, are refused. What meshio prints is discarded (standard output may be
+    the CSV stream), and whatever it raises, ``sys.exit`` included, becomes a located error
+    naming the format and the kind of failure only: some readers' messages quote the file.
+    """
     import meshio
 
+    shown = cut(path)
     full = path if os.path.isabs(path) else os.path.join(base_dir, path)
-    if not os.path.isfile(full):
-        raise MechError(f"cannot read the shape {path}: no such file (looked for {full})",
-                        span)
+    if not os.path.lexists(full):
+        raise MechError(f"cannot read the shape {shown}: no such file (looked for "
+                        f"{cut(full, 200)})", span)
+    check_data(full, "the shape ", "MAX_DATA_BYTES", span, shown=shown)
+    formats = _formats(full, meshio.extension_to_filetypes)
+    if not formats:
+        raise MechError(f"cannot read the shape {shown}: its extension names no mesh format "
+                        "meshio reads (.msh, .vtu, .vtk, .obj, .stl, ...)", span)
+    refused = sorted(set(formats) & FORMATS_READING_OTHER_FILES)
+    if refused or full.lower().endswith(".gz"):
+        why = (f"{refused[0]} files can make meshio read other files" if refused else
+               "a compressed file can expand without bound")
+        raise MechError(f"cannot read the shape {shown}: {why}; convert the mesh to a "
+                        "single plain file (.msh, .vtu, .obj, ...)", span)
+    sink = _Discard()
     try:
-        with np.errstate(all="ignore"):  # meshio's format sniffing may overflow harmlessly
+        with np.errstate(all="ignore"), warnings.catch_warnings(), \
+                contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
+            warnings.simplefilter("ignore")  # numpy's, in meshio's format sniffing
             mesh = meshio.read(full)
-    except Exception as err:  # noqa: BLE001 - meshio raises many kinds for unreadable files
-        raise MechError(f"cannot read the shape {path}: {type(err).__name__}: {err}",
-                        span) from None
+    except (Exception, SystemExit) as err:  # noqa: BLE001 - any failure of a reader
+        raise MechError(f"cannot read the shape {shown}: it is not a mesh meshio can read as "
+                        f"{' or '.join(formats)} ({type(err).__name__})", span) from None
     pts = np.asarray(mesh.points, dtype=float)
     if pts.ndim != 2 or pts.shape[1] not in (2, 3) or not len(pts):
-        raise MechError(f"the shape {path} has no points", span)
+        raise MechError(f"the shape {shown} has no points", span)
+    if not np.isfinite(pts).all():
+        raise MechError(f"the shape {shown} has points that are not finite numbers", span)
     if pts.shape[1] == 3:
         extent = float(np.ptp(pts[:, :2], axis=0).max()) or 1.0
         if np.abs(pts[:, 2]).max() > 1e-9 * extent:
-            raise MechError(f"the shape {path} is not planar (its points leave the plane z = 0): "
+            raise MechError(f"the shape {shown} is not planar (its points leave the plane z = 0): "
                             "a body's shape is a 2-D mesh; projecting a 3-D one is not done "
                             "for you", span)
     tris = [c.data for c in mesh.cells if c.type == "triangle"]
     tris += [q[:, [0, 1, 2]] for q in (c.data for c in mesh.cells if c.type == "quad")]
     tris += [q[:, [0, 2, 3]] for q in (c.data for c in mesh.cells if c.type == "quad")]
     if not tris:
-        raise MechError(f"the shape {path} has no triangles or quads (cells: "
-                        f"{', '.join(sorted({c.type for c in mesh.cells})) or 'none'})", span)
+        raise MechError(f"the shape {shown} has no triangles or quads (cells: "
+                        f"{listing(sorted({c.type for c in mesh.cells})) or 'none'})", span)
     triangles = np.concatenate(tris).astype(np.int64)
+    if len(triangles) and (triangles.min() < 0 or triangles.max() >= len(pts)):
+        raise MechError(f"the shape {shown} has cells made of points it does not have", span)
     # cells of no area (a triangle written as a quad with a repeated vertex, say) add nothing
     # to the shape but would make its centroid 0/0 and hide edges of its outline
     xy = pts[:, :2]
@@ -125,8 +163,24 @@ def read_mesh(path: str, base_dir: str, span: Span | None) -> MeshShape:
                      - (p1[:, 1] - p0[:, 1]) * (p2[:, 0] - p0[:, 0]))
     triangles = triangles[doubled > 1e-12 * extent * extent]
     if not len(triangles):
-        raise MechError(f"the shape {path} has no area: all its cells are degenerate", span)
+        raise MechError(f"the shape {shown} has no area: all its cells are degenerate", span)
     return MeshShape(path, xy.copy(), triangles, span)
+
+
+class _Discard(io.TextIOBase):
+    """A text stream that drops what is written to it (and keeps no copy)."""
+
+    def write(self, text: str) -> int:
+        return len(text)
+
+
+def _formats(path: str, by_extension: dict[str, list[str]]) -> list[str]:
+    """The meshio formats of a file name, as meshio deduces them (all its suffixes)."""
+    ext, out = "", []
+    for suffix in reversed(pathlib.Path(path).suffixes):
+        ext = (suffix + ext).lower()
+        out += by_extension.get(ext, [])
+    return out
 
 
 def _readonly(a) -> np.ndarray:

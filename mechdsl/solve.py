@@ -35,10 +35,13 @@ import numpy as np
 from . import equations as eq
 from .assembly import assemble
 from .system import System
-from .diagnose import col_scale, constraint_names, failure, variant_label
-from .mobility import redundancy_warning
+from .diagnose import (
+    col_scale, constraint_names, failure, jacobian_defects, nonfinite_message, variant_label,
+)
+from .mobility import count_check, redundancy_warning
 from .errors import MechError
 from .linalg import Factor, factor
+from .memory import plan
 from .newton import correction_ratio, newton, use_sparse
 from .singular import singular_step
 from .hermite import quintic_hermite
@@ -98,25 +101,38 @@ def _predict(st: _State, T: np.ndarray, order: int = 2) -> np.ndarray:
 
 def simulate(system: System, options: SolverOptions | None = None, *,
              poses: bool = False, rates: bool = False,
-             progress: Callable[[int, int], None] | None = None) -> Results:
+             progress: Callable[[int, int], None] | None = None,
+             extra_memory: int = 0) -> Results:
     """Solve positions (and, where outputs need them, velocities and accelerations) at every
     instant of ``system.times``, for every variant; with ``poses``, also keep every body's
     (x, y, phi) at every instant (``Results.poses``), for drawings and exports, and with
     ``rates`` their first and second time derivatives too (``Results.rates``). ``progress``
-    is called as progress(instants_done, instants) as the run goes on.
+    is called as progress(instants_done, instants) as the run goes on. A run whose memory,
+    with ``extra_memory`` bytes that the caller will add for its outputs, would exceed
+    ``options.max_memory`` is refused before it starts (:func:`mechdsl.memory.plan`).
 
     Raises MechError if the model is not fully driven. Numerical failures do not raise: the
     failing variant stops, the instants solved before are kept, and ``Results.status`` is
-    ``"failed"`` with the reasons in ``Results.messages``.
+    ``"failed"`` with the reasons in ``Results.messages``. Neither does a plugin that raises
+    (status ``"error"``, ``Results.error`` the located error) nor an interrupt (status
+    ``"interrupted"``): the instants solved before are kept.
     """
     opts = (options or SolverOptions()).for_size(system.n_bodies)
     times = system.times
     if times is None:
         raise MechError("the system was compiled without a time grid")
     V, n, K = system.n_variants, system.n, len(times)
+    count_check(system)  # before anything the size of the model is allocated
+    budget = plan(system, opts.max_memory, opts.max_batch_elements,
+                  sparse=use_sparse(system, opts, np.arange(system.m)), poses=poses or rates,
+                  rates=rates, extra=extra_memory)
+    opts = replace(opts, max_batch_elements=budget.batch_elements)
     start = time.perf_counter()
-    asm = assemble(system, float(times[0]), opts)
     data = {o.label: np.full((V, K), np.nan) for o in system.outputs}
+    try:
+        asm = assemble(system, float(times[0]), opts)
+    except (KeyboardInterrupt, eq.PluginError) as err:
+        return _nothing_solved(system, data, err, time.perf_counter() - start)
     mob = asm.mobility
     rows = mob.rows if mob is not None else np.arange(system.m)
     redundant = mob is not None and mob.dropped.size > 0
@@ -134,7 +150,7 @@ def simulate(system: System, options: SolverOptions | None = None, *,
         note = redundancy_warning(system, asm.mobility)
         if note:
             st.warnings.append(note)
-    status = "ok"
+    status, error = "ok", None
     try:
         if st.active.any():
             q0, t0 = asm.q[:, None], np.full((V, 1), times[0])
@@ -150,6 +166,9 @@ def simulate(system: System, options: SolverOptions | None = None, *,
             _run(system, st, opts, data, progress)
     except KeyboardInterrupt:
         status = "interrupted"
+    except eq.PluginError as err:  # a defect of a plugin: keep what was solved before it
+        status, error = "error", err
+        st.failures.insert(0, err.message)
     elapsed = time.perf_counter() - start
     if status == "ok" and st.failures:
         status = "failed"
@@ -168,7 +187,21 @@ def simulate(system: System, options: SolverOptions | None = None, *,
         poses=None if st.poses is None else st.poses.reshape(V, K, -1, 3),
         rates=None if st.rates is None else st.rates.reshape(V, K, 2, -1, 3),
         units={o.label: o.unit for o in system.outputs if o.unit}, time_unit=system.time_unit,
+        error=error,
     )
+
+
+def _nothing_solved(system: System, data: dict, err: BaseException, elapsed: float
+                    ) -> Results:
+    """The results of a run stopped before its first instant: by an interrupt or a plugin."""
+    error = err if isinstance(err, eq.PluginError) else None
+    return Results(
+        times=system.times, data=data, sweep=dict(system.sweep),
+        n_solved=np.zeros(system.n_variants, int),
+        status="interrupted" if error is None else "error",
+        messages=(error.message,) if error else (), solve_time=elapsed, residual=0.0,
+        source_name=system.source.name, error=error,
+        units={o.label: o.unit for o in system.outputs if o.unit}, time_unit=system.time_unit)
 
 
 def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.ndarray,
@@ -191,6 +224,12 @@ def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.nd
         with np.errstate(all="ignore"):
             qd = inv.solve(eq.velocity_rhs(system, ts, qs.shape[:-1])[..., rows])
             qdd = inv.solve(eq.acceleration_rhs(system, qs, qd, ts)[..., rows])
+    if opts.nonfinite == "stop":
+        need = 2 if st.rates is not None else system.order
+        bad = _nonfinite(q, qd, qdd, need) & mask[:, None]
+        if bad.any():
+            _split_at_nonfinite(system, st, q, t, rec, fac, mask, data, opts, (qd, qdd), bad)
+            return
     with np.errstate(all="ignore"):
         phi = eq.constraint_values(system, q, t)
     st.residual = max(st.residual, float(np.abs(phi[mask]).max(initial=0.0)))
@@ -230,6 +269,46 @@ def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.nd
     st.n_solved[mask] = k[-1] + 1
 
 
+def _nonfinite(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, need: int) -> np.ndarray:
+    """(V, c): the columns of a block whose position, or the rates the outputs need (``need``
+    is their highest time derivative), are not all finite. Rates solved at the last column
+    only (for the predictor) are not results and are not checked."""
+    c = q.shape[1]
+    bad = ~np.isfinite(q).all(axis=-1)
+    for order, a in ((1, qd), (2, qdd)):
+        if need >= order and a.shape[1] == c:
+            bad |= ~np.isfinite(a).all(axis=-1)
+    return bad
+
+
+def _split_at_nonfinite(system: System, st: _State, q: np.ndarray, t: np.ndarray,
+                        rec: np.ndarray, fac: Factor, mask: np.ndarray, data: dict,
+                        opts: SolverOptions, rates: tuple[np.ndarray, np.ndarray],
+                        bad: np.ndarray) -> None:
+    """Accept the columns before the first one with a non-finite result, stop the variants
+    that have one there (a numerical failure naming the quantity and the instant), and go on
+    with the others from that column."""
+    c = q.shape[1]
+    j = int(np.argmax(bad.any(axis=0)))
+    full = rates[0].shape[1] == c
+
+    def part(cols: slice) -> tuple[np.ndarray, np.ndarray] | None:
+        return (rates[0][:, cols], rates[1][:, cols]) if full else None
+
+    if j:
+        _accept(system, st, q[:, :j], t[:, :j], rec[:j], fac.columns(slice(0, j)), mask, data,
+                opts, part(slice(0, j)))
+    qd, qdd = rates if full else (np.full(q.shape, np.nan), np.full(q.shape, np.nan))
+    for v in np.flatnonzero(bad[:, j] & mask):
+        st.failures.append(nonfinite_message(system, int(v), q[v, j], qd[v, j], qdd[v, j],
+                                             float(t[v, j]), int(rec[j])))
+        st.active[v] = False
+        mask[v] = False
+    if mask.any():
+        _accept(system, st, q[:, j:], t[:, j:], rec[j:], fac.columns(slice(j, c)), mask, data,
+                opts, part(slice(j, c)))
+
+
 def _watch_redundant(system: System, st: _State, phi: np.ndarray, t: np.ndarray,
                      mask: np.ndarray, opts: SolverOptions) -> None:
     """Stop the variants of a redundant model whose equations no longer all hold: least
@@ -263,7 +342,10 @@ def _run(system: System, st: _State, opts: SolverOptions, data: dict,
     while k < K and st.active.any():
         end = min(K, k + max(opts.window, 2 * stride))
         if two_level and end - k >= 2 * stride:
-            k = _two_level(system, st, opts, data, k, end)
+            try:
+                k = _two_level(system, st, opts, data, k, end)
+            except eq.PluginError:  # the march below finds the instant it fails at
+                k = max(k, int(st.n_solved.max()))
             if progress is not None:
                 progress(k, K)
         if k < end and st.active.any():
@@ -400,9 +482,15 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict,
         T = np.where(act, targets[None, :], st.t[:, None])
         undefined = _undefined_drives(system, T) & act
         pred = _predict(st, T, opts.predictor_order)
-        qn, ok, iters = newton(system, pred, T, D, st.active, opts, rows,
-                               reuse=st.fac if sparse else None)
-        fac = factor(eq.solver_jacobian(system, qn, rows, sparse), D)
+        try:
+            qn, ok, iters = newton(system, pred, T, D, st.active, opts, rows,
+                                   reuse=st.fac if sparse else None)
+            fac = factor(eq.solver_jacobian(system, qn, rows, sparse), D)
+        except eq.PluginError:
+            if bb == 1:
+                raise
+            b = 1  # a plugin failing in a block: find the instant it fails at, one by one
+            continue
         ratio = correction_ratio(qn, pred, st.q[:, None], D, floor)
         singular = ok & ~(fac.rcond >= opts.singular_rcond)
         crossing = ok & ~singular & (fac.sign != _signs_before(st, fac)) & stop_at_singular
@@ -412,8 +500,15 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict,
         if hsub is not None:
             attempts += 1
         if nacc:
-            _accept(system, st, qn[:, :nacc], T[:, :nacc], _recorded(instant, rec[:nacc], record),
-                    fac.columns(slice(0, nacc)), st.active.copy(), data, opts)
+            try:
+                _accept(system, st, qn[:, :nacc], T[:, :nacc],
+                        _recorded(instant, rec[:nacc], record), fac.columns(slice(0, nacc)),
+                        st.active.copy(), data, opts)
+            except eq.PluginError:
+                if nacc == 1:
+                    raise
+                b = 1
+                continue
             if hsub is None:
                 k += nacc
             elif rec[0] >= 0:
@@ -436,8 +531,12 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict,
         gap = target - t_now
         if attempts > opts.max_substeps:
             for v in np.flatnonzero(st.active):
-                st.failures.append(_too_coarse(system, int(v), t_now, int(instant[k]),
-                                               opts.max_substeps))
+                defects = (jacobian_defects(system, pred[v, 0], target, int(v))
+                           or jacobian_defects(system, st.q[v], float(st.t[v]), int(v)))
+                st.failures.append(
+                    f"Newton-Raphson does not converge after t = {t_now:.10g}: {defects}"
+                    if defects else _too_coarse(system, int(v), t_now, int(instant[k]),
+                                                opts.max_substeps))
             st.active[:] = False
             break
         if gap > h_out / 2**opts.max_bisections and not undefined.any():
@@ -460,7 +559,7 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict,
             why = ("singular" if singular[v, 0] else "crossing" if crossing[v, 0]
                    else "jump" if jump[v, 0] else "diverged")
             st.failures.append(failure(system, st.q[v], float(st.t[v]), int(v), target,
-                                       int(instant[k]), why))
+                                       int(instant[k]), why, pred[v, 0]))
         st.active &= ~bad
         if st.active.any():
             fac = factor(eq.solver_jacobian(system, qn, rows, sparse), D)

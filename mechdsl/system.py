@@ -8,6 +8,8 @@ solver arrays of shape ``(V, b, ...)`` for a block of b instants.
 
 from __future__ import annotations
 
+import bisect
+import functools
 from dataclasses import dataclass, field
 from typing import Callable, Mapping
 
@@ -129,9 +131,14 @@ class System:
         return np.flatnonzero(mask)
 
     def row_owner(self, row: int) -> Constraint:
-        """The joint or drive that owns equation ``row``."""
-        for c in self.constraints:
-            if c.rows[0] <= row < c.rows[1]:
-                return c
-        raise IndexError(row)
+        """The joint or drive that owns equation ``row`` (by bisection: messages about large
+        mechanisms ask for many rows)."""
+        k = bisect.bisect_right(self._row_starts, row) - 1
+        if k < 0 or row >= self.constraints[k].rows[1]:
+            raise IndexError(row)
+        return self.constraints[k]
+
+    @functools.cached_property
+    def _row_starts(self) -> list[int]:
+        return [c.rows[0] for c in self.constraints]
 

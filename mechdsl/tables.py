@@ -3,7 +3,9 @@ periodic ``table("cam.csv", psi, 2*pi)``, read into :class:`~mechdsl.expr.Table`
 
 A file holds two numbers per line (x, then y), separated by a comma, a semicolon, a tab or
 spaces; blank lines, lines starting with ``#`` and one header line are skipped. The x values
-must increase strictly. Relative paths are taken from the folder of the ``.mech`` file.
+must increase strictly. Relative paths are taken from the folder of the ``.mech`` file. The
+file is read as data (:mod:`.reading`): a regular file of at most
+:data:`~mechdsl.reading.MAX_DATA_BYTES`, quoted in messages by a few characters at most.
 """
 
 from __future__ import annotations
@@ -14,8 +16,9 @@ import re
 from dataclasses import dataclass
 
 from . import expr as E
-from .errors import MechError, Span
+from .errors import MechError, Span, cut
 from .model import Vector
+from .reading import excerpt, read_data
 
 _SEP = re.compile(r"[,;\s]+")
 
@@ -33,7 +36,7 @@ def make_table(data: str | PointList, data_span: Span, arg: E.Expr, period: E.Ex
     """Build the table node for ``table(data, arg[, period])``; ``data`` is a file name or
     inline points."""
     if isinstance(data, str):
-        xs, ys = _read(os.path.join(base_dir, data), data, data_span)
+        xs, ys = _read(os.path.join(base_dir, data), cut(data), data_span)
         label = f'"{data}"'
     else:
         xs, ys = _inline(data.points, data_span)
@@ -75,31 +78,52 @@ def _inline(points: list[Vector], span: Span) -> tuple[list[float], list[float]]
 
 
 def _read(path: str, shown: str, span: Span) -> tuple[list[float], list[float]]:
+    # read as data (a regular file, size-checked); messages show a few characters of the
+    # offending field at most, never a line of the file (which may be anybody's file)
+    raw = read_data(path, "the table ", "MAX_DATA_BYTES", span, shown=shown)
     try:
-        with open(path, encoding="utf-8") as f:
-            lines = f.read().splitlines()
-    except OSError as err:
-        raise MechError(f"cannot read the table {shown}: {err.strerror}", span) from None
-    except UnicodeDecodeError:
-        raise MechError(f"the table {shown} is not UTF-8 text", span) from None
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        before = raw[: err.start].replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+        line = before.count(b"\n") + 1
+        raise MechError(f"the table {shown} is not UTF-8 text (line {line})", span) from None
+    if text.startswith("\ufeff"):  # the byte-order mark spreadsheets write
+        text = text[1:]
     xs, ys = [], []
+    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
     for number, line in enumerate(lines, 1):
-        text = line.strip()
-        if not text or text.startswith("#"):
+        row = line.strip()
+        if not row or row.startswith("#"):
             continue
-        fields = [f for f in _SEP.split(text) if f]
+        fields = [f for f in _SEP.split(row) if f]
         try:
             x, y = float(fields[0]), float(fields[1])
         except (ValueError, IndexError):
-            if not xs and not any(c.isdigit() for c in fields[0][:1]):
+            if not xs and fields and not fields[0][:1].isdigit():
                 continue  # a header line
-            raise MechError(f"{shown}:{number}: expected two numbers (x, y), got {text!r}",
-                            span) from None
+            raise MechError(f"{shown}:{number}: expected two numbers (x, y), "
+                            + _bad_fields(fields), span) from None
         if not (math.isfinite(x) and math.isfinite(y)):
             raise MechError(f"{shown}:{number}: the numbers must be finite", span)
         xs.append(x)
         ys.append(y)
     return xs, ys
+
+
+def _bad_fields(fields: list[str]) -> str:
+    """What is wrong with the fields of a line, showing the bad one cut short."""
+    if len(fields) < 2:
+        return "found one" if fields else "found none"
+    bad = next(f for f in fields[:2] if not _is_number(f))
+    return f"but {excerpt(bad)} is not a number"
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _one_period(xs, ys, period: float, span: Span):

@@ -16,6 +16,7 @@ import numpy as np
 
 from . import expr as E
 from .errors import MechError, Span, suggest
+from .memory import size_text
 from .model import Model, Sweep, Vector
 
 #: Largest memory (bytes) a run's results may take unless the caller raises it.
@@ -239,7 +240,7 @@ def grid(a: float, b: float, h: float, span: Span | None, what: str, items: str,
             need = (n + 1) * bytes_per_item
             raise MechError(
                 f"the {what} has {n + 1:,} {items}, whose results would take "
-                f"{_size(need)}, more than the limit of {_size(limit * bytes_per_item)}",
+                f"{size_text(need)}, more than the limit of {size_text(limit * bytes_per_item)}",
                 span, notes=["raise the limit with --max-memory (e.g. --max-memory 16G) if "
                              "the machine has the memory, or take a longer step"])
         raise MechError(f"the {what} has {n + 1:,} {items}, more than the limit of {limit:,}",
@@ -252,18 +253,11 @@ def grid(a: float, b: float, h: float, span: Span | None, what: str, items: str,
     return out
 
 
-def _size(n: float) -> str:
-    for unit, scale in (("TB", 2**40), ("GB", 2**30), ("MB", 2**20), ("kB", 2**10)):
-        if n >= scale:
-            return f"{n / scale:.1f} {unit}"
-    return f"{n:.0f} bytes"
-
-
 def parse_size(text: str) -> int:
     """'4G', '500M', '2048k' or a plain number of bytes -> bytes."""
     text = text.strip().upper().rstrip("B")
     scale = {"K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}.get(text[-1:], 1)
     number = float(text[:-1] if scale > 1 else text)
-    if not number > 0:
-        raise ValueError("the size must be positive")
+    if not 0 < number * scale < 2**60:  # also refuses nan and inf
+        raise ValueError("the size must be positive and finite")
     return int(number * scale)

@@ -47,9 +47,17 @@ def test_a_jump_in_a_drives_speed_is_not_a_branch_jump(loads, drive, theta, omeg
     np.testing.assert_allclose(res["slider.vx"], v, atol=1e-10)
 
 
-def test_a_drive_with_infinite_initial_acceleration_runs(loads):
-    res = loads(SLIDER.replace("pi/4 + omega*t", "pi/4 + 3*t^1.5")).simulate()
+def test_an_infinite_initial_acceleration_stops_the_run_unless_kept(loads):
+    mech = loads(SLIDER.replace("pi/4 + omega*t", "pi/4 + 3*t^1.5"))
+    res = mech.simulate()
+    # f'' = 2.25 t^-0.5 is infinite at t = 0: said, not written silently
+    assert res.status == "failed" and res.n_solved[0] == 0
+    assert res.messages[0].startswith("slider.ax is ")
+    assert "at t = 0 (instant 0 of 1000)" in res.messages[0]
+    assert "drive crank_angle (angle, line 28)" in res.messages[0]
+    res = mech.simulate(options=solve.SolverOptions(nonfinite="keep"))
     assert res.ok, res.messages
+    assert np.isinf(res["slider.ax"][0])
     t = res["t"][1:]
     th, w, al = np.pi / 4 + 3 * t**1.5, 4.5 * t**0.5, 2.25 * t**-0.5
     x, v, a = slider_crank(2.0, 3.5, th, w, al)

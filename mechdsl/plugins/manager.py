@@ -9,6 +9,11 @@ passes it on.
 
 Set ``MECHDSL_DISABLE_PLUGIN_AUTOLOAD=1`` to ignore entry points (only plugins given
 explicitly are registered), as pytest does for its own plugins.
+
+A model file's ``plugin "module"`` lines import nothing by themselves (:func:`allowed_plugins`):
+a module is imported only when the user installed it as an entry-point plugin or allowed it
+(``--allow-plugin MODULE``, the ``allow_plugins`` argument of the API, or the environment
+variable ``MECHDSL_ALLOW_PLUGINS=mod1,mod2``). A file opened is data, not code.
 """
 
 from __future__ import annotations
@@ -25,6 +30,33 @@ from .registry import BrokenPlugin, PluginConflict, Provider, Registry
 
 ENTRY_POINT_GROUP = "mechdsl"
 AUTOLOAD_ENV = "MECHDSL_DISABLE_PLUGIN_AUTOLOAD"
+ALLOW_ENV = "MECHDSL_ALLOW_PLUGINS"
+#: Raised by plugin code and contained: a plugin that calls sys.exit() on import is broken,
+#: not the end of the run. KeyboardInterrupt is not contained.
+PLUGIN_FAILURES = (Exception, SystemExit)
+
+
+def installed_plugin_modules() -> set[str]:
+    """The modules that the entry points of the ``mechdsl`` group name: code the user
+    installed as mechdsl plugins (read from the metadata; nothing is imported)."""
+    return {ep.value.split(":")[0].strip() for ep in find_entry_points(ENTRY_POINT_GROUP)}
+
+
+def allowed_plugins(requested: Iterable[tuple[str, object]], allowed: Iterable[str] = ()
+                    ) -> list[tuple[str, object]]:
+    """The ``(module, span)`` pairs of a model's ``plugin`` lines that the user did not allow:
+    a module is allowed when it is an installed entry-point plugin, is named in ``allowed``,
+    or in the environment variable MECHDSL_ALLOW_PLUGINS (comma-separated)."""
+    requested = list(requested)
+    if not requested:
+        return []
+    ok = {m.strip() for m in allowed}
+    ok |= {m.strip() for m in os.environ.get(ALLOW_ENV, "").split(",") if m.strip()}
+    pending = [(m, span) for m, span in requested if m not in ok]
+    if pending:
+        installed = installed_plugin_modules()
+        pending = [(m, span) for m, span in pending if m not in installed]
+    return pending
 
 
 def plugin_manager() -> pluggy.PluginManager:
@@ -57,7 +89,7 @@ def build_registry(
         if isinstance(plugin, str):
             try:
                 plugin = import_module(plugin)
-            except Exception as err:  # noqa: BLE001 - any failure of a plugin is contained
+            except PLUGIN_FAILURES as err:  # any failure of a plugin is contained
                 registry.broken.append(BrokenPlugin(Provider(str(plugin)), _reason(err)))
                 continue
         name = getattr(plugin, "__name__", repr(plugin))
@@ -79,7 +111,9 @@ def build_registry(
 
 
 def _reason(err: BaseException) -> str:
-    return f"{type(err).__name__}: {err}"
+    if isinstance(err, SystemExit):
+        return f"it called sys.exit({err.code!r}) while loading"
+    return f"{type(err).__name__}: {str(err)[:300]}"
 
 
 def _register(pm, registry: Registry, plugin: object, provider: Provider,
@@ -89,7 +123,7 @@ def _register(pm, registry: Registry, plugin: object, provider: Provider,
     try:
         pm.register(plugin, name=provider.plugin)
         pm.check_pending()
-    except Exception as err:  # noqa: BLE001
+    except PLUGIN_FAILURES as err:
         if pm.is_registered(plugin):
             pm.unregister(plugin)
         registry.broken.append(BrokenPlugin(provider, _reason(err)))
@@ -105,7 +139,7 @@ def _load_entry_points(pm, registry: Registry, eps: list, providers: dict[str, P
             continue
         try:
             plugin = ep.load()
-        except Exception as err:  # noqa: BLE001
+        except PLUGIN_FAILURES as err:
             registry.broken.append(BrokenPlugin(provider, _reason(err)))
             continue
         _register(pm, registry, plugin, provider, providers)
@@ -120,7 +154,7 @@ def _collect(pm, registry: Registry, providers: dict[str, Provider]) -> None:
             continue
         try:
             types = list(impl.function())
-        except Exception as err:  # noqa: BLE001
+        except PLUGIN_FAILURES as err:
             registry.broken.append(BrokenPlugin(provider, _reason(err)))
             continue
         for ctype in types:
@@ -128,4 +162,6 @@ def _collect(pm, registry: Registry, providers: dict[str, Provider]) -> None:
                 registry.add(ctype, provider)
             except (ValueError, PluginConflict) as err:
                 registry.broken.append(BrokenPlugin(provider, str(err)))
+            except PLUGIN_FAILURES as err:  # a declaration whose attributes raise
+                registry.broken.append(BrokenPlugin(provider, _reason(err)))
         done.add(provider)

@@ -3,25 +3,21 @@ complete file, and says so."""
 
 import csv
 import signal
-import subprocess
-import sys
-import time
 
 import numpy as np
 
 from closed_forms import slider_crank
-from conftest import EXAMPLES, ROOT
+from conftest import EXAMPLES
+from test_outputs_safety import finish, start_solving
 
 
 def test_ctrl_c_keeps_the_instants_solved_so_far(tmp_path):
     out = tmp_path / "out.csv"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "mechdsl", "run", str(EXAMPLES / "slider_crank.mech"),
-         "--t1", "2000", "--step", "0.001", "-o", str(out)],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(4)
+    # the signal comes once the run is solving (its progress bar is drawn), not after a delay
+    proc, reader = start_solving([EXAMPLES / "slider_crank.mech", "--t1", "2000", "--step",
+                                  "0.001", "-o", out])
     proc.send_signal(signal.SIGINT)
-    _, stderr = proc.communicate(timeout=60)
+    stderr = finish(proc, reader)
     assert proc.returncode == 130, stderr
     text = out.read_text()
     assert text.endswith("\n")
