@@ -15,6 +15,7 @@ import enum
 import errno
 import os
 import sys
+import warnings
 from typing import Sequence
 
 from .errors import MechError, format_error
@@ -118,7 +119,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit:  # --help, or a usage error already printed
         _flush_stdout()
         raise
-    with SignalGuard() as signals:
+    with SignalGuard() as signals, warnings.catch_warnings():
+        # the solver checks what it computes (finite, converged, regular) and says what went
+        # wrong where; numpy's warnings about the overflow or NaN of a step it then refuses
+        # would only be noise on standard error
+        warnings.filterwarnings("ignore", category=RuntimeWarning, module="numpy")
         status = _command(args, signals)
         return _flush_stdout() or status
 

@@ -91,7 +91,8 @@ def independent_rows(a: np.ndarray, tol: float = RANK_TOL) -> tuple[list[int], l
     """Split the rows of ``a`` (in order) into those independent of the rows kept before
     them, and the rest: Gram-Schmidt with re-orthogonalisation, rows normalised first, so
     that earlier rows are kept in preference. Returns (kept, dropped) row indices."""
-    norms = np.linalg.norm(a, axis=1)
+    with np.errstate(all="ignore"):  # huge or non-finite rows are dropped below
+        norms = np.linalg.norm(a, axis=1)
     basis: list[np.ndarray] = []
     kept: list[int] = []
     dropped: list[int] = []
