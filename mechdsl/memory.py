@@ -66,12 +66,14 @@ def resident_bytes() -> int:
         return 0
 
 
-def size_text(n: float) -> str:
-    """``1.5 GB``, ``320.0 MB``, ``12.0 kB``."""
-    for unit, scale in (("TB", 2**40), ("GB", 2**30), ("MB", 2**20), ("kB", 2**10)):
+def size_text(n: float, exact: bool = False) -> str:
+    """``1.5 GiB``, ``320.0 MiB``, ``12.0 KiB``, ``100 bytes``; with ``exact``, the count of
+    bytes first: ``52,428,800 bytes (50.0 MiB)``."""
+    for unit, scale in (("TiB", 2**40), ("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
         if n >= scale:
-            return f"{n / scale:.1f} {unit}"
-    return f"{n:.0f} bytes"
+            return (f"{n:,.0f} bytes ({n / scale:.1f} {unit})" if exact
+                    else f"{n / scale:.1f} {unit}")
+    return f"{n:,.0f} bytes"
 
 
 def results_bytes(system: System, *, poses: bool, rates: bool) -> int:

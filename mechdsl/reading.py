@@ -22,6 +22,7 @@ import os
 import stat
 
 from .errors import MechError, Source, Span
+from .memory import size_text
 
 #: The largest ``.mech`` file read. Parsing (lark's parse tree, then the model) costs about
 #: 3.5 s and 130 MB of memory per MB of an ordinary model (measured on the 10,001-body chain
@@ -85,16 +86,6 @@ def excerpt(text: str, width: int = 12) -> str:
     return repr(text)
 
 
-def size_text(n: int) -> str:
-    """A byte count for a message: '52,428,800 bytes (50.0 MiB)'."""
-    if n < 1024:
-        return f"{n:,} bytes"
-    for unit, scale in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
-        if n >= scale:
-            return f"{n:,} bytes ({n / scale:.1f} {unit})"
-    raise AssertionError  # pragma: no cover - n >= 1024 has a unit
-
-
 def _open(path: str, what: str, limit: str, span: Span | None, source: Source | None,
           shown: str) -> int:
     """A descriptor open for reading on the regular file ``path`` within the limit named
@@ -125,6 +116,7 @@ def _check(st: os.stat_result, what: str, limit: str, span: Span | None,
 
 def _too_big(what: str, shown: str, size: int, limit: str, span: Span | None,
              source: Source | None, more: str) -> MechError:
-    return MechError(f"cannot read {what}{shown}: it has {size_text(size)}{more}, more than "
-                     f"the limit of {size_text(globals()[limit])} (mechdsl.reading.{limit})",
+    return MechError(f"cannot read {what}{shown}: it has {size_text(size, exact=True)}{more}, "
+                     f"more than the limit of {size_text(globals()[limit], exact=True)} "
+                     f"(mechdsl.reading.{limit})",
                      span, source)

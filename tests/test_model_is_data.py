@@ -271,7 +271,7 @@ def test_a_run_over_the_memory_limit_is_refused_with_the_figure(tmp_path):
     f = sweep_model(tmp_path, 50_000)
     r, peak = measured("run", f, "--step", "0.5", "--max-memory", "64M", "-o", tmp_path / "o.csv")
     assert r.returncode == 1
-    assert "error: this run needs about " in r.stderr and "more than the limit of 64.0 MB" in r.stderr
+    assert "error: this run needs about " in r.stderr and "more than the limit of 64.0 MiB" in r.stderr
     assert peak <= 64 * 2**20
     assert not (tmp_path / "o.csv").exists()
 

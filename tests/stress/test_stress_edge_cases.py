@@ -99,7 +99,7 @@ def test_a_drive_on_the_ground(registry):
 def test_a_huge_number_of_instants_is_refused_before_allocating(registry):
     err = error(registry, OK.replace("step 0.1", "step 1e-12"))
     assert err.message == ("the simulated time has 1,000,000,000,001 instants, whose results "
-                           "would take 72.8 TB, more than the limit of 4.0 GB")  # 9 outputs
+                           "would take 72.8 TiB, more than the limit of 4.0 GiB")  # 9 outputs
     assert "--max-memory" in err.notes[0]
 
 
@@ -108,7 +108,7 @@ def test_the_memory_limit_can_be_raised(tmp_path):
     f.write_text(OK.replace("step 0.1", "step 1e-7"))  # 10^7 instants: 160 MB of results
     r = subprocess.run([sys.executable, "-m", "mechdsl", "run", str(f), "--max-memory", "100M",
                         "-q"], capture_output=True, text=True, cwd=ROOT)
-    assert r.returncode == 1 and "more than the limit of 100.0 MB" in r.stderr
+    assert r.returncode == 1 and "more than the limit of 100.0 MiB" in r.stderr
 
 
 def test_a_file_that_is_not_utf8(tmp_path):
