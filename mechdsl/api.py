@@ -104,6 +104,8 @@ class Mechanism:
         values: dict[str, E.Expr | float] = {**(params or {}), **param_values}
         t0, t1 = span if span is not None else (None, None)
         ov = Overrides(params=values, sweeps=dict(sweep or {}), t0=t0, t1=t1, step=step)
+        if options is not None:  # one memory limit for the time grid and the run
+            ov.max_memory = options.max_memory
         return simulate(self.compile(ov), options, poses=poses)
 
 

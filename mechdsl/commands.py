@@ -123,15 +123,25 @@ def _check_targets(args) -> None:
         raise MechError("--at chooses the instants of --snapshot, which is not given")
 
 
-def _check_outputs(args, mech: Mechanism, system: System, at: list[float] | None) -> None:
+def _override_files(ov: Overrides) -> list[str]:
+    """The files that tables in --set and --sweep values read."""
+    from . import expr as E
+
+    values = [*ov.params.values(), *(v for vs in ov.sweeps.values() for v in vs)]
+    return [n.path for v in values if isinstance(v, E.Expr.__args__)
+            for n in E.walk(v) if isinstance(n, E.Table) and n.path]
+
+
+def _check_outputs(args, mech: Mechanism, ov: Overrides, system: System,
+                   at: list[float] | None) -> None:
     """Once the model is read and the run known, before solving: refuse an output that is
     the model file, a file the model reads, or another output of the run (every file of an
     --export series included); refuse --at instants outside the run."""
     from .export import series
 
     inputs = [("the model file", args.file)]
-    # Model.files: the table and mesh files the model read (while that field is being added)
-    inputs += [("the model's data file", f) for f in getattr(mech.model, "files", ())]
+    inputs += [("the model's data file", f) for f in mech.model.files]
+    inputs += [("a table file of --set or --sweep", f) for f in _override_files(ov)]
     outputs = [Output(option, path) for option, path in _outputs(args) if option != "--export"]
     if args.export:
         outputs.append(Output("--export", args.export,
@@ -228,8 +238,9 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
         from .model import OutputRef
         extra = tuple(OutputRef(tuple(_trace_ref(mech.model, r)), None) for r in args.trace)
         mech.model = replace(mech.model, traces=mech.model.traces + extra)
-    system = mech.compile(_overrides(mech, args))
-    _check_outputs(args, mech, system, at)
+    ov = _overrides(mech, args)
+    system = mech.compile(ov)
+    _check_outputs(args, mech, ov, system, at)
     drawing = bool(args.snapshot or args.animate)
     from .memory import outputs_bytes
 

@@ -103,7 +103,8 @@ class Table:
     """A cubic spline through the points (xs, ys), continuous in value, slope and curvature,
     evaluated at ``arg``; ``order`` > 0 is its derivative of that order. Periodic with period
     ``period`` when given (then ys[0] == ys[-1] over one period), else undefined (NaN)
-    outside [xs[0], xs[-1]]. ``label`` is how the data was written, for display."""
+    outside [xs[0], xs[-1]]. ``label`` is how the data was written, for display; ``path``
+    the real path of the file it was read from, if any (an output must never replace it)."""
 
     xs: tuple[float, ...]
     ys: tuple[float, ...]
@@ -112,6 +113,7 @@ class Table:
     order: int = 0
     label: str = ""
     span: Span | None = field(default=None, compare=False)
+    path: str | None = field(default=None, compare=False)
 
 
 Expr = Union[Num, Name, Ref, Unary, Binary, Compare, Logic, Call, Cond, Table]

@@ -102,9 +102,9 @@ def _build_parser() -> Lark:
     tables = cached_tables(key, lambda: _tables(grammar))
     try:
         return Lark._load_from_dict(tables["data"], tables["memo"], tree_class=_Tree)
-    except Exception:  # noqa: BLE001 - a cache file lark cannot use: build the tables
-        tables = _tables(grammar)
-        return Lark._load_from_dict(tables["data"], tables["memo"], tree_class=_Tree)
+    except Exception:  # noqa: BLE001 - tables lark cannot use (or a lark without this
+        # loader): the public constructor, which builds them
+        return Lark(grammar, **_OPTIONS, tree_class=_Tree)
 
 
 @functools.cache

@@ -35,8 +35,10 @@ def make_table(data: str | PointList, data_span: Span, arg: E.Expr, period: E.Ex
                base_dir: str, span: Span) -> E.Table:
     """Build the table node for ``table(data, arg[, period])``; ``data`` is a file name or
     inline points."""
+    path = None
     if isinstance(data, str):
-        xs, ys = _read(os.path.join(base_dir, data), cut(data), data_span)
+        path = os.path.realpath(os.path.join(base_dir, data))
+        xs, ys = _read(path, cut(data), data_span)
         label = f'"{data}"'
     else:
         xs, ys = _inline(data.points, data_span)
@@ -53,7 +55,7 @@ def make_table(data: str | PointList, data_span: Span, arg: E.Expr, period: E.Ex
         if not p > 0:
             raise MechError(f"the period of a table must be positive, not {p:g}", period.span)
         xs, ys = _one_period(xs, ys, p, data_span)
-    return E.Table(tuple(xs), tuple(ys), arg, p, 0, label, span)
+    return E.Table(tuple(xs), tuple(ys), arg, p, 0, label, span, path)
 
 
 def _constant(e: E.Expr, what: str) -> float:

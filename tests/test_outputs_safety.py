@@ -157,6 +157,17 @@ def test_an_output_over_a_file_the_model_reads_is_refused(tmp_path, example, dat
     assert (tmp_path / data).read_bytes() == (EXAMPLES / data).read_bytes()
 
 
+def test_an_output_over_a_table_a_set_value_reads_is_refused(model):
+    table = model.parent / "speed.csv"
+    table.write_text("0, 1\n1, 2\n")
+    r = cli("run", "model.mech", "--set", 'omega=table("speed.csv", 0.5)', "-o", "speed.csv",
+            cwd=model.parent)
+    assert r.returncode == 1
+    assert r.stderr == ("mechdsl: error: -o speed.csv would overwrite a table file of --set or "
+                        f"--sweep {os.path.realpath(table)}; choose another file name\n")
+    assert table.read_text() == "0, 1\n1, 2\n"
+
+
 def test_plot_of_a_csv_over_itself_is_refused(tmp_path):
     out = tmp_path / "out.csv"
     assert cli("run", SLIDER, "--t1", "0.01", "-o", out).returncode == 0
