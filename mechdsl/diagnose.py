@@ -7,6 +7,7 @@ from dataclasses import replace
 import numpy as np
 
 from . import equations as eq
+from .errors import listing
 from .system import System
 
 
@@ -35,10 +36,7 @@ def constraint_names(system: System, rows) -> str:
     for r in rows:
         c = system.row_owner(int(r))
         seen[f"{c.kind} {c.name} ({c.type_name}, line {c.span.line})"] = None
-    names = list(seen)
-    if len(names) > MAX_NAMED:
-        return ", ".join(names[:MAX_NAMED]) + f" and {len(names) - MAX_NAMED} more"
-    return ", ".join(names)
+    return listing(seen, MAX_NAMED)
 
 
 def col_scale(system: System) -> np.ndarray:

@@ -18,7 +18,7 @@ import numpy as np
 
 from . import equations as eq
 from .diagnose import MAX_NAMED
-from .errors import MechError, NumericalError
+from .errors import MechError, NumericalError, listing
 from .system import System
 
 #: A row is independent of the rows kept before it when its component orthogonal to them is
@@ -174,12 +174,12 @@ def _names(system: System, rows) -> str:
         c = system.row_owner(int(r))
         counts.setdefault(c.name, [c, 0])[1] += 1
     parts = []
-    for c, k in list(counts.values())[:MAX_NAMED]:
+    for c, k in list(counts.values())[:MAX_NAMED + 1]:
         total = c.rows[1] - c.rows[0]
         share = f"{k} of {total} equations" if total > 1 else "1 equation"
         parts.append(f"{c.kind} {c.name} ({share}, line {c.span.line})")
-    more = len(counts) - MAX_NAMED
-    return ", ".join(parts) + (f" and {more} more" if more > 0 else "")
+    parts += [""] * (len(counts) - len(parts))  # counted, not written out
+    return listing(parts, MAX_NAMED)
 
 
 def redundancy_warning(system: System, mob: Mobility) -> str | None:

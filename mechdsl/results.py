@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import sys
 from dataclasses import dataclass, field
-from typing import IO, Mapping
+from typing import IO, Iterator, Mapping
 
 import numpy as np
 
@@ -75,19 +75,34 @@ class Results:
     def __contains__(self, key: str) -> bool:
         return key == "t" or key in self.data or key in self.sweep
 
-    def table(self) -> tuple[list[str], np.ndarray]:
-        """The CSV's header and rows: swept params, ``t``, then the outputs; one row per
-        solved instant of each variant."""
-        header = [*self.sweep, "t", *self.data]
-        blocks = []
+    @property
+    def header(self) -> list[str]:
+        """The CSV's columns: swept params, ``t``, then the outputs."""
+        return [*self.sweep, "t", *self.data]
+
+    def row_blocks(self, rows: int | None = None) -> Iterator[np.ndarray]:
+        """The CSV's rows (one per solved instant of each variant, columns as
+        :attr:`header`) as arrays of at most ``rows`` rows (None: a variant's at once)."""
+        ncols = len(self.header)
         for v in range(self.n_variants):
             k = int(self.n_solved[v])
-            cols = [np.full(k, self.sweep[s][v]) for s in self.sweep]
-            cols.append(self.times[:k])
-            cols.extend(self.data[label][v, :k] for label in self.data)
-            blocks.append(np.column_stack(cols) if cols else np.empty((k, 0)))
-        rows = np.concatenate(blocks) if blocks else np.empty((0, len(header)))
-        return header, rows
+            step = rows or max(k, 1)
+            for start in range(0, k, step):
+                stop = min(k, start + step)
+                block = np.empty((stop - start, ncols))
+                for j, s in enumerate(self.sweep):
+                    block[:, j] = self.sweep[s][v]
+                j = len(self.sweep)
+                block[:, j] = self.times[start:stop]
+                for i, label in enumerate(self.data, start=j + 1):
+                    block[:, i] = self.data[label][v, start:stop]
+                yield block
+
+    def table(self) -> tuple[list[str], np.ndarray]:
+        """The CSV's header and all its rows as one array (see :meth:`row_blocks`)."""
+        blocks = list(self.row_blocks())
+        rows = np.concatenate(blocks) if blocks else np.empty((0, len(self.header)))
+        return self.header, rows
 
 
 #: Values formatted at a time by the CSV writer: its memory stays bounded (about a megabyte
@@ -115,24 +130,12 @@ def write_csv(results: Results, target: str | os.PathLike | IO[str]) -> None:
 
 def write_rows(results: Results, f: IO[str]) -> None:
     """The CSV of :meth:`Results.table` written into ``f`` a chunk of rows at a time."""
-    header = [*results.sweep, "t", *results.data]
+    header = results.header
     f.write(",".join(header) + "\n")
-    ncols = len(header)
     # the format np.savetxt(fmt="%.17g", delimiter=",") gives each row
-    row_format = ",".join(["%.17g"] * ncols) + "\n"
-    chunk = max(1, CHUNK_VALUES // max(ncols, 1))
-    for v in range(results.n_variants):
-        k = int(results.n_solved[v])
-        for start in range(0, k, chunk):
-            stop = min(k, start + chunk)
-            block = np.empty((stop - start, ncols))
-            for j, s in enumerate(results.sweep):
-                block[:, j] = results.sweep[s][v]
-            j = len(results.sweep)
-            block[:, j] = results.times[start:stop]
-            for i, label in enumerate(results.data, start=j + 1):
-                block[:, i] = results.data[label][v, start:stop]
-            f.write((row_format * len(block)) % tuple(block.ravel().tolist()))
+    row_format = ",".join(["%.17g"] * len(header)) + "\n"
+    for block in results.row_blocks(max(1, CHUNK_VALUES // max(len(header), 1))):
+        f.write((row_format * len(block)) % tuple(block.ravel().tolist()))
 
 
 def read_csv(path: str) -> Results:

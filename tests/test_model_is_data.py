@@ -291,3 +291,16 @@ def test_the_memory_limit_bounds_the_whole_process(tmp_path, count, step, limit)
 def test_a_meaningless_memory_limit_is_refused(value, capsys):
     assert main(["run", str(EXAMPLES / "slider_crank.mech"), f"--max-memory={value}"]) == 1
     assert f"--max-memory takes a size such as 16G or 500M, not '{value}'" in capsys.readouterr().err
+
+
+def test_messages_about_a_large_model_are_bounded(tmp_path, capsys):
+    f = tmp_path / "loose.mech"
+    f.write_text("".join(f"body b{i} {{ }}\n" for i in range(3000))
+                 + "simulate t = 0 .. 1 step 0.1\n")
+    assert main(["run", str(f)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"{f}: error: the mechanism is not fully driven: 9000 coordinates "
+                          "and 0 equations")
+    assert err.count("is attached to nothing") == 8
+    assert "note: and 2992 more bodies are attached to nothing" in err
+    assert len(err) < 1500
