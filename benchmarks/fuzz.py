@@ -1262,6 +1262,8 @@ def _is_csv(text: str) -> bool:
     lines = text.splitlines()
     if not lines or not re.fullmatch(r"[^,\s]+(,[^,\s]+)*", lines[0]):
         return False
+    if len(lines) > 1 and lines[1].startswith("# units: "):  # the units line under the header
+        del lines[1]
     width = lines[0].count(",") + 1
     for line in lines[1:]:
         fields = line.split(",")

@@ -14,7 +14,10 @@ for t1 in 0.5 1 2; do
         --plot "$out/start_from_rest_t1_$t1.png"
 done
 "$M" run examples/plugins/curve_slot/curve_slot.mech -q -o /dev/null --plot "$out/curve_slot.png"
-# the pictures of the mechanism itself: an animation and a coupler-curve figure
+# the pictures of the mechanism itself: an animation, a coupler-curve figure and a sweep
 "$M" run examples/slider_crank.mech -q -o /dev/null --trace crank.B --animate "$out/slider_crank.gif" \
     --frames 50 --t1 0.5
 "$M" run examples/fourbar.mech -q -o /dev/null --snapshot "$out/fourbar_coupler_curve.png" --at 0,0.2,0.4,0.6,0.8
+# a sweep: each variant in its colour, named in the legend, with its own supports
+"$M" run examples/fourbar.mech -q -o /dev/null --sweep d=3.8,4.2 --snapshot "$out/fourbar_sweep.png" \
+    --at 0,0.5

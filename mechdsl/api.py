@@ -12,10 +12,10 @@ import os
 from typing import Iterable, Mapping, Sequence
 
 from . import expr as E
-from .compile import compile_model
+from .compile import check_structure, compile_model
 from .errors import MechError, Source, Span
 from .model import Model
-from .parse import parse
+from .parse import parse, parse_expr
 from .plugins.manager import allowed_plugins, build_registry
 from .plugins.registry import Registry
 from .results import Results
@@ -79,6 +79,13 @@ class Mechanism:
             self._pending_model_plugins = False
         return self._registry
 
+    def check(self) -> None:
+        """Resolve every name of the model (joint and drive types, their arguments, bodies,
+        points, outputs) against the registry, evaluating nothing: the located MechError the
+        command line gives for the same mistake (see :func:`mechdsl.compile.check_structure`).
+        :func:`load` and :func:`loads` call it."""
+        check_structure(self.model, self.registry)
+
     def compile(self, overrides: Overrides | None = None, *, need_times: bool = True) -> System:
         """Resolve the model against the registry (see :func:`mechdsl.compile.compile_model`)."""
         return compile_model(self.model, self.registry, overrides, need_times=need_times)
@@ -98,24 +105,39 @@ class Mechanism:
 
         ``span = (t0, t1)`` and ``step`` replace the file's ``simulate`` line. Params are
         overridden by keyword (``l=2.5``) or through ``params`` (for names that clash with
-        the keywords here); ``sweep`` maps param names to lists of values. ``poses`` keeps
-        every body's pose at every instant in ``Results.poses``.
+        the keywords here); ``sweep`` maps param names to lists of values. Every value may
+        be a number or, as on the command line (``--set l=3*2``), the text of an expression
+        of the params before it (``l="3*2"``, ``sweep={"l": ["r", "2*r"]}``). ``poses``
+        keeps every body's pose at every instant in ``Results.poses``.
         """
-        values: dict[str, E.Expr | float] = {**(params or {}), **param_values}
+        names = [p.name for p in self.model.params]
+
+        def value(v, what: str):
+            return parse_expr(v, what, names) if isinstance(v, str) else v
+
+        values = {k: value(v, k) for k, v in {**(params or {}), **param_values}.items()}
+        sweeps = {k: [value(x, k) for x in ([vs] if isinstance(vs, str) else vs)]
+                  for k, vs in (sweep or {}).items()}
         t0, t1 = span if span is not None else (None, None)
-        ov = Overrides(params=values, sweeps=dict(sweep or {}), t0=t0, t1=t1, step=step)
+        ov = Overrides(params=values, sweeps=sweeps, t0=value(t0, "span"),
+                       t1=value(t1, "span"), step=value(step, "step"))
         if options is not None:  # one memory limit for the time grid and the run
             ov.max_memory = options.max_memory
         return simulate(self.compile(ov), options, poses=poses)
 
 
-def loads(text: str, name: str = "<string>", **kwargs) -> Mechanism:
-    """Parse ``.mech`` text; keyword arguments go to :class:`Mechanism`."""
-    return Mechanism(parse(text, name), **kwargs)
+def loads(text: str, name: str = "<string>", *, check: bool = True, **kwargs) -> Mechanism:
+    """Parse ``.mech`` text and, with ``check``, resolve its names against the plugins
+    (:meth:`Mechanism.check`), so that a mistake is a located :class:`MechError` here, not
+    later; keyword arguments go to :class:`Mechanism`."""
+    mech = Mechanism(parse(text, name), **kwargs)
+    if check:
+        mech.check()
+    return mech
 
 
 def load(path: str | os.PathLike, **kwargs) -> Mechanism:
-    """Read and parse a ``.mech`` file; keyword arguments go to :class:`Mechanism`.
+    """Read and parse a ``.mech`` file; keyword arguments go to :func:`loads`.
 
     The file is read as data (:func:`mechdsl.reading.read_data`): a regular file of at most
     :data:`mechdsl.reading.MAX_MODEL_BYTES`, else a :class:`MechError` naming it.

@@ -10,8 +10,8 @@ from __future__ import annotations
 from . import expr as E
 from .errors import MechError, Source, Span, cut, suggest
 from .model import (
-    BODY_QUANTITIES, GROUND, ORIGIN, Body, Drive, Joint, Model, OutputRef, Param, Point,
-    Polygon, Simulate, Sweep, Vector,
+    BODY_QUANTITIES, GROUND, ORIGIN, Body, Drive, Joint, Model, NamedOutput, OutputRef, Param,
+    Point, Polygon, Simulate, Sweep, Vector,
 )
 
 TIME = "t"
@@ -224,7 +224,10 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
                 raise MechError(f"'{cut(module)}' is not a module name", span)
             plugins.append((module, span))
         elif isinstance(st, tuple) and st[0] == "output":
-            outputs.extend(st[1])
+            for item in st[1]:
+                if isinstance(item, NamedOutput):
+                    item = _named_output(item, defined)
+                outputs.append(item)
         elif isinstance(st, tuple) and st[0] == "trace":
             traces.extend(st[1])
         elif isinstance(st, tuple) and st[0] == "units":
@@ -251,6 +254,35 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
     return Model(source, tuple(params), ground, tuple(bodies), tuple(joints), tuple(drives),
                  simulate, tuple(outputs), tuple(sweeps), tuple(plugins), tuple(traces),
                  tuple(units.items()), tuple(files))
+
+
+def _named_output(out: NamedOutput, params: set[str]) -> NamedOutput:
+    """``output NAME = EXPR`` with its references to output quantities (``rod.phi``,
+    ``lever.O.x``) as names (``Name("rod.phi")``) that the compiler resolves, and
+    ``distance(P, Q)`` written out as sqrt((P.x - Q.x)^2 + (P.y - Q.y)^2); checked as any
+    expression of the params, ``t`` and those names."""
+    if out.name in RESERVED or out.name == TIME:
+        raise MechError(f"'{cut(out.name)}' is reserved and cannot name an output",
+                        out.name_span)
+
+    def rule(e: E.Expr) -> E.Expr:
+        if isinstance(e, E.Ref):
+            return E.Name(".".join(e.parts), e.span)
+        if isinstance(e, E.Call) and e.func == "distance":
+            points = [a for a in e.args if isinstance(a, E.Name) and a.id.count(".") == 1]
+            if len(e.args) != 2 or len(points) != 2:
+                raise MechError("distance() takes two points, such as distance(lever.O, "
+                                "block.origin)", e.span)
+            a, b = points
+            dx, dy = (E.sub(E.Name(f"{a.id}.{c}", a.span), E.Name(f"{b.id}.{c}", b.span))
+                      for c in ("x", "y"))
+            return E.call("sqrt", E.add(E.power(dx, E.Num(2.0)), E.power(dy, E.Num(2.0))))
+        return e
+
+    expr = E.rewrite(out.expr, rule)
+    quantities = {n.id for n in E.walk(expr) if isinstance(n, E.Name) and "." in n.id}
+    check_expr(expr, params | quantities | {TIME}, f"output '{cut(out.name)}'")
+    return NamedOutput(out.name, expr, out.span, out.name_span)
 
 
 def _sweep_exprs(sw: Sweep) -> list[E.Expr]:

@@ -231,7 +231,8 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
     signals = signals or SignalGuard()
     _check_targets(args)
     at = _instants_option(args.at)
-    mech = load(args.file, plugins=args.plugin, allow_plugins=args.allow_plugin)
+    # compile() comes next and finds the same mistakes: no separate check of the names
+    mech = load(args.file, plugins=args.plugin, allow_plugins=args.allow_plugin, check=False)
     if args.trace:
         from dataclasses import replace
 
@@ -351,11 +352,55 @@ def _report(args, results, written: list[str], stop: KeyboardInterrupt | None,
     if results.ok:
         if not args.quiet and not args.output:
             emit(summary(results))
-        elif not args.quiet and args.output != "-":
-            print(f"{args.output}: {int(results.n_solved.sum())} rows "
-                  f"({results.solve_time * 1e3:.1f} ms)", file=sys.stderr)
+        if not args.quiet:
+            for line in _written_lines(args, results, written):
+                print(line, file=sys.stderr)
         return 0
     return 1 if results.status == "error" else 2
+
+
+def _written_lines(args, results, written: list[str]) -> list[str]:
+    """One line per output written, in the order written: the CSV's rows (unless it went to
+    standard output), the plot, the snapshot's instants, the animation's frames, the files
+    of the export."""
+    lines = []
+    if args.output in written and args.output != "-":
+        lines.append(f"{args.output}: {int(results.n_solved.sum())} rows "
+                     f"({results.solve_time * 1e3:.1f} ms)")
+    if args.plot in written:
+        n = len(results.labels)
+        lines.append(f"{args.plot}: plot of {n} quantit{'ies' if n != 1 else 'y'}")
+    if args.snapshot in written:
+        from .draw import snapshot_instants
+
+        ks = snapshot_instants(results, _instants_option(args.at))
+        lines.append(f"{args.snapshot}: snapshot at t = "
+                     + ", ".join(f"{results.times[k]:g}" for k in ks))
+    if args.animate in written:
+        from .draw import frame_count
+
+        n = frame_count(results, args.frames)
+        lines.append(f"{args.animate}: animation of {n} frame{'s' if n != 1 else ''}")
+    if args.export in written:
+        from .export import written_files
+
+        per_variant = [f for f in written_files(args.export, results.n_solved) if f]
+        count = sum(len(f) for f in per_variant)
+        names = "; ".join(_file_range(f) for f in per_variant)
+        instants = int(results.n_solved.sum())
+        what = (f"{len(per_variant)} variants ({instants} instants)" if results.sweep
+                else f"{instants} instants")
+        lines.append(f"{args.export}: export of {what} in {count} file"
+                     f"{'s' if count != 1 else ''}" + ("" if names == args.export else
+                                                        f": {names}"))
+    return lines
+
+
+def _file_range(names: list[str]) -> str:
+    """'a_0000.vtu .. a_0100.vtu and a.pvd' for a .vtu series, the name of a lone file."""
+    if len(names) <= 2:
+        return " and ".join(names)
+    return f"{names[0]} .. {names[-2]} and {names[-1]}"
 
 
 def _interrupted_text(args, results, written: list[str], signum: int) -> str:
@@ -384,7 +429,8 @@ def check_command(args) -> int:
     from .newton import use_sparse
     from .options import SolverOptions
 
-    mech = load(args.file, plugins=args.plugin, allow_plugins=args.allow_plugin)
+    # compile() comes next and finds the same mistakes: no separate check of the names
+    mech = load(args.file, plugins=args.plugin, allow_plugins=args.allow_plugin, check=False)
     system = mech.compile(_overrides(mech, args), need_times=mech.model.simulate is not None)
     emit(_structure(mech, system))
     t0 = float(system.times[0]) if system.times is not None else 0.0
@@ -402,8 +448,10 @@ def check_command(args) -> int:
     mobility, rank, redundant = report(one_variant(system, 0), asm.q[0], D[0, 0])
     joints = system.m - len(system.drive_rows)
     drives = len(system.drive_rows)
-    emit(f"mobility {mobility}: {system.n} coordinates, joint equations of rank {rank} "
-         f"(of {joints}); {drives} drive{'s' if drives != 1 else ''}")
+    extra = f", {joints - rank} redundant" if joints > rank else ""
+    emit(f"mobility {mobility} = {system.n} coordinates - {rank} independent joint equations "
+         f"({joints} in all{extra}, rank of Phi_q at the assembled configuration); "
+         f"{_count(drives, 'drive')}: fully driven")
     if redundant:
         emit(f"redundant: {redundant}")
     warning = redundancy_warning(system, asm.mobility) if asm.mobility is not None else None
@@ -420,16 +468,24 @@ def check_command(args) -> int:
                              f"(condition number {cond:.3g}); dependent equations involve "
                              f"{names}", source=system.source)
     variants = f" (all {system.n_variants} sweep variants)" if system.n_variants > 1 else ""
-    emit(f"ok: fully driven, assembles at t = {t0:g}{variants}; scaled Jacobian condition "
-         f"number {1 / rcond.min():.3g}")
+    emit(f"ok: assembles at t = {t0:g}{variants}; scaled Jacobian condition number "
+         f"{1 / rcond.min():.3g}")
     return 0
 
 
+def _count(k: int, what: str, plural: str | None = None) -> str:
+    """'1 drive', '3 drives', '2 moving bodies'."""
+    return f"{k} {what if k == 1 else plural or what + 's'}"
+
+
 def _structure(mech: Mechanism, system: System) -> str:
-    dof = system.n - system.m
-    lines = [f"{system.source.name}: {len(system.body_names)} moving bodies, {system.n} "
-             f"coordinates, {system.m} equations, {dof} degree{'s' if dof != 1 else ''} "
-             "of freedom"]
+    """What the model declares; the mobility, which needs the rank at the assembled
+    configuration, is reported once, after the assembly."""
+    drives = len(system.drive_rows)
+    joints = len(system.constraints) - drives
+    lines = [f"{system.source.name}: {_count(len(system.body_names), 'moving body', 'moving bodies')} "
+             f"({system.n} coordinates); {_count(joints, 'joint')} "
+             f"({_count(system.m - drives, 'equation')}) and {_count(drives, 'drive')}"]
     lines.append("bodies:")
     model = mech.model
     for b in (model.ground, *model.bodies):

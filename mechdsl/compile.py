@@ -13,12 +13,13 @@ from dataclasses import replace
 import numpy as np
 
 from . import expr as E
-from .derive import derivative
-from .errors import MechError, Span, suggest
+from .derive import derivative, total_derivative
+from .errors import MechError, Span, cut, suggest
 from .functions import ExprFunction
 from .memory import check_compile
 from .model import (
-    BODY_QUANTITIES, GROUND, ORIGIN, POINT_QUANTITIES, Body, Drive, Joint, Model, Vector,
+    BODY_QUANTITIES, GROUND, ORIGIN, POINT_QUANTITIES, Body, Drive, Joint, Model, NamedOutput,
+    Vector,
 )
 from .checks import TIME, check_expr
 from .plugins.contract import REQUIRED, ArgError, ConstraintType
@@ -26,7 +27,7 @@ from .plugins.manager import PLUGIN_FAILURES
 from .plugins.registry import Registry
 from .shapes import mass_properties, shape_edges
 from .sparse import Pattern
-from .system import Constraint, DriveFunction, Group, OutputSpec, Sketch, System
+from .system import Constraint, DriveFunction, ExprOutput, Group, OutputSpec, Sketch, System
 from .variants import Overrides, evaluate, time_grid
 
 __all__ = ["compile_model", "Overrides", "System"]
@@ -49,6 +50,36 @@ def compile_model(model: Model, registry: Registry, overrides: Overrides | None 
         return _Compiler(model, registry, overrides or Overrides()).run(need_times)
     except MechError as err:
         raise err.with_source(model.source) from None
+
+
+def check_structure(model: Model, registry: Registry) -> None:
+    """Resolve every name of ``model`` against itself and ``registry`` without evaluating a
+    number: joint and drive types, their arguments (names, kinds, the bodies and points they
+    refer to), outputs and traces. Raises the MechError that :func:`compile_model` would
+    raise for the same mistake; a value that is out of range is left to compile_model, since
+    overrides may still change it."""
+    compiler = _Compiler(model, registry, Overrides())
+    try:
+        compiler.structure()
+    except MechError as err:
+        raise err.with_source(model.source) from None
+
+
+class _Unevaluated:
+    """Stands for :class:`~mechdsl.variants.Variants` when only names are resolved: one
+    variant, every value zero, nothing evaluated."""
+
+    count = 1
+    sweep: dict = {}
+
+    def __init__(self, params: list[str]) -> None:
+        self.env = {p: np.zeros(1) for p in params}
+
+    def values(self, e, what: str, span) -> np.ndarray:
+        return np.zeros(1)
+
+    def vector(self, v: Vector, what: str) -> np.ndarray:
+        return np.zeros((1, len(v.items)))
 
 
 def _sparse_pattern(groups: list[Group], constraints: list[Constraint], n: int
@@ -75,8 +106,17 @@ def _sparse_pattern(groups: list[Group], constraints: list[Constraint], n: int
 class _Compiler:
     def __init__(self, model: Model, registry: Registry, ov: Overrides) -> None:
         self.model, self.registry, self.ov = model, registry, ov
+        self.evaluated = True  # False while only names are resolved (structure())
         self._units: dict[str, str] = {}
         self.param_names = [p.name for p in model.params]
+
+    def structure(self) -> None:
+        """What :func:`check_structure` checks: the names, through the same code as run()."""
+        self.var, self.V, self.evaluated = _Unevaluated(self.param_names), 1, False
+        self._bodies()
+        _, groups, _, _ = self._constraints()
+        self._outputs()
+        self._sketch(groups)
 
     def run(self, need_times: bool) -> System:
         self.var = evaluate(self.model, self.ov)
@@ -294,7 +334,8 @@ class _Compiler:
                   for k, v in params.items()}
         try:
             with np.errstate(all="ignore"):
-                ctype.validate(values)
+                if self.evaluated:  # placeholder zeros are no values to judge
+                    ctype.validate(values)
         except ArgError as err:
             raise MechError(f"{ctype.name}: {err.message}{self._bad_variant(ctype, values)}",
                             spans.get(err.arg, c.span)) from None
@@ -385,22 +426,57 @@ class _Compiler:
         shapes = tuple(shape_edges(b, self.var) for b in [*self.bodies, self.model.ground])
         return Sketch(tuple(outlines), tuple(pins), tuple(traces), shapes)
 
-    def _outputs(self) -> list[OutputSpec]:
+    def _outputs(self) -> list[OutputSpec | ExprOutput]:
         refs = self.model.outputs
-        out: list[OutputSpec] = []
+        out: list[OutputSpec | ExprOutput] = []
         if not refs:
             for b in self.bodies:
                 out.extend(self._body_quantities(b.name, BODY_QUANTITIES))
             return out
         seen: set[str] = set()
         for r in refs:
-            specs = self._output(r.parts, r.span)
+            specs = (self._named(r) if isinstance(r, NamedOutput)
+                     else self._output(r.parts, r.span))
             for s in specs:
                 if s.label in seen:
                     raise MechError(f"output '{s.label}' is requested twice", r.span)
                 seen.add(s.label)
             out.extend(specs)
         return out
+
+    def _named(self, out: NamedOutput) -> list[ExprOutput]:
+        """The columns of ``output NAME = EXPR``: NAME, and its exact time derivatives
+        NAME.vel and NAME.acc (by the chain rule through the quantities it reads: x -> vx ->
+        ax, phi -> omega -> alpha), as far as the quantities read have derivatives."""
+        specs: dict[str, OutputSpec] = {}
+        columns = []
+        e = out.expr
+        for suffix in ("", ".vel", ".acc"):
+            names = {n.id: n.span for n in E.walk(e) if isinstance(n, E.Name) and "." in n.id}
+            for name, span in names.items():
+                if name not in specs:
+                    specs[name] = self._quantity(name, span or out.span, out.name)
+            inputs = tuple((n, specs[n]) for n in sorted(names))
+            columns.append(ExprOutput(out.name + suffix, E.compile_expr(e), inputs,
+                                      max((s.order for _, s in inputs), default=0), e))
+            rates = {n: n[: n.rfind(".") + 1] + RATE[specs[n].quantity] for n in names
+                     if specs[n].quantity in RATE}
+            e = total_derivative(e, set(names), rates)
+            if e is None:
+                break
+        return columns
+
+    def _quantity(self, name: str, span: Span, output: str) -> OutputSpec:
+        """The column spec of one quantity read by a named output (``rod.phi``)."""
+        parts = tuple(name.split("."))
+        if parts[-1] not in (*BODY_QUANTITIES, *POINT_QUANTITIES):
+            raise MechError(f"'{cut(name)}' in output '{cut(output)}' is not a quantity: write "
+                            "body.x, body.phi, body.P.x, ... (or distance(P, Q) for points)",
+                            span)
+        found = self._output(parts, span)
+        if len(found) != 1:  # pragma: no cover - a quantity name gives one column
+            raise MechError(f"'{cut(name)}' is not one quantity", span)
+        return found[0]
 
     def _unit(self, quantity: str) -> str:
         if quantity not in self._units:
@@ -448,6 +524,10 @@ class _Compiler:
                         "body.point.quantity", span)
 
     # -- time ----------------------------------------------------------------------------------
+
+#: The time derivative of each output quantity (an acceleration has none computed).
+RATE = {"x": "vx", "y": "vy", "phi": "omega", "vx": "ax", "vy": "ay", "omega": "alpha"}
+
 
 def unit_of(quantity: str, length: str, time: str) -> str:
     """The unit of an output quantity from the units of length and time ("" if one it needs

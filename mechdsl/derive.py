@@ -133,3 +133,20 @@ def _call_derivative(e: Call, d: Callable[[Expr], Expr]) -> Expr:
     else:  # pragma: no cover - FUNCTIONS and this table are kept in step by the tests
         raise ValueError(f"no derivative rule for {f}")
     return mul(outer, du)
+
+
+def total_derivative(e: Expr, functions: set[str], rates: dict[str, str],
+                     var: str = "t") -> Expr | None:
+    """d e / d var where the names ``functions`` are themselves functions of ``var``, each
+    with the derivative named ``rates[name]`` (the chain rule: de/dvar = e_var +
+    sum e_n n'); other names are constants. None where ``e`` depends on a function with no
+    derivative given (an acceleration: the jerk is not computed)."""
+    out = derivative(e, var)
+    for name in sorted(functions):
+        partial = derivative(e, name)
+        if isinstance(partial, Num) and partial.value == 0.0:
+            continue
+        if name not in rates:
+            return None
+        out = add(out, mul(partial, Name(rates[name])))
+    return out

@@ -18,6 +18,12 @@ NEAR_SINGULAR = 1e6
 DENSE_ANALYSIS_MAX = 600
 
 
+def instant_text(system: System, k: int) -> str:
+    """'instant 537 of 2001': recorded instant ``k`` (0-based) counted from 1, out of all of
+    them, as the summary and the CSV count them (t0 is instant 1)."""
+    return f"instant {k + 1} of {len(system.times)}"
+
+
 def variant_label(system: System, v: int) -> str:
     """' (l = 2.1, r = 2)' for sweep variant ``v``; '' without a sweep."""
     if not system.sweep:
@@ -62,9 +68,36 @@ def singularity(system: System, q: np.ndarray, v: int) -> tuple[float, str]:
     except np.linalg.LinAlgError:
         return float("inf"), "(the Jacobian could not be analysed)"
     cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
-    weights = np.abs(u[:, -1])
-    rows = [i for i in np.argsort(-weights) if weights[i] > 0.2 * weights.max()]
-    return cond, constraint_names(system, rows)
+    return cond, loop_names(system, u[:, -1])
+
+
+#: The joints named as the loop that cannot close: the largest shares of the near-null
+#: direction, until they carry this fraction of it, and at most LOOP_NAMED of them.
+LOOP_SHARE = 0.9
+LOOP_NAMED = 4
+
+
+def loop_names(system: System, u: np.ndarray) -> str:
+    """The joints and drives whose equations carry the direction ``u`` (m,) in which the rows
+    of Phi_q are (nearly) dependent, ranked by their share of |u|^2 (the sum over their
+    rows), with the shares: the loop that can no longer close."""
+    share = np.bincount(np.searchsorted(system._row_starts, np.arange(len(u)), "right") - 1,
+                        u * u, minlength=len(system.constraints))
+    total = share.sum()
+    if not total > 0:
+        return "(the Jacobian could not be analysed)"
+    share = share / total
+    order = np.argsort(-share, kind="stable")
+    named, carried = [], 0.0
+    for i in order[:LOOP_NAMED]:
+        if carried >= LOOP_SHARE or share[i] < 0.05 * share[order[0]]:
+            break
+        c = system.constraints[i]
+        named.append(f"{c.kind} {c.name} ({c.type_name}, line {c.span.line}: "
+                     f"{100 * share[i]:.2g} %)")
+        carried += share[i]
+    rest = int((share[order[len(named):]] >= 0.05 * share[order[0]]).sum())
+    return ", ".join(named) + (f" and {rest} more" if rest else "")
 
 
 def _sparse_singularity(one: System, q: np.ndarray) -> tuple[float, str]:
@@ -91,9 +124,7 @@ def _sparse_singularity(one: System, q: np.ndarray) -> tuple[float, str]:
         return float("inf"), "(the equations could not be separated: exactly singular)"
     if not np.isfinite(u).all() or not np.isfinite(cond):
         return float("inf"), "(the Jacobian could not be analysed)"
-    weights = np.abs(u)
-    rows = [i for i in np.argsort(-weights)[:50] if weights[i] > 0.2]
-    return cond, constraint_names(one, rows)
+    return cond, loop_names(one, u)
 
 
 def one_variant(system: System, v: int) -> System:
@@ -116,12 +147,12 @@ def failure(system: System, q_last: np.ndarray, t_last: float, v: int, target: f
         defects = (jacobian_defects(system, q_next, target, v) if q_next is not None
                    else None) or jacobian_defects(system, q_last, t_last, v)
         if defects:
-            return (f"Newton-Raphson does not converge at t = {target:.10g} (before instant "
-                    f"{k} of {len(times) - 1}){variant_label(system, v)}: {defects}")
+            return (f"Newton-Raphson does not converge at t = {target:.10g} (before "
+                    f"{instant_text(system, k)}){variant_label(system, v)}: {defects}")
     cond, names = singularity(system, q_last, v)
     if why == "diverged" and cond > NEAR_SINGULAR:
         why = "singular"  # Newton stalls right at a dead point: say what it is
-    at = f"t = {times[k]:.10g} (instant {k} of {len(times) - 1}){variant_label(system, v)}"
+    at = f"t = {times[k]:.10g} ({instant_text(system, k)}){variant_label(system, v)}"
     between = f"between t = {t_last:.10g} and t = {target:.10g}"
     if why == "singular":
         where = at if target == times[k] else f"t = {target:.10g}, before {at}"
@@ -140,7 +171,8 @@ def failure(system: System, q_last: np.ndarray, t_last: float, v: int, target: f
                 f"{between}: the mechanism locks up (a loop can no longer close) or reaches a "
                 "singular position")
     return (f"{what}. At t = {t_last:.10g}, the last solved state, the Jacobian's condition "
-            f"number is {cond:.3g}; the equations involved belong to {names}")
+            f"number is {cond:.3g}; the loop that can no longer close: {names} (each one's "
+            "share of the direction in which the equations become dependent)")
 
 
 _COORDS = (("x", "y", "phi"), ("vx", "vy", "omega"), ("ax", "ay", "alpha"))
@@ -154,10 +186,17 @@ def nonfinite_message(system: System, v: int, q: np.ndarray, qd: np.ndarray, qdd
     values = (q, qd, qdd)
     order = next(o for o, a in enumerate(values) if not np.isfinite(a).all())
     what = None
+    V = system.n_variants
+    states = []  # variant v's state among zeros: the output specs hold every variant's data
+    for a in values:
+        full = np.zeros((V, 1, len(a)))
+        full[v, 0] = a
+        states.append(full)
     for spec in system.outputs:
         if spec.order < order:
             continue
-        x = eq.output_values(system, spec, *(a.reshape(1, 1, -1) for a in values))[0, 0]
+        with np.errstate(all="ignore"):
+            x = eq.output_values(system, spec, *states, np.full((V, 1), t))[v, 0]
         if not np.isfinite(x):
             what = f"{spec.label} is {float(x)!r}"
             break
@@ -165,7 +204,7 @@ def nonfinite_message(system: System, v: int, q: np.ndarray, qd: np.ndarray, qdd
         i = int(np.flatnonzero(~np.isfinite(values[order]))[0])
         x = float(values[order][i])
         what = f"{system.body_names[i // 3]}.{_COORDS[order][i % 3]} is {x!r}"
-    when = (f"t = {t:.10g} (instant {k} of {len(system.times) - 1})" if k >= 0
+    when = (f"t = {t:.10g} ({instant_text(system, k)})" if k >= 0
             else f"t = {t:.10g}, between instants")
     cause = _nonfinite_cause(system, v, q, qd, t, order)
     return (f"{what} at {when}{variant_label(system, v)}: "

@@ -1,9 +1,18 @@
 """Pictures of the mechanism itself: snapshots over traced paths, and animations.
 
-Each body is drawn as the polygon (three or more points) or the bar (two) through its points
-in declaration order, with the outline of its shape where it has one, each point a joint or drive attaches as a small circle, the ground's
-points as hatched supports, and the points named by ``trace`` with their paths. Coordinates
-come from the run's poses: r^P = r + A(phi) s'^P for every point (Haug eq. 2.6.4).
+Each body is drawn through its points (:func:`outlines`): the points it declares, in order,
+after the points a joint or drive attaches that it does not declare (its origin, for a
+crank pivoted at ``crank.origin``) -- a marker for one point, a bar for two, a plate (the
+polygon) for three or more -- with the outline of its shape where it has one, each point a
+joint or drive attaches as a small circle, the ground's points as hatched supports, and the
+points named by ``trace`` with their paths. The variants of a sweep are overlaid in their own
+colours, named in a legend by their parameter values. Coordinates come from the run's poses:
+r^P = r + A(phi) s'^P for every point (Haug eq. 2.6.4).
+
+An animation draws its fixed parts (axes, grid, supports, title) once and, at every frame,
+only what moves over a copy of them (blitting on the Agg canvas); a GIF keeps its frames as
+palette indices (one palette for the whole animation), compressed, until it is written, when
+Pillow holds each as a palette image (one byte a pixel).
 """
 
 from __future__ import annotations
@@ -22,6 +31,29 @@ from .system import Sketch, System
 MAX_FRAMES = 100
 #: Frames per second of an animation.
 FPS = 25
+#: Colour of a ground support shared by every variant (a variant's own are in its colour).
+SUPPORT_COLOR = "0.35"
+
+
+def outlines(sketch: Sketch) -> tuple[np.ndarray, ...]:
+    """The points each body is drawn and exported through (the ground last), (V, P, 2) in its
+    frame: first the points a joint or drive attaches that the body does not declare (in
+    practice its origin: a crank pivoted at ``crank.origin``, a lever at ``lever.origin``),
+    in the order of the joints, then the points it declares, in order. A body that declares
+    no point is drawn through its origin alone. A declared point at the origin (in every
+    variant) stands for the origin."""
+    attached: dict[int, list[np.ndarray]] = {}
+    for body, xy in sketch.pins:
+        attached.setdefault(body, []).append(xy)
+    drawn = []
+    for i, declared in enumerate(sketch.outlines):
+        points = [declared[:, p] for p in range(declared.shape[1])]
+        extra: list[np.ndarray] = []
+        for xy in attached.get(i, ()):
+            if not any(np.array_equal(xy, p) for p in (*points, *extra)):
+                extra.append(xy)
+        drawn.append(np.stack((*extra, *points), axis=1) if extra else declared)
+    return tuple(drawn)
 
 
 def world(poses: np.ndarray, body: int, local: np.ndarray) -> np.ndarray:
@@ -54,6 +86,7 @@ class _Frames:
     outlines: list[np.ndarray]
     pins: list[np.ndarray]
     traces: dict[str, np.ndarray]
+    #: the ground's points (V, K, G, 2), each with its support
     ground: np.ndarray
     #: per body with a shape: its outline's edges (V, K, E, 2, 2)
     shapes: list[np.ndarray]
@@ -62,11 +95,12 @@ class _Frames:
 def _frames(results: Results, system: System) -> _Frames:
     sk = system.sketch
     nb = system.n_bodies
-    outlines = [world(results.poses, i, sk.outlines[i]) for i in range(nb)]
-    ground = world(results.poses, nb, sk.outlines[nb])
+    drawn = outlines(sk)
+    bodies = [world(results.poses, i, drawn[i]) for i in range(nb)]
+    ground = world(results.poses, nb, drawn[nb])
     pins = [world(results.poses, body, xy) for body, xy in sk.pins]
     shapes = [world(results.poses, i, e) for i, e in enumerate(sk.shapes) if e is not None]
-    return _Frames(outlines, pins, paths(results, sk), ground, shapes)
+    return _Frames(bodies, pins, paths(results, sk), ground, shapes)
 
 
 def _need_poses(results: Results) -> None:
@@ -91,6 +125,24 @@ def _instants(results: Results, count: int) -> np.ndarray:
     return np.unique(np.linspace(0, last - 1, min(count, last)).round().astype(int))
 
 
+def frame_count(results: Results, max_frames: int = MAX_FRAMES) -> int:
+    """The number of frames :func:`animate` writes for ``results``: ``max_frames`` instants
+    at most, evenly spread over those solved (0 if none was)."""
+    if int(results.n_solved.max(initial=0)) == 0:
+        return 0
+    return len(_instants(results, max_frames))
+
+
+def snapshot_instants(results: Results, at: list[float] | None = None,
+                      count: int = 6) -> np.ndarray:
+    """The instants :func:`snapshot` draws: those nearest the times ``at``, or ``count``
+    evenly spread over the instants solved."""
+    if at:
+        t = results.times[: int(results.n_solved.max(initial=0))]
+        return np.unique([int(np.argmin(np.abs(t - a))) for a in at])
+    return _instants(results, count)
+
+
 def _variant_labels(results: Results) -> list[str]:
     if not results.sweep:
         return [""]
@@ -98,7 +150,7 @@ def _variant_labels(results: Results) -> list[str]:
             for i in range(results.n_variants)]
 
 
-def _figure(fr: _Frames, title: str):
+def _figure(fr: _Frames, title: str, colors: list):
     from .plot import new_figure
 
     # a fixed layout: a layout engine would run again at every frame of an animation
@@ -113,23 +165,55 @@ def _figure(fr: _Frames, title: str):
     ax.set_ylabel("y")
     ax.set_title(title, fontsize=10, parse_math=False)  # a file name is no mathtext
     ax.grid(True, lw=0.3, alpha=0.5)
-    # ground supports: a hatched triangle under every ground point, fixed over time
     size = 0.03 * max(x1 - x0, y1 - y0)
-    from matplotlib.patches import Polygon
-    for p in fr.ground[0, 0]:
-        tri = [(p[0], p[1]), (p[0] - size, p[1] - 1.6 * size), (p[0] + size, p[1] - 1.6 * size)]
-        ax.add_patch(Polygon(tri, closed=True, fill=False, hatch="////", lw=0.8,
-                             color="0.35", zorder=1))
+    _supports(ax, fr.ground, colors, size)
     return fig, ax, size
 
 
-class _Artists:
-    """One variant's drawing, as four artists whatever the number of bodies (so that a frame
-    of an animation costs a few updates, not one artist per body): the bars (two-point bodies)
-    as a line collection, the plates (three points or more) as a polygon collection, single
-    points as square markers and the pins as circle markers."""
+def _supports(ax, ground: np.ndarray, colors: list, size: float) -> None:
+    """A hatched triangle under every point of the ground (V, K, G, 2), fixed over time: one
+    in grey where the point is the same in every variant of a sweep, else one per variant in
+    its colour."""
+    from matplotlib.patches import Polygon
 
-    def __init__(self, ax, fr: _Frames, color, alpha: float, size: float) -> None:
+    for j in range(ground.shape[2]):
+        where = ground[:, 0, j]  # (V, 2)
+        shared = bool(np.all(where == where[0]))
+        for v in [0] if shared else range(len(where)):
+            x, y = where[v]
+            tri = [(x, y), (x - size, y - 1.6 * size), (x + size, y - 1.6 * size)]
+            ax.add_patch(Polygon(tri, closed=True, fill=False, hatch="////", lw=0.8,
+                                 color=SUPPORT_COLOR if shared else colors[v], zorder=1))
+
+
+def _legend(ax, results: Results, colors: list, traces, loc: str, alpha: float = 1.0):
+    """The legend, if there is anything to name: each variant of a sweep by its parameter
+    values (a thick line in its colour), each traced path (a thin line: in the variant's
+    colour without a sweep, in grey with one, whose colours name the variants; ``alpha`` as
+    the paths are drawn). None
+    without a sweep or a trace: an empty legend would only be a box (and a warning)."""
+    from matplotlib.lines import Line2D
+
+    handles = []
+    if results.sweep:
+        handles += [Line2D([], [], color=colors[v], lw=3, label=label)
+                    for v, label in enumerate(_variant_labels(results))]
+    for label in traces:
+        handles.append(Line2D([], [], lw=1.2, color="0.3" if results.sweep else colors[0],
+                              alpha=alpha, label=f"path of {label}"))
+    if not handles:
+        return None
+    return literal(ax.legend(handles=handles, fontsize=7, loc=loc))
+
+
+class _Artists:
+    """One variant's drawing, as five artists whatever the number of bodies (so that a frame
+    of an animation costs a few updates, not one artist per body): the bars (two-point
+    bodies) as a line collection, the plates (three points or more) as a polygon collection,
+    single points as square markers, the pins as circle markers and the shapes' outlines as
+    a line collection."""
+
+    def __init__(self, ax, fr: _Frames, color, alpha: float) -> None:
         from matplotlib.collections import LineCollection, PolyCollection
 
         self.fr = fr
@@ -147,6 +231,8 @@ class _Artists:
                                alpha=alpha, zorder=3)[0]
         self.shape_art = ax.add_collection(LineCollection([], colors=["0.2"], linewidths=1.0,
                                                           alpha=alpha, zorder=2))
+        self.artists = [self.bar_art, self.plate_art, self.dot_art, self.pin_art,
+                        self.shape_art]
 
     def update(self, v: int, k: int) -> list:
         fr = self.fr
@@ -158,7 +244,7 @@ class _Artists:
         self.pin_art.set_data(pins[:, 0], pins[:, 1])
         edges = [e for shape in fr.shapes for e in shape[v, k]]
         self.shape_art.set_segments(edges)
-        return [self.bar_art, self.plate_art, self.dot_art, self.pin_art, self.shape_art]
+        return self.artists
 
 
 def snapshot(results: Results, system: System, path: str, at: list[float] | None = None,
@@ -166,97 +252,224 @@ def snapshot(results: Results, system: System, path: str, at: list[float] | None
     """Draw the mechanism at the instants ``at`` (or ``count`` instants evenly spread over
     the run), the later ones darker, over the full paths of the traced points: the
     coupler-curve figure of the mechanism textbooks. Every variant of a sweep is overlaid in
-    its own colour."""
+    its own colour, named in the legend by its parameter values."""
     _need_poses(results)
     fr = _frames(results, system)
-    last = int(results.n_solved.max(initial=0))
-    if at:
-        t = results.times[:last]
-        ks = np.unique([int(np.argmin(np.abs(t - a))) for a in at])
-    else:
-        ks = _instants(results, count)
-    fig, ax, size = _figure(fr, f"{os.path.basename(results.source_name)}: "
-                            f"t = {', '.join(f'{results.times[k]:g}' for k in ks)}")
+    ks = snapshot_instants(results, at, count)
     colors = _colors(results.n_variants)
-    labels = _variant_labels(results)
+    fig, ax, _ = _figure(fr, f"{os.path.basename(results.source_name)}: "
+                         f"t = {', '.join(f'{results.times[k]:g}' for k in ks)}", colors)
     for v in range(results.n_variants):
-        for label, p in fr.traces.items():
-            ax.plot(p[v, :, 0], p[v, :, 1], "-", lw=1.2, color=colors[v], alpha=0.9,
-                    label=f"path of {label}" + (f" ({labels[v]})" if labels[v] else ""))
+        for p in fr.traces.values():
+            ax.plot(p[v, :, 0], p[v, :, 1], "-", lw=1.2, color=colors[v], alpha=0.9)
         for i, k in enumerate(ks):
             if k < results.n_solved[v]:
-                _Artists(ax, fr, colors[v], 0.25 + 0.75 * (i + 1) / len(ks), size).update(v, k)
-    if fr.traces or results.sweep:
-        literal(ax.legend(fontsize=7, loc="best"))
+                _Artists(ax, fr, colors[v], 0.25 + 0.75 * (i + 1) / len(ks)).update(v, k)
+    _legend(ax, results, colors, fr.traces, "best", alpha=0.9)
     _save(fig, path)
 
 
 def animate(results: Results, system: System, path: str, fps: int = FPS,
-            max_frames: int = MAX_FRAMES) -> None:
+            max_frames: int = MAX_FRAMES) -> int:
     """Write an animation (.gif with Pillow; .mp4 with ffmpeg): the mechanism moving, traced
     paths growing, the time shown; axes equal and fixed over the whole motion; the variants
-    of a sweep overlaid, each in its own colour. The file is written atomically
-    (:func:`mechdsl.writing.atomic_path`): an error or an interrupt leaves no part of it."""
+    of a sweep overlaid, each in its own colour, named in a legend. The file is written
+    atomically (:func:`mechdsl.writing.atomic_path`): an error or an interrupt leaves no part
+    of it. Returns the number of frames written (:func:`frame_count`)."""
     from matplotlib import animation
 
     _need_poses(results)
     ext = os.path.splitext(path)[1].lower()
-    if ext == ".gif":
-        writer = _gif_writer(fps)
-    elif ext == ".mp4":
-        if not animation.writers.is_available("ffmpeg"):
-            raise MechError(f"cannot write {path}: an .mp4 needs ffmpeg on the PATH, which is "
-                            "not there; install ffmpeg or write a .gif")
-        writer = animation.FFMpegWriter(fps=fps)
-    else:
+    if ext == ".mp4" and not animation.writers.is_available("ffmpeg"):
+        raise MechError(f"cannot write {path}: an .mp4 needs ffmpeg on the PATH, which is "
+                        "not there; install ffmpeg or write a .gif")
+    if ext not in (".gif", ".mp4"):
         raise MechError(f"cannot write {path}: an animation is a .gif or an .mp4")
     fr = _frames(results, system)
     ks = _instants(results, max_frames)
-    fig, ax, size = _figure(fr, os.path.basename(results.source_name))
     colors = _colors(results.n_variants)
+    fig, ax, _ = _figure(fr, os.path.basename(results.source_name), colors)
     clock = ax.text(0.02, 0.96, "", transform=ax.transAxes, fontsize=9, va="top")
     lines = {(v, label): ax.plot([], [], "-", lw=1.2, color=colors[v])[0]
              for v in range(results.n_variants) for label in fr.traces}
-    if results.sweep:
-        for v, label in enumerate(_variant_labels(results)):
-            ax.plot([], [], "-", color=colors[v], lw=3, label=label)
-        literal(ax.legend(fontsize=7, loc="upper right"))
-    arts = [_Artists(ax, fr, colors[v], 1.0, size) for v in range(results.n_variants)]
+    arts = [_Artists(ax, fr, colors[v], 1.0) for v in range(results.n_variants)]
+    legend = _legend(ax, results, colors, fr.traces, "upper right")
+    moving = [clock, *lines.values(), *(a for art in arts for a in art.artists)]
+    if legend is not None:  # drawn over the moving parts, as in a figure drawn whole
+        moving.append(legend)
 
-    def frame(k: int):
-        changed = [clock]
+    def frame(k: int) -> None:
         for v in range(results.n_variants):
-            kv = min(k, int(results.n_solved[v]) - 1)
+            kv = min(int(k), int(results.n_solved[v]) - 1)
             if kv < 0:
                 continue
-            changed += arts[v].update(v, kv)
+            arts[v].update(v, kv)
             for label, p in fr.traces.items():
                 lines[v, label].set_data(p[v, : kv + 1, 0], p[v, : kv + 1, 1])
         clock.set_text(f"t = {results.times[k]:.4g}")
-        return changed
 
-    _write_frames(fig, writer, frame, ks, path)
+    if ext == ".gif":
+        _write_gif(fig, moving, frame, ks, path, fps)
+    else:
+        _write_frames(fig, animation.FFMpegWriter(fps=fps), frame, ks, path)
+    return len(ks)
 
 
-def _gif_writer(fps: int):
-    """Pillow's GIF writer, which writes its frames only once all were grabbed: its finish()
-    would otherwise write a partial GIF after an error or an interrupt (or fail, with none)."""
-    from matplotlib import animation
+class _Blit:
+    """The figure's fixed parts drawn once; :meth:`render` draws the ``moving`` artists (in
+    the order of their z-order) over a copy of them and gives the canvas's RGBA buffer."""
 
-    class Gif(animation.PillowWriter):
-        complete = False
+    def __init__(self, fig, moving: list) -> None:
+        self.fig, self.canvas = fig, fig.canvas
+        self.moving = sorted(moving, key=lambda a: a.get_zorder())  # stable: ties in order
+        for a in self.moving:
+            a.set_animated(True)  # left out of a canvas.draw()
+        self.canvas.draw()
+        self.background = self.canvas.copy_from_bbox(fig.bbox)
 
-        def finish(self) -> None:
-            if self.complete:
-                super().finish()
+    def render(self) -> np.ndarray:
+        self.canvas.restore_region(self.background)
+        for a in self.moving:
+            self.fig.draw_artist(a)
+        return np.asarray(self.canvas.buffer_rgba())
 
-    return Gif(fps=fps)
+
+class _Palette:
+    """Frames as palette images (mode P, one byte a pixel) that share one palette of 256
+    colours at most: the colours of the figure's fixed parts and of a few sample frames,
+    exact where they are 256 at most, else chosen by median cut (Pillow's, as for a GIF of
+    full-colour frames). Every pixel gets the nearest colour of the palette; pixels equal to
+    the fixed parts' get theirs without a search, and the colours met are remembered."""
+
+    def __init__(self, background: np.ndarray, samples: list[np.ndarray]) -> None:
+        """``background`` (H, W, 4): the fixed parts; ``samples`` (N, 4): the pixels of a few
+        frames that differ from them."""
+        from PIL import Image
+
+        self.size = (background.shape[1], background.shape[0])
+        self.background = _keys(background).copy()
+        pixels = np.concatenate([background.reshape(-1, 4), *samples])
+        pixels = Image.fromarray(_over_white(pixels)[None])
+        colours = pixels.getcolors(256)  # None when there are more
+        if colours is not None:
+            palette = np.array([c for _, c in colours], dtype=np.uint8)
+        else:
+            median_cut = getattr(getattr(Image, "Quantize", None), "MEDIANCUT", 0)
+            quantized = pixels.quantize(256, method=median_cut)
+            used = max(i for _, i in quantized.getcolors(256)) + 1
+            palette = np.array(quantized.getpalette()[: 3 * used], dtype=np.uint8).reshape(-1, 3)
+        self.palette = palette.astype(float)
+        self.palette_bytes = palette.tobytes()
+        self.known: dict[int, int] = {}
+        self.background_index = self._index_of(self.background)
+
+    def _lookup(self, keys: np.ndarray) -> np.ndarray:
+        """Palette indices of distinct colour keys."""
+        out = np.empty(len(keys), dtype=np.uint8)
+        new = []
+        for j, key in enumerate(keys.tolist()):
+            idx = self.known.get(key)
+            if idx is None:
+                new.append(j)
+            else:
+                out[j] = idx
+        for start in range(0, len(new), 4096):  # the nearest colour of the palette
+            chosen = keys[new[start : start + 4096]]
+            rgb = _over_white(chosen.view(np.uint8).reshape(-1, 4)).astype(float)
+            nearest = ((rgb[:, None, :] - self.palette[None]) ** 2).sum(axis=-1).argmin(axis=1)
+            out[new[start : start + 4096]] = nearest
+            self.known.update(zip(chosen.tolist(), nearest.tolist()))
+        return out
+
+    def _index_of(self, keys: np.ndarray) -> np.ndarray:
+        """Palette indices of colour keys, by blocks: np.unique's inverse would take 8 bytes
+        a pixel, twice over."""
+        distinct = np.unique(keys)
+        lookup = self._lookup(distinct)
+        flat = keys.reshape(-1)
+        out = np.empty(flat.shape, dtype=np.uint8)
+        for start in range(0, flat.size, 1 << 15):
+            block = flat[start : start + (1 << 15)]
+            out[start : start + (1 << 15)] = lookup[np.searchsorted(distinct, block)]
+        return out.reshape(keys.shape)
+
+    def indices(self, rgba: np.ndarray) -> np.ndarray:
+        """The palette index (H, W) of every pixel of the frame ``rgba`` (H, W, 4)."""
+        keys = _keys(rgba)
+        changed = keys != self.background
+        index = self.background_index.copy()
+        if changed.any():
+            index[changed] = self._index_of(keys[changed])
+        return index
+
+    def image(self, indices: bytes):
+        """A palette image of the indices (H * W bytes)."""
+        from PIL import Image
+
+        im = Image.frombytes("P", self.size, indices)
+        im.putpalette(self.palette_bytes)
+        return im
+
+
+def _keys(rgba: np.ndarray) -> np.ndarray:
+    """Each pixel's four bytes as one integer (H, W)."""
+    return np.ascontiguousarray(rgba).view(np.uint32)[..., 0]
+
+
+def _over_white(rgba: np.ndarray) -> np.ndarray:
+    """RGB (N, 3) of RGBA pixels (N, 4) composed over white (a GIF has no partial alpha)."""
+    a = rgba[:, 3:].astype(np.uint16)
+    if (a == 255).all():
+        return np.ascontiguousarray(rgba[:, :3])
+    return ((rgba[:, :3] * a + 255 * (255 - a) + 127) // 255).astype(np.uint8)
+
+
+#: Sample frames whose colours, with the fixed parts', choose a GIF's palette.
+PALETTE_SAMPLES = 4
+
+
+def _write_gif(fig, moving: list, frame, ks, path: str, fps: int) -> None:
+    """Draw frame(k) for every k by blitting, keep its palette indices (compressed: mostly
+    the fixed parts' white), and write the GIF with Pillow (which copies each frame as it
+    reads it: one palette image of one byte a pixel per frame while the file is written),
+    into a temporary file renamed to ``path`` when complete: an error or an interrupt
+    leaves no part of it."""
+    import zlib
+
+    from .writing import atomic_path
+
+    with atomic_path(path) as tmp:
+        blit = _Blit(fig, moving)
+        background = np.array(blit.canvas.buffer_rgba())  # the fixed parts alone
+        fixed = _keys(background)
+        samples = []  # the pixels of a few frames that differ from the fixed parts
+        for k in ks[np.unique(np.linspace(0, len(ks) - 1, PALETTE_SAMPLES).round()
+                              .astype(int))]:
+            frame(k)
+            rgba = blit.render()
+            samples.append(rgba[_keys(rgba) != fixed])
+        palette = _Palette(background, samples)
+        del samples, background
+        kept = []
+        for k in ks:
+            frame(k)
+            kept.append(zlib.compress(palette.indices(blit.render()).tobytes(), 1))
+
+        def images():
+            for i in range(len(kept)):
+                data, kept[i] = kept[i], b""  # Pillow keeps its own copy of the frame
+                yield palette.image(zlib.decompress(data))
+
+        frames = images()
+        next(frames).save(tmp, format="GIF", save_all=True, append_images=frames,
+                          duration=int(1000 / fps), loop=0)
 
 
 def _write_frames(fig, writer, frame, ks, path: str) -> None:
-    """Draw frame(k) for every k and give it to the animation ``writer``, into a temporary
-    file renamed to ``path`` when complete; after an error or an interrupt the writer is
-    stopped (ffmpeg is left to end) and the temporary file removed."""
+    """Draw frame(k) for every k and give it to the animation ``writer`` (ffmpeg's, which
+    draws the whole figure), into a temporary file renamed to ``path`` when complete; after
+    an error or an interrupt the writer is stopped (ffmpeg is left to end) and the
+    temporary file removed."""
     import matplotlib
 
     from .writing import atomic_path
@@ -273,7 +486,6 @@ def _write_frames(fig, writer, frame, ks, path: str) -> None:
             except Exception:  # noqa: BLE001
                 pass
             raise
-        writer.complete = True
         writer.finish()
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .system import Group, System
+from .system import ExprOutput, Group, System
 from .errors import MechError
 from .sparse import SparseJac
 
@@ -173,12 +173,22 @@ def acceleration_rhs(system: System, q: np.ndarray, qd: np.ndarray,
 
 
 def output_values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
-                  qdd: np.ndarray | None) -> np.ndarray:
-    """One output quantity for states ``(V, b, n)``: shape ``(V, b)``.
+                  qdd: np.ndarray | None, t: np.ndarray | None = None) -> np.ndarray:
+    """One output quantity for states ``(V, b, n)`` at times ``t`` (V, b): shape ``(V, b)``.
 
     A point P with body coordinates s' (Haug eqs. 2.6.4 and their derivatives):
     r^P = r + A s', rd^P = rd + B s' phid, rdd^P = rdd + B s' phidd - A s' phid^2.
+    A named output (:class:`~mechdsl.system.ExprOutput`) is its expression evaluated on the
+    params, t and the quantities it reads.
     """
+    if isinstance(spec, ExprOutput):
+        env = dict(system.env)
+        env["t"] = np.zeros(q.shape[:-1]) if t is None else t
+        for name, read in spec.inputs:
+            env[name] = output_values(system, read, q, qd, qdd)
+        with np.errstate(all="ignore"):
+            return np.broadcast_to(np.asarray(spec.function(env), dtype=float),
+                                   q.shape[:-1]).copy()
     i = spec.body
     k = 3 * i
     shape = q.shape[:-1]

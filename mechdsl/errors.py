@@ -70,6 +70,21 @@ class MechError(Exception):
         self.source = source
         self.notes = tuple(notes)
 
+    @property
+    def file(self) -> str | None:
+        """The name of the file (or command-line value) the error is in, if known."""
+        return self.source.name if self.source is not None else None
+
+    @property
+    def line(self) -> int | None:
+        """The line (from 1) where the error is, if it is located."""
+        return self.span.line if self.span is not None else None
+
+    @property
+    def column(self) -> int | None:
+        """The column (from 1) where the error is, if it is located."""
+        return self.span.column if self.span is not None else None
+
     def with_source(self, source: Source) -> "MechError":
         """Attach ``source`` unless one is already attached; returns ``self``."""
         if self.source is None:

@@ -1,14 +1,21 @@
 """Results as meshes for ParaView and other VTK tools, written with meshio.
 
-Every body becomes line cells through its points (one segment for a bar, the closed loop of
-edges for a plate) and along the outline of its shape, if it has one; every point carries its velocity and acceleration
+Every body becomes cells through the points it is drawn through (:func:`mechdsl.draw.outlines`:
+the points it declares and those a joint or drive attaches, its origin included): one line
+segment for a bar, the closed loop of edges for a plate, the segments between successive
+points for the ground, a vertex cell for a body of one point; and line cells along the
+outline of its shape, if it has one. Every point carries its velocity and acceleration
 (rd^P = rd + phid B s', rdd^P = rdd + phidd B s' - phid^2 A s', Haug eq. 2.6.4 differentiated)
 and every cell the index of its body (-1 for the ground), so that ParaView can colour the
 mechanism by speed or by body.
 
-* ``.xdmf``: one time series (meshio's TimeSeriesWriter, the data inline as XML). XDMF keeps one geometry for the
-  series, so the points are those at t0 and each instant carries ``position`` (and
-  ``displacement`` from t0, for ParaView's Warp By Vector) as point data.
+* ``.xdmf``: one time series (meshio's TimeSeriesWriter, the data inline as XML). XDMF keeps
+  one geometry for the series, so the points are those at t0 and each instant carries
+  ``position`` (and ``displacement`` from t0, for ParaView's Warp By Vector) as point data.
+  With vertex cells
+  besides the lines the topology is XDMF's "Mixed" one, each cell its type, its number of
+  points and its points (Polyvertex 1, 1, p; Polyline 2, 2, a, b), as ParaView reads it
+  (meshio's XDMF reader expects no count for a vertex, and cannot read it back).
 * ``.vtu``: one file per instant, ``NAME_0000.vtu``, ``NAME_0001.vtu``, ..., with the points
   where they are at that instant, and ``NAME.pvd``, the index ParaView opens as a series.
 
@@ -69,38 +76,68 @@ def series(path: str, n_variants: int, n_instants: int) -> Callable[[str], bool]
     return member
 
 
+def written_files(path: str, n_solved) -> list[list[str]]:
+    """The files :func:`export` writes for ``path``, per variant, given the number of
+    instants each variant solved (none for a variant that solved none)."""
+    stem, ext = os.path.splitext(path)
+    names = []
+    for v, k in enumerate(int(k) for k in n_solved):
+        name = _variant_stem(stem, v, len(n_solved))
+        if k == 0:
+            names.append([])
+        elif ext.lower() == ".xdmf":
+            names.append([name + ext])
+        else:
+            names.append([*(_vtu_name(name, i) for i in range(k)), name + ".pvd"])
+    return names
+
+
 def _layout(system: System) -> tuple[list[tuple[int, np.ndarray]], list, list]:
     """Which body and body-frame point each exported point is ((body, (V, 2)) per point), the
-    cells and the body index of each cell. Every cell is a line segment (one cell type keeps
-    XDMF's topology simple): a bar is one segment, a plate the closed loop of its edges, a
-    body of one point a segment of zero length, the ground the segments between its
-    successive points."""
+    cell blocks and the body index of each cell, per block. The points of each body are
+    those it is drawn through (:func:`mechdsl.draw.outlines`), so that every point a joint
+    or drive attaches is in its cells. A bar is one line segment, a plate the closed loop of
+    its edges, the ground the segments between its successive points, a body (or a ground)
+    of one point a vertex cell: no line cell has zero length."""
+    from .draw import outlines
+
     sk = system.sketch
     nb = system.n_bodies
     owners: list[tuple[int, np.ndarray]] = []
     segments: list[list[int]] = []
-    cell_body: list[int] = []
-    for i, outline in enumerate(sk.outlines):
+    segment_body: list[int] = []
+    vertices: list[list[int]] = []
+    vertex_body: list[int] = []
+    for i, outline in enumerate(outlines(sk)):
         start = len(owners)
         P = outline.shape[1]
         owners.extend((i, outline[:, p]) for p in range(P))
+        index = i if i < nb else -1
         if P == 1:
-            pairs = [(0, 0)]
-        elif P == 2 or i == nb:
-            pairs = [(a, a + 1) for a in range(P - 1)]
+            vertices.append([start])
+            vertex_body.append(index)
         else:
-            pairs = [(a, (a + 1) % P) for a in range(P)]
-        segments.extend([start + a, start + b] for a, b in pairs)
-        cell_body.extend([i if i < nb else -1] * len(pairs))
+            if P == 2 or i == nb:
+                pairs = [(a, a + 1) for a in range(P - 1)]
+            else:
+                pairs = [(a, (a + 1) % P) for a in range(P)]
+            segments.extend([start + a, start + b] for a, b in pairs)
+            segment_body.extend([index] * len(pairs))
         edges = sk.shapes[i] if sk.shapes else None
         if edges is not None:  # the shape's outline: a segment per edge
             start = len(owners)
             for e in range(edges.shape[1]):
                 owners.extend([(i, edges[:, e, 0]), (i, edges[:, e, 1])])
                 segments.append([start + 2 * e, start + 2 * e + 1])
-            cell_body.extend([i if i < nb else -1] * edges.shape[1])
-    return (owners, [("line", np.array(segments, dtype=np.int64).reshape(-1, 2))],
-            [np.array(cell_body, dtype=np.int64)])
+            segment_body.extend([index] * edges.shape[1])
+    blocks = [("line", np.array(segments, dtype=np.int64).reshape(-1, 2))]
+    bodies = [np.array(segment_body, dtype=np.int64)]
+    if vertices:
+        blocks.append(("vertex", np.array(vertices, dtype=np.int64)))
+        bodies.append(np.array(vertex_body, dtype=np.int64))
+    if not segments:  # only vertices
+        blocks, bodies = blocks[1:], bodies[1:]
+    return owners, blocks, bodies
 
 
 def _kinematics(results: Results, owners, v: int) -> tuple[np.ndarray, ...]:
@@ -156,7 +193,7 @@ def export(results: Results, system: System, path: str) -> list[str]:
 def _xdmf(meshio, path, pos, vel, acc, times, blocks, bodies) -> str:
     # the data inline in the XML (HDF5 would need h5py, which meshio does not require, and
     # a companion .h5 file): the .xdmf names no other file, so its temporary copy is whole
-    with atomic_path(path) as tmp, meshio.xdmf.TimeSeriesWriter(tmp, data_format="XML") as w:
+    with atomic_path(path) as tmp, _xdmf_writer(meshio)(tmp, data_format="XML") as w:
         w.write_points_cells(pos[0], blocks)
         for k, t in enumerate(times):
             w.write_data(float(t), point_data={
@@ -164,6 +201,31 @@ def _xdmf(meshio, path, pos, vel, acc, times, blocks, bodies) -> str:
                 "acceleration": acc[k], "speed": np.linalg.norm(vel[k], axis=1)},
                 cell_data={"body": bodies})
     return path
+
+
+def _xdmf_writer(meshio):
+    """meshio's XDMF time-series writer, with a "Mixed" topology written as XDMF defines it:
+    meshio's own fails on line cells among others (and would give a vertex no count)."""
+    from xml.etree import ElementTree as ET
+
+    class Writer(meshio.xdmf.TimeSeriesWriter):
+        def cells(self, cells, grid) -> None:
+            if len(cells) == 1:
+                return super().cells(cells, grid)
+            codes = {"vertex": 1, "line": 2}  # XDMF's Polyvertex and Polyline
+            flat = np.concatenate([
+                np.hstack((np.full((len(data), 1), codes[kind]),
+                           np.full((len(data), 1), data.shape[1]), data)).ravel()
+                for kind, data in cells]).astype(np.int64)
+            topology = ET.SubElement(grid, "Topology", TopologyType="Mixed",
+                                     NumberOfElements=str(sum(len(d) for _, d in cells)))
+            item = ET.SubElement(topology, "DataItem", DataType="Int",
+                                 Dimensions=str(len(flat)), Format=self.data_format,
+                                 Precision="8")
+            item.text = self.numpy_to_xml_string(flat)
+            return None
+
+    return Writer
 
 
 def _vtu(meshio, stem, pos, vel, acc, times, blocks, bodies) -> list[str]:

@@ -17,7 +17,7 @@ Derived trees share subtrees (a DAG); the walks visit a shared node once.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import Callable, Generator, Mapping, Union
 
 import numpy as np
@@ -149,6 +149,34 @@ def children(e: Expr) -> tuple[Expr, ...]:
     if isinstance(e, Table):
         return (e.arg,)
     return ()
+
+
+def with_children(e: Expr, kids: tuple) -> Expr:
+    """``e`` with its direct sub-expressions replaced by ``kids`` (in :func:`children`'s
+    order); ``e`` itself when they are the same objects."""
+    if all(a is b for a, b in zip(kids, children(e))):
+        return e
+    if isinstance(e, (Binary, Compare, Logic)):
+        return replace(e, left=kids[0], right=kids[1])
+    if isinstance(e, Unary):
+        return replace(e, operand=kids[0])
+    if isinstance(e, Call):
+        return replace(e, args=tuple(kids))
+    if isinstance(e, Cond):
+        return replace(e, test=kids[0], then=kids[1], orelse=kids[2])
+    if isinstance(e, Table):
+        return replace(e, arg=kids[0])
+    return e
+
+
+def rewrite(e: Expr, rule: Callable[[Expr], Expr]) -> Expr:
+    """``e`` rewritten bottom-up: every node, its operands already rewritten, is replaced by
+    ``rule(node)`` (which returns the node itself to keep it). No recursion; a shared
+    subtree is rewritten once."""
+    done: dict[int, Expr] = {}
+    for node in postorder(e):
+        done[id(node)] = rule(with_children(node, tuple(done[id(k)] for k in children(node))))
+    return done[id(e)]
 
 
 def walk(e: Expr):

@@ -116,6 +116,18 @@ class OutputRef:
 
 
 @dataclass(frozen=True)
+class NamedOutput:
+    """``output NAME = EXPR``: a quantity of the user's, an expression of params, ``t`` and
+    output quantities (``rod.phi``, ``lever.O.x``; written here as names such as
+    ``Name("rod.phi")``), whose velocity and acceleration are derived exactly."""
+
+    name: str
+    expr: Expr
+    span: Span
+    name_span: Span
+
+
+@dataclass(frozen=True)
 class Sweep:
     """``sweep NAME = [v1, v2, ...]`` or ``sweep NAME = a .. b step h | count n``."""
 
@@ -139,7 +151,9 @@ class Model:
     joints: tuple[Joint, ...]
     drives: tuple[Drive, ...]
     simulate: Simulate | None
-    outputs: tuple[OutputRef, ...]
+    #: the outputs in the order written: references (``B.x``, ``B``, ``B.P``) and named
+    #: expressions
+    outputs: tuple[OutputRef | NamedOutput, ...]
     sweeps: tuple[Sweep, ...]
     #: ``plugin "module"`` statements: modules to load as plugins, with where they are named.
     plugins: tuple[tuple[str, Span], ...] = ()

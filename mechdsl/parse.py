@@ -31,7 +31,8 @@ from .checks import TIME, build_model, check_expr
 from .errors import MechError, Source, Span, cut
 from .grammar_cache import cached_tables
 from .model import (
-    Arg, Drive, Joint, Model, OutputRef, Param, Point, Polygon, Simulate, Sweep, Vector,
+    Arg, Drive, Joint, Model, NamedOutput, OutputRef, Param, Point, Polygon, Simulate, Sweep,
+    Vector,
 )
 from .shapes import read_mesh
 from .tables import PointList, make_table
@@ -297,6 +298,10 @@ class _ToModel(Transformer_NonRecursive):
 
     def ref_or_name(self, meta, items):
         return OutputRef(tuple(str(t) for t in items), _span(meta))
+
+    def named_output(self, meta, items):
+        name, expr = items
+        return NamedOutput(str(name), expr, _span(meta), _tspan(name))
 
     def output(self, meta, items):
         return ("output", tuple(items))

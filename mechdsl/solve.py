@@ -36,7 +36,8 @@ from . import equations as eq
 from .assembly import assemble
 from .system import System
 from .diagnose import (
-    col_scale, constraint_names, failure, jacobian_defects, nonfinite_message, variant_label,
+    col_scale, constraint_names, failure, instant_text, jacobian_defects, nonfinite_message,
+    variant_label,
 )
 from .mobility import count_check, redundancy_warning
 from .errors import MechError
@@ -264,7 +265,7 @@ def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.nd
     full_qd = qd if order >= 1 else None
     full_qdd = qdd if order >= 2 else None
     for spec in system.outputs:
-        values = eq.output_values(system, spec, q, full_qd, full_qdd)
+        values = eq.output_values(system, spec, q, full_qd, full_qdd, t)
         data[spec.label][np.ix_(mask, k)] = values[mask][:, keep]
     st.n_solved[mask] = k[-1] + 1
 
@@ -573,8 +574,8 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict,
 
 def _too_coarse(system: System, v: int, t_now: float, k: int, budget: int) -> str:
     return (f"the time step is too coarse for the motion: going on from t = {t_now:.10g} to "
-            f"the next instant t = {system.times[k]:.10g} (instant {k} of "
-            f"{len(system.times) - 1}){variant_label(system, v)} took more than {budget} "
+            f"the next instant t = {system.times[k]:.10g} ({instant_text(system, k)})"
+            f"{variant_label(system, v)} took more than {budget} "
             "substeps (the mechanism moves far, or to and fro, between instants); take a "
             "smaller step")
 
@@ -623,8 +624,8 @@ def _undefined_message(system: System, v: int, target: float, k: int) -> str:
     drives = [c for c in system.constraints if c.kind == "drive"]
     bad = [drives[i] for i in np.flatnonzero(~np.isfinite(values))] or drives
     names = ", ".join(f"drive {c.name} (line {c.span.line})" for c in bad)
-    return (f"the function of {names} is not defined at t = {target:.10g} (instant {k} of "
-            f"{len(system.times) - 1}){variant_label(system, v)}: outside its table's range, "
+    return (f"the function of {names} is not defined at t = {target:.10g} "
+            f"({instant_text(system, k)}){variant_label(system, v)}: outside its table's range, "
             "or a domain error such as sqrt of a negative number")
 
 

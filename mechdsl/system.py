@@ -75,6 +75,21 @@ class OutputSpec:
 
 
 @dataclass(frozen=True)
+class ExprOutput:
+    """One output column computed by an expression (``output slide = ...``, or its exact
+    time derivatives): ``function`` evaluated on the params, ``t`` and the output quantities
+    ``inputs`` ((name in the expression, its column spec)). ``order`` is the highest time
+    derivative of q the inputs need."""
+
+    label: str
+    function: Callable
+    inputs: tuple[tuple[str, OutputSpec], ...]
+    order: int
+    expr: E.Expr
+    unit: str = ""
+
+
+@dataclass(frozen=True)
 class Sketch:
     """What a drawing of the mechanism needs, in body frames; body index ``n_bodies`` is the
     ground. ``outlines[i]`` (V, P, 2): the points of body i in declaration order (its origin
@@ -107,7 +122,7 @@ class System:
     guess: np.ndarray
     scale: np.ndarray
     times: np.ndarray | None
-    outputs: tuple[OutputSpec, ...]
+    outputs: tuple[OutputSpec | ExprOutput, ...]
     order: int = field(default=0)
     #: the non-zero entries of Phi_q, for the sparse solver of large mechanisms
     pattern: Pattern | None = None

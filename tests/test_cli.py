@@ -20,7 +20,8 @@ def mechdsl(*args, cwd=None):
 
 
 def read_csv(text):
-    rows = list(csv.reader(io.StringIO(text)))
+    """Header and rows of a CSV, its comment lines (the units) skipped."""
+    rows = [r for r in csv.reader(io.StringIO(text)) if not r[0].startswith("#")]
     return rows[0], np.array(rows[1:], dtype=float)
 
 
@@ -36,9 +37,11 @@ def test_run_writes_the_seed_validation_case(tmp_path):
     for col, exact in zip(rows[:, 1:].T, slider_crank(2.0, 3.5, np.pi / 4 + 4 * np.pi * t,
                                                         4 * np.pi, 0.0)):
         assert np.abs(col - exact).max() / np.abs(exact).max() < 1e-9
-    # 17 significant digits: enough to hold any double exactly
-    first_x = out.read_text().splitlines()[1].split(",")[1]
-    assert len(first_x.replace(".", "").lstrip("0")) == 17
+    lines = out.read_text().splitlines()
+    assert lines[1] == "# units: t [s], slider.x [m], slider.vx [m/s], slider.ax [m/s^2]"
+    # each number the shortest text that reads back to the same double
+    assert lines[2].split(",")[0] == "0.0" and lines[3].split(",")[0] == "0.001"
+    assert all(repr(float(x)) == x for line in lines[2:] for x in line.split(","))
 
 
 def test_summary_without_output_file():
@@ -103,7 +106,7 @@ def test_lock_up_exits_2_naming_the_instant_and_keeps_the_solved_instants(tmp_pa
     r = mechdsl("run", SLIDER_CRANK, "--set", "l=1.5", "-o", out)
     assert r.returncode == 2
     assert f"{SLIDER_CRANK}: error: no configuration satisfies the constraints at t = 0.005" in r.stderr
-    assert "joint B (revolute, line 24)" in r.stderr
+    assert "joint B (revolute, line 24: " in r.stderr
     assert "the 5 instants solved before the failure are in" in r.stderr
     header, rows = read_csv(out.read_text())
     assert rows.shape == (5, 4)
@@ -114,10 +117,28 @@ def test_lock_up_exits_2_naming_the_instant_and_keeps_the_solved_instants(tmp_pa
 def test_check_reports_structure_and_assembly():
     r = mechdsl("check", SLIDER_CRANK)
     assert r.returncode == 0, r.stderr
-    assert "3 moving bodies, 9 coordinates, 9 equations, 0 degrees of freedom" in r.stdout
+    lines = r.stdout.splitlines()
+    assert lines[0] == (f"{SLIDER_CRANK}: 3 moving bodies (9 coordinates); 4 joints "
+                        "(8 equations) and 1 drive")
     assert "joint D" in r.stdout and "prismatic" in r.stdout and "2 equations" in r.stdout
     assert "= pi/4 + omega*t" in r.stdout
-    assert "ok: fully driven, assembles at t = 0" in r.stdout
+    # one count, by rank, said once
+    assert [x for x in lines if "mobility" in x or "freedom" in x] == [
+        "mobility 1 = 9 coordinates - 8 independent joint equations (8 in all, rank of Phi_q "
+        "at the assembled configuration); 1 drive: fully driven"]
+    assert lines[-1].startswith("ok: assembles at t = 0; scaled Jacobian condition number")
+
+
+def test_check_of_a_redundant_mechanism_counts_by_rank_once():
+    r = mechdsl("check", EXAMPLES / "parallelogram.mech")
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[0].endswith(": 4 moving bodies (12 coordinates); 6 joints (12 equations) and "
+                             "1 drive")
+    assert [x for x in lines if "mobility" in x or "freedom" in x] == [
+        "mobility 1 = 12 coordinates - 11 independent joint equations (12 in all, 1 redundant, "
+        "rank of Phi_q at the assembled configuration); 1 drive: fully driven"]
+    assert "redundant: joint A3 (1 of 2 equations, line 20)" in lines
 
 
 def test_check_of_an_underdriven_mechanism_exits_1(tmp_path):

@@ -225,3 +225,34 @@ def test_bad_units_are_located_errors(loads, line, message):
     with pytest.raises(MechError) as err:
         loads((EXAMPLES / "fourbar.mech").read_text() + "\n" + line + "\n")
     assert message in str(err.value) and err.value.span is not None
+
+
+def test_the_summary_lists_every_output_written(tmp_path):
+    """-o with --plot, --snapshot, --animate and --export: one line each on standard error,
+    in the order written (the CSV's rows, the plot's quantities, the snapshot's instants, the
+    animation's frames, the export's files); nothing with -q; without -o the summary table
+    on standard output and the other outputs on standard error."""
+    slider_crank = EXAMPLES / "slider_crank.mech"
+    outputs = ["-o", "out.csv", "--plot", "p.png", "--snapshot", "s.png", "--at", "0,0.5",
+               "--animate", "a.gif", "--frames", "5", "--export", "e.vtu"]
+    r = mechdsl("run", slider_crank, "--step", "0.01", *outputs, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.splitlines()
+    assert lines[0].startswith("out.csv: 101 rows (") and lines[0].endswith(" ms)")
+    assert lines[1:] == ["p.png: plot of 3 quantities", "s.png: snapshot at t = 0, 0.5",
+                         "a.gif: animation of 5 frames",
+                         "e.vtu: export of 101 instants in 102 files: e_0000.vtu .. "
+                         "e_0100.vtu and e.pvd"]
+    assert r.stdout == ""
+    written = {p.name for p in tmp_path.iterdir()}
+    assert {"out.csv", "p.png", "s.png", "a.gif", "e.pvd", "e_0000.vtu", "e_0100.vtu"} <= written
+    assert len([n for n in written if n.endswith(".vtu")]) == 101
+    r = mechdsl("run", slider_crank, "--step", "0.01", *outputs, "-q", cwd=tmp_path)
+    assert r.returncode == 0 and r.stderr == "" and r.stdout == ""
+    r = mechdsl("run", slider_crank, "--step", "0.05", "--sweep", "l=2.5,3.5", "--plot", "p.png",
+                "--animate", "a.gif", "--export", "e.xdmf", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "slider.x" in r.stdout  # the summary table
+    assert r.stderr.splitlines() == [
+        "p.png: plot of 3 quantities", "a.gif: animation of 21 frames",
+        "e.xdmf: export of 2 variants (42 instants) in 2 files: e_v0.xdmf; e_v1.xdmf"]

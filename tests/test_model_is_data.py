@@ -168,7 +168,7 @@ def test_a_gamma_returning_nan_stops_the_run_and_names_the_joint(registry):
     res = mechdsl.loads(joint_b_as("nan_gamma"), "s.mech", registry=reg).simulate()
     assert res.status == "failed" and res.n_solved[0] == 0
     message = res.messages[0]
-    assert message.startswith("slider.ax is nan at t = 0 (instant 0 of 1000)")
+    assert message.startswith("slider.ax is nan at t = 0 (instant 1 of 1001)")
     assert "acceleration equation (gamma) in the equations of joint B (nan_gamma, line 24)" in message
 
 
@@ -176,7 +176,7 @@ def test_a_drive_with_an_unbounded_derivative_is_not_written_silently(loads, tmp
     text = SLIDER.replace("pi/4 + omega*t", "pi/4 + 1e-3*sqrt(t)")
     res = loads(text).simulate()
     assert res.status == "failed" and res.n_solved[0] == 0
-    assert res.messages[0].startswith("slider.vx is -inf at t = 0 (instant 0 of 1000)")
+    assert res.messages[0].startswith("slider.vx is -inf at t = 0 (instant 1 of 1001)")
     assert "drive crank_angle (angle, line 28)" in res.messages[0]
     f = tmp_path / "sqrt.mech"
     f.write_text(text)
@@ -184,9 +184,10 @@ def test_a_drive_with_an_unbounded_derivative_is_not_written_silently(loads, tmp
     assert main(["run", str(f), "-q", "-o", str(out)]) == 2
     assert main(["run", str(f), "-q", "-o", str(out), "--keep-nonfinite"]) == 0
     rows = out.read_text().splitlines()
-    assert len(rows) == 1002 and rows[1].split(",")[2] == "-inf"
+    assert rows[1].startswith("# units: ")
+    assert len(rows) == 1003 and rows[2].split(",")[2] == "-inf"
     # from the second instant on, the closed form: theta = pi/4 + 1e-3 sqrt(t)
-    data = np.loadtxt(rows[2:], delimiter=",")
+    data = np.loadtxt(rows[3:], delimiter=",")
     t = data[:, 0]
     x, v, _ = slider_crank(2.0, 3.5, np.pi / 4 + 1e-3 * np.sqrt(t), 0.5e-3 / np.sqrt(t), 0.0)
     np.testing.assert_allclose(data[:, 1], x, atol=1e-13)
@@ -284,7 +285,7 @@ def test_the_memory_limit_bounds_the_whole_process(tmp_path, count, step, limit)
     assert r.returncode == 0, r.stderr
     assert peak <= int(limit[:-1]) * 2**20
     lines = out.read_text().count("\n")
-    assert lines == 1 + count * (round(1 / float(step)) + 1)
+    assert lines == 2 + count * (round(1 / float(step)) + 1)  # the header, the units
 
 
 @pytest.mark.parametrize("value", ["inf", "nan", "-5M", "1e30", "lots"])

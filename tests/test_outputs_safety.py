@@ -50,9 +50,10 @@ def cli(*args, cwd=ROOT, umask: int | None = None, **kwargs) -> subprocess.Compl
 
 
 def csv_rows(text: str) -> tuple[list[str], np.ndarray]:
-    """Header and rows of a CSV; every row must have every column."""
+    """Header and rows of a CSV (its comment lines, the units, skipped); every row must have
+    every column."""
     assert text.endswith("\n")
-    rows = list(csv.reader(io.StringIO(text)))
+    rows = [r for r in csv.reader(io.StringIO(text)) if not r[0].startswith("#")]
     assert all(len(r) == len(rows[0]) for r in rows), "a row lacks columns"
     return rows[0], np.array(rows[1:], dtype=float).reshape(-1, len(rows[0]))
 
@@ -501,7 +502,7 @@ def test_the_streamed_csv_holds_the_results_exactly(tmp_path, monkeypatch, chunk
     assert (first[:, 0] == 2.5).all() and (second[:, 0] == 3.0).all()
     for block, v in ((first, 0), (second, 1)):
         k = len(block)
-        assert np.array_equal(block[:, 1], res.times[:k])  # exactly: 17 digits round-trip
+        assert np.array_equal(block[:, 1], res.times[:k])  # exactly: repr round-trips
         assert np.array_equal(block[:, 2], res.data["a.x"][v, :k])
         assert np.array_equal(block[:, 3], res.data["a.vx"][v, :k])
 

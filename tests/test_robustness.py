@@ -1,6 +1,7 @@
 """Regressions from review: singular instants, drive kinks, odd drives, odd sweeps, and the
 command line's handling of bad targets. Each asserts against a closed form or a message."""
 
+import re
 import subprocess
 import sys
 
@@ -24,7 +25,7 @@ def test_an_instant_exactly_at_the_dead_point_is_not_written(load_example):
     # l = r with step 0.0125: the fifth instant, t = 0.0625, is exactly the dead point
     res = load_example("slider_crank.mech").simulate(l=2.0, step=0.0125)
     assert res.status == "failed" and res.n_solved[0] == 5
-    assert "singular position at t = 0.0625 (instant 5 of 80)" in res.messages[0]
+    assert "singular position at t = 0.0625 (instant 6 of 81)" in res.messages[0]
     assert np.isfinite(res["slider.ax"]).all()
 
 
@@ -53,7 +54,7 @@ def test_an_infinite_initial_acceleration_stops_the_run_unless_kept(loads):
     # f'' = 2.25 t^-0.5 is infinite at t = 0: said, not written silently
     assert res.status == "failed" and res.n_solved[0] == 0
     assert res.messages[0].startswith("slider.ax is ")
-    assert "at t = 0 (instant 0 of 1000)" in res.messages[0]
+    assert "at t = 0 (instant 1 of 1001)" in res.messages[0]
     assert "drive crank_angle (angle, line 28)" in res.messages[0]
     res = mech.simulate(options=solve.SolverOptions(nonfinite="keep"))
     assert res.ok, res.messages
@@ -201,4 +202,23 @@ def test_output_to_a_pipe_is_written_into_it_not_over_it(tmp_path, load_example)
     reader.join(timeout=30)
     assert stat.S_ISFIFO(os.stat(fifo).st_mode)
     assert received[0].splitlines()[0] == "t,slider.x,slider.vx,slider.ax"
-    assert len(received[0].splitlines()) == 12
+    assert len(received[0].splitlines()) == 13  # the header, the units line, 11 rows
+
+
+def test_a_lock_up_names_the_loop_that_cannot_close_ranked(loads):
+    # two loops: the slider-crank, whose rod (1.5 m on a 2 m crank) cannot close it, and a
+    # second crank turning on its own; only the first loop's joints carry the dependency
+    text = SLIDER.replace("param l = 3.5", "param l = 1.5") + """
+        body other { point P = (1, 0) }
+        joint E: revolute(ground.origin, other.origin)
+        drive spin: angle(other) = t"""
+    res = loads(text).simulate()
+    assert res.status == "failed" and res.n_solved[0] == 5
+    message = res.messages[0]
+    assert "(instant 6 of 1001)" in message
+    loop = message.split("the loop that can no longer close: ")[1]
+    named = re.findall(r"(joint|drive) (\w+) \(\w+, line \d+: ([\d.]+) %\)", loop)
+    assert {name for _, name, _ in named} <= {"A", "B", "C", "D"} and len(named) >= 2
+    shares = [float(s) for _, _, s in named]
+    assert shares == sorted(shares, reverse=True)
+    assert "spin" not in loop and "joint E" not in loop

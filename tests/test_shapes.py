@@ -201,4 +201,5 @@ def test_shape_outline_is_exported(tmp_path):
     c, s = np.cos(1.0), np.sin(1.0)
     corner = np.array([4 * c + 0.1 * s, 4 * s - 0.1 * c])  # (4, -0.1) rotated
     assert np.min(np.linalg.norm(mesh.points[:, :2] - corner, axis=1)) < 1e-12
-    assert len(mesh.cells[0].data) == 1 + 1 + 4  # the bar A-B, the ground point, four edges
+    # the bar A-B and the four edges of the shape; the ground's one point is a vertex cell
+    assert [(c.type, len(c.data)) for c in mesh.cells] == [("line", 1 + 4), ("vertex", 1)]

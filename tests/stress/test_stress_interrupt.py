@@ -23,6 +23,7 @@ def test_ctrl_c_keeps_the_instants_solved_so_far(tmp_path):
     assert text.endswith("\n")
     rows = list(csv.reader(text.splitlines()))
     assert rows[0] == ["t", "slider.x", "slider.vx", "slider.ax"]
+    assert rows.pop(1)[0] == "# units: t [s]"  # the units line under the header
     data = np.array(rows[1:], dtype=float)
     solved = len(data)
     assert 0 < solved < 2_000_001
