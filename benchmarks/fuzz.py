@@ -838,11 +838,15 @@ def hostile_options(rng: random.Random) -> Case:
         refused |= bad
     if not any(a.startswith("--step") for a in args) and rng.random() < 0.8:
         args += ["--step", "0.01"]
-    if rng.random() < 0.1:  # a huge sweep (over few instants: a run, if any, stays short)
-        n = _log_int(rng, 1000, 50_000)
-        args += ["--sweep", f"{params[0][0]}=" + ",".join([params[0][1].split()[0]] * n)]
-        if "--step" not in args:
-            args += ["--step", "0.1"]
+    if rng.random() < 0.1 and not refused:
+        # a huge sweep over three instants, so that a run, if any, stays short (a refused
+        # option keeps its own step: the sweep would change which value wins)
+        n = _log_int(rng, 1000, 20_000)
+        drop = {i for i, a in enumerate(args) if a == "--step"}
+        drop |= {i + 1 for i in drop}
+        args = [a for i, a in enumerate(args) if i not in drop and not a.startswith("--step=")]
+        args += ["--sweep", f"{params[0][0]}=" + ",".join([params[0][1].split()[0]] * n),
+                 "--t0", "0", "--t1", "1", "--step", "0.5"]
     return Case(data, args, setup=_data_setup(data), expect=frozenset({1}) if refused else None,
                 gen="hostile", label="options " + " ".join(a[:30] for a in args))
 

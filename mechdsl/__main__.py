@@ -5,7 +5,9 @@ import sys
 
 # `python -m` puts the current folder first on sys.path, so that a module there named like a
 # plugin (or like anything imported later) would be imported instead of the installed one:
-# drop it, as `python -P` does. The package itself is found already.
+# drop it, as `python -P` does. Python has imported the package and its own dependencies
+# (numpy, lark, pluggy) by now: in an untrusted folder, `python -P -m mechdsl` or the
+# `mechdsl` command is safe from the first import.
 if not getattr(sys.flags, "safe_path", False) and sys.path and sys.path[0] in ("", os.getcwd()):
     del sys.path[0]
 

@@ -136,8 +136,9 @@ def loads(text: str, name: str = "<string>", *, check: bool = True, **kwargs) ->
     return mech
 
 
-def load(path: str | os.PathLike, **kwargs) -> Mechanism:
-    """Read and parse a ``.mech`` file; keyword arguments go to :func:`loads`.
+def load(path: str | os.PathLike, *, max_memory: int | None = None, **kwargs) -> Mechanism:
+    """Read and parse a ``.mech`` file; keyword arguments go to :func:`loads`. With
+    ``max_memory`` (bytes), a file whose parsing could take more is refused before it starts.
 
     The file is read as data (:func:`mechdsl.reading.read_data`): a regular file of at most
     :data:`mechdsl.reading.MAX_MODEL_BYTES`, else a :class:`MechError` naming it.
@@ -147,6 +148,14 @@ def load(path: str | os.PathLike, **kwargs) -> Mechanism:
 
     path = os.fspath(path)
     raw = read_data(path, "", "MAX_MODEL_BYTES")
+    if max_memory is not None:
+        from .memory import PARSE_BYTES_PER_BYTE, resident_bytes, within
+
+        try:
+            within({"the process so far": resident_bytes(),
+                    "parsing the model": PARSE_BYTES_PER_BYTE * len(raw)}, max_memory)
+        except MechError as err:
+            raise err.with_source(Source(path, "")) from None
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as err:

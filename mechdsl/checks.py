@@ -264,6 +264,9 @@ def _named_output(out: NamedOutput, params: set[str]) -> NamedOutput:
     if out.name in RESERVED or out.name == TIME:
         raise MechError(f"'{cut(out.name)}' is reserved and cannot name an output",
                         out.name_span)
+    if out.name in params:  # a swept param is a column of the CSV too
+        raise MechError(f"'{cut(out.name)}' is a param; give the output another name",
+                        out.name_span)
 
     def rule(e: E.Expr) -> E.Expr:
         if isinstance(e, E.Ref):

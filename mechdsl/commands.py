@@ -15,7 +15,7 @@ from .api import Mechanism, load
 from .results import summary
 from .writing import Output, SignalGuard, check_distinct, emit
 from .system import System
-from .variants import Overrides
+from .variants import MAX_MEMORY, Overrides
 from .errors import MechError, NumericalError, Source, format_error, suggest
 from .parse import parse_expr, parse_expr_list
 
@@ -232,7 +232,8 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
     _check_targets(args)
     at = _instants_option(args.at)
     # compile() comes next and finds the same mistakes: no separate check of the names
-    mech = load(args.file, plugins=args.plugin, allow_plugins=args.allow_plugin, check=False)
+    mech = load(args.file, plugins=args.plugin, allow_plugins=args.allow_plugin, check=False,
+                max_memory=_max_memory(args) or MAX_MEMORY)
     if args.trace:
         from dataclasses import replace
 
@@ -245,15 +246,16 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
     drawing = bool(args.snapshot or args.animate)
     from .memory import outputs_bytes
 
-    extra = outputs_bytes(system, figures=bool(args.plot or args.snapshot),
+    extra = outputs_bytes(system, figures=bool(args.plot), drawing=drawing,
                           frames=min(args.frames, len(system.times)) if args.animate else 0,
                           frames_kept=str(args.animate).lower().endswith(".gif"),
-                          export=bool(args.export))
+                          export=args.export)
     bar = ProgressBar(sys.stderr) if not args.quiet else None
     try:
         results = simulate(system, _options(args), poses=drawing, rates=bool(args.export),
                            progress=bar, extra_memory=extra)
     finally:
+        signals.hold()  # what was solved is written whole before any signal acts
         if bar is not None:
             bar.close()
     written, stop = _write_outputs(args, system, results, at, signals)
@@ -271,8 +273,8 @@ def _writing(option: str, path: str) -> Iterator[None]:
 
 def _write_outputs(args, system: System, results, at: list[float] | None,
                    signals: SignalGuard) -> tuple[list[str], KeyboardInterrupt | None]:
-    """Write every output asked for, the CSV first and whole: a signal while it is written
-    is held back until it is complete. Returns the outputs written and the interrupt that
+    """Write every output asked for, the CSV first and whole: a signal from the end of the
+    solve until the CSV is complete is held back until then. Returns the outputs written and the interrupt that
     stopped the others, if one did (their temporary files are removed as it goes up)."""
     from .results import write_csv
 
@@ -283,6 +285,9 @@ def _write_outputs(args, system: System, results, at: list[float] | None,
             with signals.held(), _writing("-o", args.output):
                 write_csv(results, args.output)
                 written.append(args.output)
+        # the CSV is whole: a signal received meanwhile stops the rest now, and the next one
+        # may interrupt the pictures and exports
+        signals.release()
         if args.plot:
             from .plot import plot_results
 
@@ -430,7 +435,8 @@ def check_command(args) -> int:
     from .options import SolverOptions
 
     # compile() comes next and finds the same mistakes: no separate check of the names
-    mech = load(args.file, plugins=args.plugin, allow_plugins=args.allow_plugin, check=False)
+    mech = load(args.file, plugins=args.plugin, allow_plugins=args.allow_plugin, check=False,
+                max_memory=_max_memory(args) or MAX_MEMORY)
     system = mech.compile(_overrides(mech, args), need_times=mech.model.simulate is not None)
     emit(_structure(mech, system))
     t0 = float(system.times[0]) if system.times is not None else 0.0

@@ -68,7 +68,9 @@ def singularity(system: System, q: np.ndarray, v: int) -> tuple[float, str]:
     except np.linalg.LinAlgError:
         return float("inf"), "(the Jacobian could not be analysed)"
     cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
-    return cond, loop_names(system, u[:, -1])
+    # the left singular vector of the smallest singular value; with more equations than
+    # coordinates the columns past len(s) span the permanent (redundant) null space instead
+    return cond, loop_names(system, u[:, len(s) - 1])
 
 
 #: The joints named as the loop that cannot close: the largest shares of the near-null

@@ -36,6 +36,9 @@ DENSE_WORK_ARRAYS = 10
 #: and per coordinate (state vectors, permutations).
 SPARSE_BYTES_PER_NONZERO = 400
 SPARSE_BYTES_PER_COORDINATE = 800
+#: Memory that parsing can take per byte of a model file, at worst (a file of nothing but
+#: tiny expressions: about 480 MB per MB measured; ordinary models take 130).
+PARSE_BYTES_PER_BYTE = 500
 #: Resident size that importing these adds (measured on CPython 3.11, numpy 2, Linux).
 IMPORT_BYTES = {"scipy.sparse": 25 * 2**20, "matplotlib": 45 * 2**20, "meshio": 15 * 2**20}
 
@@ -142,18 +145,30 @@ FIGURE_BYTES = 20 * 2**20
 FRAME_BYTES = 2**19
 
 
-def outputs_bytes(system: System, *, figures: bool = False, frames: int = 0,
-                  frames_kept: bool = True, export: bool = False) -> int:
+def outputs_bytes(system: System, *, figures: bool = False, drawing: bool = False,
+                  frames: int = 0, frames_kept: bool = True, export: str | None = None) -> int:
     """Memory that writing a run's outputs adds to it: matplotlib and a figure for plots and
-    drawings, the frames of an animation (a GIF keeps them all until it is written; an MP4
-    streams them), and for an export meshio and the positions, velocities and accelerations of
-    every exported point at every instant of one variant (with one temporary copy)."""
+    drawings; for a snapshot or an animation (``drawing``) the world coordinates of every
+    drawn point of every variant at every instant (with two temporary copies), and the
+    frames of an animation (a GIF keeps them all until it is written; an MP4 streams them);
+    for an export (``export``, its file name) meshio and the positions, velocities and
+    accelerations of every exported point at every instant of one variant (with one
+    temporary copy), and for XDMF, whose XML meshio builds whole, about 25 characters per
+    number held four times over."""
     total = 0
-    if figures or frames:
+    sk = system.sketch
+    K, V = len(system.times), system.n_variants
+    if figures or drawing or frames:
         total += IMPORT_BYTES["matplotlib"] + FIGURE_BYTES
         total += FRAME_BYTES * (frames if frames_kept else 1)
+    if drawing:
+        drawn = sum(o.shape[1] + 1 for o in sk.outlines) + sum(p.shape[1] for _, p in sk.pins)
+        drawn += len(sk.traces) + sum(2 * e.shape[1] for e in sk.shapes if e is not None)
+        total += 3 * 2 * BYTES * V * K * drawn
     if export:
-        points = sum(2 * o.shape[1] for o in system.sketch.outlines)
-        points += sum(4 * e.shape[1] for e in system.sketch.shapes if e is not None)
-        total += IMPORT_BYTES["meshio"] + 2 * 9 * BYTES * len(system.times) * points
+        points = sum(2 * o.shape[1] for o in sk.outlines)
+        points += sum(4 * e.shape[1] for e in sk.shapes if e is not None)
+        total += IMPORT_BYTES["meshio"] + 2 * 9 * BYTES * K * points
+        if export.lower().endswith(".xdmf"):
+            total += 4 * 25 * 9 * K * points
     return total

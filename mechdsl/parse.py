@@ -152,7 +152,10 @@ class _ToModel(Transformer_NonRecursive):
         self.base_dir = base_dir
         self.files: list[str] = []
 
-    def _read(self, name: str) -> None:
+    def _read(self, name: str, span: Span) -> None:
+        if "\0" in name:  # no file can have it; os would raise ValueError
+            raise MechError(f"cannot read {cut(name)!r}: a file name has no NUL character",
+                            span)
         path = os.path.realpath(os.path.join(self.base_dir, name))
         if path not in self.files:
             self.files.append(path)
@@ -176,7 +179,7 @@ class _ToModel(Transformer_NonRecursive):
         data = args[0]
         if isinstance(data, Token) and data.type == "STRING":
             data, data_span = str(data)[1:-1], _tspan(data)
-            self._read(data)
+            self._read(data, data_span)
         elif isinstance(data, PointList):
             data_span = data.span
         else:
@@ -254,7 +257,7 @@ class _ToModel(Transformer_NonRecursive):
     def shape(self, meta, items):
         (value,) = items
         if isinstance(value, Token):  # a mesh file, read now: its errors point at the file name
-            self._read(str(value)[1:-1])
+            self._read(str(value)[1:-1], _tspan(value))
             return ("shape", read_mesh(str(value)[1:-1], self.base_dir, _tspan(value)),
                     _span(meta))
         return ("shape", value, _span(meta))

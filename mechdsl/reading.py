@@ -96,6 +96,9 @@ def _open(path: str, what: str, limit: str, span: Span | None, source: Source | 
         fd = os.open(path, _FLAGS)
     except OSError as err:
         raise MechError(f"cannot read {what}{shown}: {err.strerror}", span, source) from None
+    except ValueError:  # a NUL character in the name: no file can have it
+        raise MechError(f"cannot read {what}{shown}: a file name has no NUL character",
+                        span, source) from None
     try:  # again on what was opened: the path may have changed in between
         _check(os.fstat(fd), what, limit, span, source, shown)
     except BaseException:

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import MechError, Span, cut, listing
+from . import reading
 from .reading import check_data
 from .model import Body, Polygon
 from .variants import Variants
@@ -93,7 +94,7 @@ def boundary(triangles: np.ndarray) -> np.ndarray:
 #: (XDMF's data files, Abaqus' *INCLUDE, TetGen's sibling file, HDF5's external links), which
 #: could be a FIFO, a device or anybody's file, beyond the checks of :mod:`.reading`.
 FORMATS_READING_OTHER_FILES = frozenset(
-    {"xdmf", "abaqus", "tetgen", "h5m", "hmf", "med", "cgns", "exodus"})
+    {"xdmf", "abaqus", "tetgen", "h5m", "hmf", "med", "cgns", "exodus", "dolfin-xml"})
 
 
 def read_mesh(path: str, base_dir: str, span: Span | None) -> MeshShape:
@@ -128,7 +129,8 @@ def read_mesh(path: str, base_dir: str, span: Span | None) -> MeshShape:
     sink = _Discard()
     try:
         with np.errstate(all="ignore"), warnings.catch_warnings(), \
-                contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
+                contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink), \
+                _bounded_inflation(reading.MAX_DATA_BYTES):
             warnings.simplefilter("ignore")  # numpy's, in meshio's format sniffing
             mesh = meshio.read(full)
     except (Exception, SystemExit) as err:  # noqa: BLE001 - any failure of a reader
@@ -165,6 +167,40 @@ def read_mesh(path: str, base_dir: str, span: Span | None) -> MeshShape:
     if not len(triangles):
         raise MechError(f"the shape {shown} has no area: all its cells are degenerate", span)
     return MeshShape(path, xy.copy(), triangles, span)
+
+
+@contextlib.contextmanager
+def _bounded_inflation(limit: int):
+    """While the block runs, zlib.decompress and lzma.decompress (with which meshio inflates
+    the compressed blocks of VTK XML files) give at most ``limit`` bytes in all, then raise:
+    a small file must not expand into gigabytes."""
+    import lzma
+    import zlib
+
+    left = [limit]
+
+    def take(out: bytes, more: bool) -> bytes:
+        left[0] -= len(out)
+        if left[0] < 0 or more:
+            raise ValueError(f"compressed data expanding beyond {limit} bytes")
+        return out
+
+    def inflate(data, *args, **kwargs):
+        d = zlib.decompressobj(*args[:1])
+        out = d.decompress(data, left[0] + 1)
+        return take(out, bool(d.unconsumed_tail))
+
+    def unxz(data, *args, **kwargs):
+        d = lzma.LZMADecompressor()
+        out = d.decompress(data, max_length=left[0] + 1)
+        return take(out, not d.eof and not d.needs_input)
+
+    saved = zlib.decompress, lzma.decompress
+    zlib.decompress, lzma.decompress = inflate, unxz
+    try:
+        yield
+    finally:
+        zlib.decompress, lzma.decompress = saved
 
 
 class _Discard(io.TextIOBase):

@@ -34,7 +34,7 @@ import numpy as np
 
 from . import equations as eq
 from .assembly import assemble
-from .system import System
+from .system import ExprOutput, System
 from .diagnose import (
     col_scale, constraint_names, failure, instant_text, jacobian_defects, nonfinite_message,
     variant_label,
@@ -86,6 +86,8 @@ class _State:
     #: A scouting pass collects every accepted state here, as (t, q, qd, qdd) arrays of
     #: shapes (V, c) and (V, c, n), for the interpolating predictor of the second pass.
     nodes: list[tuple[np.ndarray, ...]] | None = None
+    #: Named outputs already warned about for values that are not finite.
+    undefined_outputs: set[str] = field(default_factory=set)
 
 
 def _predict(st: _State, T: np.ndarray, order: int = 2) -> np.ndarray:
@@ -267,7 +269,24 @@ def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.nd
     for spec in system.outputs:
         values = eq.output_values(system, spec, q, full_qd, full_qdd, t)
         data[spec.label][np.ix_(mask, k)] = values[mask][:, keep]
+        if isinstance(spec, ExprOutput) and spec.label not in st.undefined_outputs:
+            _watch_named(system, st, spec.label, values[:, keep], t[:, keep], mask)
     st.n_solved[mask] = k[-1] + 1
+
+
+def _watch_named(system: System, st: _State, label: str, values: np.ndarray,
+                 t: np.ndarray, mask: np.ndarray) -> None:
+    """Warn, once per named output, where its expression is not a finite number (the rate
+    of a distance between coinciding points, log of a negative number): a result the
+    user defined, written as it is, but never silently."""
+    bad = ~np.isfinite(values) & mask[:, None]
+    if bad.any():
+        v, j = np.argwhere(bad)[0]
+        st.undefined_outputs.add(label)
+        st.warnings.append(f"output {label} is {float(values[v, j])!r} from t = "
+                           f"{t[v, j]:.10g}{variant_label(system, int(v))} on: its expression "
+                           "is not defined there (such as the rate of the distance between "
+                           "two points that coincide); those values are written as they are")
 
 
 def _nonfinite(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, need: int) -> np.ndarray:

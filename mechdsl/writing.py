@@ -79,9 +79,13 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
         return
     target = os.path.realpath(path)
     folder, name = os.path.split(target)
-    fd, tmp = _create_temp(folder, name)
-    replaced = False
+    fd, tmp, replaced = -1, None, False
+    # SIGINT and SIGTERM wait while the file is created, and are let through only inside the
+    # try: whenever one comes, the finally below removes the file
+    unblock = _block_signals()
     try:
+        fd, tmp = _create_temp(folder, name)
+        unblock()
         try:
             mode = stat.S_IMODE(os.stat(target).st_mode)
         except FileNotFoundError:
@@ -94,11 +98,29 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
         os.replace(tmp, target)
         replaced = True
     finally:
+        unblock()
         if fd >= 0:
             os.close(fd)
-        if not replaced:
+        if tmp is not None and not replaced:
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(tmp)
+
+
+def _block_signals() -> Callable[[], None]:
+    """Block SIGINT and SIGTERM (where the platform can) until the returned function is
+    called (once or more): a step that must not be cut in two."""
+    mask = getattr(signal, "pthread_sigmask", None)
+    if mask is None or threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    old = mask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    done = []
+
+    def unblock() -> None:
+        if not done:
+            done.append(True)
+            mask(signal.SIG_SETMASK, old)
+
+    return unblock
 
 
 def write_text(path: str | os.PathLike, write: Callable[[IO[str]], None]) -> None:
@@ -233,6 +255,20 @@ class SignalGuard:
         for signum, handler in self._previous.items():
             signal.signal(signum, handler)
         self._previous.clear()
+
+    def hold(self) -> None:
+        """From now on, record SIGINT and SIGTERM instead of raising them (what was solved is
+        about to be written), until :meth:`release`."""
+        self._holding = True
+
+    def release(self) -> None:
+        """Raise :class:`Interrupted` for a signal recorded while holding, if any; else let
+        the next one raise again (it may stop the pictures, never the CSV, written by then)."""
+        self._holding = False
+        if self._pending is not None:
+            signum, self._pending = self._pending, None
+            self._holding = True
+            raise Interrupted(signum)
 
     def _handle(self, signum: int, frame) -> None:
         self.received = signum

@@ -305,3 +305,75 @@ def test_messages_about_a_large_model_are_bounded(tmp_path, capsys):
     assert err.count("is attached to nothing") == 8
     assert "note: and 2992 more bodies are attached to nothing" in err
     assert len(err) < 1500
+
+
+@pytest.mark.parametrize("name, write", [
+    # meshio's dolfin-xml reader opens every plate_*.xml beside the mesh (a FIFO would hang)
+    ("plate.xml", lambda meshio, path, mesh: meshio.write(path, mesh, file_format="dolfin-xml")),
+])
+def test_meshes_that_read_other_files_are_refused(tmp_path, name, write):
+    import meshio
+
+    mesh = meshio.Mesh(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]),
+                       [("triangle", np.array([[0, 1, 2]]))])
+    write(meshio, str(tmp_path / name), mesh)
+    f = tmp_path / "m.mech"
+    f.write_text(f'body b {{ shape = "{name}" }}\n' + "joint j: revolute(ground.origin, b.origin)\n"
+                 "drive d: angle(b) = t\nsimulate t = 0 .. 1 step 0.5\n")
+    with pytest.raises(MechError) as err:
+        mechdsl.load(f)
+    assert err.value.message.startswith(f"cannot read the shape {name}: ")
+    assert (err.value.line, err.value.column) == (1, 18)
+
+
+def test_a_table_whose_name_holds_a_nul_is_a_located_error(tmp_path):
+    f = tmp_path / "m.mech"
+    f.write_bytes(b'body b { }\njoint j: revolute(ground.origin, b.origin)\n'
+                  b'drive d: angle(b) = table("a\x00b.csv", t)\nsimulate t = 0 .. 1 step 0.5\n')
+    with pytest.raises(MechError) as err:
+        mechdsl.load(f)
+    assert "a file name has no NUL character" in err.value.message and err.value.line == 3
+
+
+def test_drawings_and_exports_count_in_the_memory_estimate(tmp_path):
+    # 300 variants x 5001 instants: the world coordinates of a snapshot's every point, and
+    # the XML meshio builds for an XDMF export, are counted before the run
+    f = tmp_path / "rods.mech"
+    f.write_text((EXAMPLES / "rod_sweep.mech").read_text().replace(
+        "sweep l = [3.5, 2.5, 2.2, 2.1]", "sweep l = 2.5 .. 4 count 300"))
+    r, peak = measured("run", f, "--step", "2e-4", "--snapshot", tmp_path / "s.png",
+                       "--max-memory", "700M")
+    assert r.returncode == 1 and "drawings and exports 3." in r.stderr
+    assert peak <= 700 * 2**20 and not (tmp_path / "s.png").exists()
+    r, peak = measured("run", EXAMPLES / "fourbar.mech", "--step", "0.00002", "--export",
+                       tmp_path / "big.xdmf", "--max-memory", "200M")
+    assert r.returncode == 1 and "more than the limit of 200.0 MiB" in r.stderr
+    assert peak <= 200 * 2**20 and not (tmp_path / "big.xdmf").exists()
+
+
+def test_a_model_whose_parsing_could_exceed_the_memory_limit_is_refused_first(tmp_path):
+    f = tmp_path / "mins.mech"
+    f.write_text("param r = min(" + "1," * 300_000 + "1)\n")  # 600 kB of tiny expressions
+    r, peak = measured("run", f, "--max-memory", "100M")
+    assert r.returncode == 1
+    assert "parsing the model 286.1 MiB), more than the limit of 100.0 MiB" in r.stderr
+    assert peak <= 100 * 2**20
+
+
+def test_a_compressed_mesh_that_expands_beyond_the_limit_is_refused(tmp_path, monkeypatch):
+    import meshio
+
+    from mechdsl import reading
+
+    mesh = meshio.Mesh(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]),
+                       [("triangle", np.array([[0, 1, 2], [1, 3, 2]] * 2000))])
+    for name, compression in (("z.vtu", "zlib"), ("x.vtu", "lzma")):
+        meshio.write(str(tmp_path / name), mesh, compression=compression)
+        f = tmp_path / "m.mech"
+        f.write_text(f'body b {{ shape = "{name}" }}\n')
+        assert mechdsl.load(f).model.bodies[0].shape.triangles.shape == (4000, 3)
+        # the same file, with a limit below what its blocks inflate to (48 kB of cells)
+        monkeypatch.setattr(reading, "MAX_DATA_BYTES", 20_000)
+        with pytest.raises(MechError, match=f"cannot read the shape {name}: it is not a mesh"):
+            mechdsl.load(f)
+        monkeypatch.undo()

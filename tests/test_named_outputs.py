@@ -82,3 +82,20 @@ def test_mistakes_in_named_outputs_are_located(loads, line, column, message):
         loads(with_outputs(line)).simulate(step=0.5)
     assert err.value.line == 32 and err.value.column == column, err.value.message
     assert err.value.message.startswith(message)
+
+
+def test_a_named_output_that_is_not_defined_somewhere_is_said(loads):
+    # the rate of the distance between two points that coincide (the crank's pivot and the
+    # ground's origin) is 0/0: written as it is, with a warning, never silently
+    res = loads(with_outputs("output h = distance(crank.A, ground.origin)")).simulate(step=0.1)
+    assert res.ok
+    np.testing.assert_array_equal(res["h"], 0.0)
+    assert np.isnan(res["h.vel"]).all()
+    assert [w for w in res.warnings if w.startswith("output h.vel is nan from t = 0 on")]
+
+
+def test_a_named_output_cannot_take_a_params_name(loads):
+    with pytest.raises(MechError) as err:
+        loads(with_outputs("output l = crank.phi"))
+    assert err.value.message == "'l' is a param; give the output another name"
+    assert (err.value.line, err.value.column) == (32, 8)

@@ -615,3 +615,43 @@ def test_python_m_imports_nothing_from_the_current_folder(tmp_path):
     assert r.returncode == 0, r.stderr
     assert not marker.exists()
     assert_slider_crank(csv_rows((tmp_path / "out.csv").read_text())[1])
+
+
+LATE_SIGNAL = {
+    # a SIGTERM that lands just after the solver returned, before the CSV is written
+    "after the solve": """
+import mechdsl.commands as c
+close = c.ProgressBar.close
+def late_close(self):
+    os.kill(os.getpid(), signal.SIGTERM)
+    return close(self)
+c.ProgressBar.close = late_close
+""",
+    # a SIGTERM that lands while the temporary file of the plot is being created
+    "creating a temporary file": """
+import mechdsl.writing as w
+real_open = os.open
+class OsProxy:
+    def __getattr__(self, name): return getattr(os, name)
+    def open(self, path, *a, **k):
+        fd = real_open(path, *a, **k)
+        if ".tmp" in str(path) and str(path).endswith(".png"):
+            os.kill(os.getpid(), signal.SIGTERM)
+        return fd
+w.os = OsProxy()
+""",
+}
+
+
+@pytest.mark.parametrize("when", list(LATE_SIGNAL))
+def test_a_signal_at_an_awkward_moment_keeps_the_csv_and_leaves_no_temporary(tmp_path, when):
+    script = ("import os, signal, sys\n" + LATE_SIGNAL[when]
+              + "from mechdsl.cli import main\nsys.exit(main(sys.argv[1:]))\n")
+    r = subprocess.run([sys.executable, "-c", script, "run", str(SLIDER), "-o", "out.csv",
+                        "--plot", "p.png"], cwd=tmp_path, capture_output=True, text=True,
+                       timeout=120, preexec_fn=_default_signals)
+    assert r.returncode == 143, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.csv"]
+    rows = csv_rows((tmp_path / "out.csv").read_text())[1]
+    assert len(rows) == 1001
+    assert_slider_crank(rows)
