@@ -125,13 +125,15 @@ def cut(text: str, width: int = MAX_TOKEN_CHARS) -> str:
     return text if len(text) <= width else text[:width] + "..."
 
 
-def listing(items: Iterable[str], first: int = MAX_LISTED) -> str:
+def listing(items: Iterable[str], first: int = MAX_LISTED, total: int | None = None) -> str:
     """'a, b, c' or, for a longer list, 'a, b, c, d, e and 12 more': a bounded list of
-    names for a message."""
+    names for a message. ``total``: how many there are, where ``items`` holds only the
+    first of them."""
     items = list(items)
-    if len(items) <= first + 1:
-        return ", ".join(items)
-    return ", ".join(items[:first]) + f" and {len(items) - first} more"
+    total = len(items) if total is None else total
+    if total <= first + 1:
+        return ", ".join(items[:total])
+    return ", ".join(items[:first]) + f" and {total - first} more"
 
 
 def format_error(error: MechError, kind: str = "error") -> str:

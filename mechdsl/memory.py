@@ -87,15 +87,13 @@ def results_bytes(system: System, *, poses: bool, rates: bool) -> int:
 
 
 def plan(system: System, limit: int, max_batch_elements: int, *, sparse: bool,
-         poses: bool = False, rates: bool = False, extra: int = 0,
-         imports: tuple[str, ...] = ()) -> Plan:
+         poses: bool = False, rates: bool = False, extra: int = 0) -> Plan:
     """The batch cap for a run of ``system`` within ``limit`` bytes of resident memory, or a
     MechError with the estimate when it does not fit (see the module's docstring)."""
     V, m, n = system.n_variants, system.m, system.n
     parts = {"the process so far": resident_bytes(),
              "the results": results_bytes(system, poses=poses, rates=rates),
-             "libraries to load": sum(IMPORT_BYTES[i] for i in
-                                      set(imports) | ({"scipy.sparse"} if sparse else set())),
+             "libraries to load": IMPORT_BYTES["scipy.sparse"] if sparse else 0,
              "drawings and exports": extra}
     fixed = sum(parts.values())
     if sparse:

@@ -178,8 +178,7 @@ def _names(system: System, rows) -> str:
         total = c.rows[1] - c.rows[0]
         share = f"{k} of {total} equations" if total > 1 else "1 equation"
         parts.append(f"{c.kind} {c.name} ({share}, line {c.span.line})")
-    parts += [""] * (len(counts) - len(parts))  # counted, not written out
-    return listing(parts, MAX_NAMED)
+    return listing(parts, MAX_NAMED, total=len(counts))
 
 
 def redundancy_warning(system: System, mob: Mobility) -> str | None:
