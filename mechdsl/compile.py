@@ -26,6 +26,8 @@ from .plugins.contract import REQUIRED, ArgError, ConstraintType
 from .plugins.manager import PLUGIN_FAILURES
 from .plugins.registry import Registry
 from .shapes import mass_properties, shape_edges
+from .compiled.fused import Fused, TraceFailure, fuse
+from .plugins.derived import EquationError
 from .sparse import Pattern
 from .system import Constraint, DriveFunction, ExprOutput, Group, OutputSpec, Sketch, System
 from .variants import Overrides, evaluate, time_grid
@@ -82,25 +84,23 @@ class _Unevaluated:
         return np.zeros((1, len(v.items)))
 
 
-def _sparse_pattern(groups: list[Group], constraints: list[Constraint], n: int
-                    ) -> tuple[list[Group], Pattern]:
-    """The non-zero entries of Phi_q (the Jacobian blocks of the moving bodies), and for each
-    group and attached body where its block's entries go among them (``Group.nz``)."""
-    width = n + 3
+def _fused(groups: list[Group], constraints: list[Constraint], n_bodies: int, source
+           ) -> Fused:
+    """The whole mechanism's equations traced, differentiated and compiled; a type whose
+    equations cannot be traced is a located error at the constraint where it failed."""
     m = constraints[-1].rows[1] if constraints else 0
-    flats = [f for g in groups for f in g.flat]
-    every = np.sort(np.concatenate(flats)) if flats else np.zeros(0, np.intp)
-    # unique by hand: np.unique imports numpy.ma, 10 ms of every start-up
-    every = every[np.concatenate(([True], every[1:] != every[:-1]))] if every.size else every
-    entries = every[every % width < n]
-    out = []
-    for g in groups:
-        nz = []
-        for f in g.flat:
-            keep = np.flatnonzero(f % width < n)
-            nz.append((_readonly(keep), _readonly(np.searchsorted(entries, f[keep]))))
-        out.append(replace(g, nz=tuple(nz)))
-    return out, Pattern.from_entries(entries // width, entries % width, (m, n))
+    try:
+        return fuse(groups, n_bodies, m)
+    except TraceFailure as fail:
+        ctype, err = fail.group.ctype, fail.error
+        c = constraints[fail.group.members[fail.member]]
+        what = (str(err).split(": ", 1)[-1] if isinstance(err, EquationError)
+                else f"{type(err).__name__}: {str(err)[:200]}")
+        raise MechError(
+            f"the {ctype.kind} type '{ctype.name}' failed in equations() for {c.kind} "
+            f"'{c.name}': {what}", c.span, source,
+            notes=[f"the type comes from the plugin {type(ctype).__module__}; this is a "
+                   "defect of the plugin, not of the .mech file"]) from None
 
 
 class _Compiler:
@@ -129,7 +129,8 @@ class _Compiler:
             check_compile(self.V, values, self.ov.max_memory)
         self._bodies()
         constraints, groups, drive_rows, drive_fns = self._constraints()
-        groups, pattern = _sparse_pattern(groups, constraints, 3 * len(self.bodies))
+        fused = _fused(groups, constraints, len(self.bodies), self.model.source)
+        pattern = Pattern.from_entries(fused.rows, fused.cols, (fused.m, fused.n))
         outputs = self._outputs()
         times = (time_grid(self.model, self.ov, self.var, len(outputs)) if need_times
                  else None)
@@ -153,6 +154,7 @@ class _Compiler:
             outputs=tuple(outputs),
             order=order,
             pattern=pattern,
+            fused=fused,
             sketch=self._sketch(groups),
             mass=tuple(mass_properties(b, self.var) for b in self.bodies),
             time_unit=dict(self.model.units).get("time", ""),
@@ -374,12 +376,7 @@ class _Compiler:
                 continue
             stacked = np.stack([m[2][name] for m in members], axis=1)  # (V, J, ...)
             params[name] = _readonly(stacked[:, None])
-        # Jacobian columns in the extended matrix whose last 3 columns belong to the ground
-        cols = tuple(_readonly((3 * slots[:, k])[:, None, None] + np.arange(3)[None, None, :])
-                     for k in range(slots.shape[1]))
-        width = 3 * len(self.bodies) + 3
-        flat = tuple(_readonly((rows[:, :, None] * width + c).ravel()) for c in cols)
-        return Group(ctype, idx, _readonly(slots), params, _readonly(rows), cols, flat)
+        return Group(ctype, idx, _readonly(slots), params, _readonly(rows))
 
     def _function(self, ctype: ConstraintType, name: str, exprs: list) -> ExprFunction:
         """The function argument ``name`` of a group: member j's expression on x[..., j];

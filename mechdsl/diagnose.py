@@ -135,7 +135,8 @@ def one_variant(system: System, v: int) -> System:
                                       for k, a in g.params.items()})
                    for g in system.groups)
     return replace(system, groups=groups, env={k: a[v : v + 1] for k, a in system.env.items()},
-                   n_variants=1, scale=system.scale[v : v + 1], guess=system.guess[v : v + 1])
+                   n_variants=1, scale=system.scale[v : v + 1], guess=system.guess[v : v + 1],
+                   fused=None if system.fused is None else system.fused.variant(v))
 
 
 def failure(system: System, q_last: np.ndarray, t_last: float, v: int, target: float,
@@ -145,6 +146,17 @@ def failure(system: System, q_last: np.ndarray, t_last: float, v: int, target: f
     Newton diverged, the Jacobian is checked against Phi at the predicted state ``q_next``
     (and at the last solved one): a plugin's wrong derivative is named as such."""
     times = system.times
+    if why == "diverged" and q_next is not None:
+        one = one_variant(system, v)
+        with np.errstate(all="ignore"):
+            phi = eq.constraint_values(one, q_next.reshape(1, 1, -1), np.full((1, 1), target))
+        undefined = np.flatnonzero(~np.isfinite(phi[0, 0]))
+        if undefined.size:
+            return (f"the equations of {constraint_names(system, undefined)} are not defined "
+                    f"(not a number) near t = {target:.10g} (before {instant_text(system, k)})"
+                    f"{variant_label(system, v)}: the motion leaves their domain after "
+                    f"t = {t_last:.10g}, the last solved state (the square root of a negative "
+                    "number, a function argument outside its table's range)")
     if why == "diverged":
         defects = (jacobian_defects(system, q_next, target, v) if q_next is not None
                    else None) or jacobian_defects(system, q_last, t_last, v)
@@ -248,10 +260,14 @@ JACOBIAN_CHECK_TOLERANCE = 1e-5
 
 def jacobian_defects(system: System, q: np.ndarray, t: float, v: int) -> str | None:
     """Where the solver cannot converge: compare Phi_q d with (Phi(q + h d) - Phi(q - h d)) / 2h
-    at ``q`` (n,) of variant ``v`` for random scaled directions d; a row that disagrees means
-    the plugin's jacobian() is not the derivative of its phi(). Returns the message naming the
-    joints and their plugins, or None when the Jacobian agrees (two Phi evaluations and one
-    Jacobian per direction, whatever the size of the mechanism)."""
+    at ``q`` (n,) of variant ``v`` for random scaled directions d, in the rows of the types
+    that supply their own Jacobian (``jacobian_terms``; a derived one is exact): a row that
+    disagrees means the plugin's Jacobian is not the derivative of its equations. Returns the
+    message naming the joints and their plugins, or None when the Jacobian agrees (two Phi
+    evaluations and one Jacobian per direction, whatever the size of the mechanism)."""
+    supplied = [g.rows.ravel() for g in system.groups if g.ctype.supplies("jacobian_terms")]
+    if not supplied:
+        return None
     one = one_variant(system, v)
     D = col_scale(one)[0, 0]
     rng = np.random.default_rng(12345)
@@ -277,7 +293,9 @@ def jacobian_defects(system: System, q: np.ndarray, t: float, v: int) -> str | N
                 size = np.linalg.norm(jac * D, axis=-1)
             scale = size * np.linalg.norm(d / D) + np.abs(fd) + 1e-300
             worst = np.maximum(worst, np.nan_to_num(np.abs(jd - fd) / scale, nan=np.inf))
-    rows = np.flatnonzero(worst > JACOBIAN_CHECK_TOLERANCE)
+    checked = np.zeros(system.m, bool)
+    checked[np.concatenate(supplied)] = True
+    rows = np.flatnonzero((worst > JACOBIAN_CHECK_TOLERANCE) & checked)
     if not rows.size:
         return None
     owners = []

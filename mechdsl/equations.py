@@ -8,83 +8,23 @@ With q the coordinates of the moving bodies and t the time (Haug 1989, ch. 3):
 
 Joints are time-independent; a drive is g(q) - f(t), so nu has f'(t) in the drive rows and
 gamma has f''(t) added there. Every function takes states of shape ``(V, b, n)`` (variants,
-instants) and times broadcastable to ``(V, b)``, and calls each constraint type once.
+instants) and times broadcastable to ``(V, b)``, and evaluates the model's one compiled
+function (:mod:`mechdsl.compiled.fused`): no plugin code runs during a solve.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .system import ExprOutput, Group, System
+from .system import ExprOutput, System
 from .errors import MechError
+from .linalg import LU_BATCH, LUJac
 from .sparse import SparseJac
 
 
 class PluginError(MechError):
-    """A plugin raised or returned a malformed array while the system was evaluated."""
-
-
-def _poses(system: System, q: np.ndarray) -> np.ndarray:
-    """(V, b, n) -> (V, b, bodies + 1, 3), the ground's pose (all zero) appended last."""
-    nb = system.n_bodies
-    ext = np.zeros(q.shape[:-1] + (nb + 1, 3))
-    ext[..., :nb, :] = q.reshape(q.shape[:-1] + (nb, 3))
-    return ext
-
-
-def _slots(group: Group, poses: np.ndarray) -> tuple[np.ndarray, ...]:
-    return tuple(poses[..., group.slots[:, k], :] for k in range(group.slots.shape[1]))
-
-
-def _call(system: System, group: Group, method: str, *args):
-    """Call a plugin method; turn its exceptions and wrong shapes into a located error."""
-    try:
-        return _checked(group, method, args)
-    except (Exception, SystemExit) as err:  # any plugin failure is reported as the plugin's
-        ctype = group.ctype
-        member = _culprit(group, method, args)
-        c = system.constraints[group.members[member]]
-        raise PluginError(
-            f"the {ctype.kind} type '{ctype.name}' failed in {method}() for {c.kind} "
-            f"'{c.name}': {type(err).__name__}: {str(err)[:200]}", c.span, system.source,
-            notes=[f"the type comes from the plugin {type(ctype).__module__}; this is a "
-                   "defect of the plugin, not of the .mech file"]) from None
-
-
-def _checked(group: Group, method: str, args):
-    ctype = group.ctype
-    with np.errstate(all="ignore"):
-        out = getattr(ctype, method)(*args)
-    expect = (ctype.n_eq,) if method != "jacobian" else (ctype.n_eq, 3)
-    arrays = tuple(out) if method == "jacobian" else (out,)
-    if method == "jacobian" and len(arrays) != group.slots.shape[1]:
-        raise ValueError(f"returned {len(arrays)} Jacobian blocks for "
-                         f"{group.slots.shape[1]} attached bodies")
-    for a in arrays:
-        if np.shape(a)[-len(expect):] != expect:
-            raise ValueError(f"returned shape {np.shape(a)}, expected (..., "
-                             f"{', '.join(map(str, expect))})")
-    return out
-
-
-def _culprit(group: Group, method: str, args) -> int:
-    """The first constraint of the group whose own call fails (0 if each works alone)."""
-    kinds = {a.name: a.kind for a in group.ctype.signature}
-
-    def member(j: int, name: str, v):
-        if kinds[name] == "function":
-            return v.member(j)
-        # the constraint axis is the last batch axis: before the (2,) of points and vectors
-        return v[..., j : j + 1, :] if kinds[name] in ("point", "vector") else v[..., j : j + 1]
-
-    for j in range(len(group.members)):
-        sub = tuple(tuple(x[..., j : j + 1, :] for x in a) if isinstance(a, tuple)
-                    else {k: member(j, k, v) for k, v in a.items()} for a in args)
-        try:
-            _checked(group, method, sub)
-        except (Exception, SystemExit):  # noqa: BLE001
-            return j
-    return 0
+    """A plugin's code failed while the system was evaluated (a function argument's
+    evaluation; the types' own code runs only when the model is compiled)."""
 
 
 def drive_values(system: System, t: np.ndarray, which: str, shape) -> np.ndarray:
@@ -100,45 +40,27 @@ def drive_values(system: System, t: np.ndarray, which: str, shape) -> np.ndarray
 
 def constraint_values(system: System, q: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Phi(q, t), shape ``(V, b, m)``."""
-    poses = _poses(system, q)
-    phi = np.empty(q.shape[:-1] + (system.m,))
-    for g in system.groups:
-        phi[..., g.rows] = _call(system, g, "phi", _slots(g, poses), g.params)
+    with np.errstate(all="ignore"):
+        phi = system.fused.evaluate_phi(q)
     if system.drive_functions:
         phi[..., system.drive_rows] -= drive_values(system, t, "f", q.shape[:-1])
     return phi
 
 
+def jacobian_entries(system: System, q: np.ndarray) -> np.ndarray:
+    """The non-zero entries of Phi_q in ``system.pattern``'s order, shape ``(V, b, nnz)``."""
+    with np.errstate(all="ignore"):
+        return system.fused.evaluate_jac(q)
+
+
 def jacobian(system: System, q: np.ndarray) -> np.ndarray:
-    """Phi_q, shape ``(V, b, m, n)`` (a view; copy before writing)."""
-    poses = _poses(system, q)
-    batch = q.shape[:-1]
-    width = system.n + 3
-    flat = np.zeros(batch + (system.m * width,))
-    for g in system.groups:
-        blocks = _call(system, g, "jacobian", _slots(g, poses), g.params)
-        shape = batch + g.rows.shape + (3,)
-        for k, blk in enumerate(blocks):
-            # scattered through precomputed flat indices: far cheaper than 2-D fancy indexing
-            if np.shape(blk) != shape:
-                blk = np.broadcast_to(blk, shape)
-            flat[..., g.flat[k]] += blk.reshape(batch + (-1,))
-    return flat.reshape(batch + (system.m, width))[..., : system.n]
+    """Phi_q, shape ``(V, b, m, n)``."""
+    return system.fused.dense(jacobian_entries(system, q))
 
 
 def jacobian_values(system: System, q: np.ndarray) -> SparseJac:
     """Phi_q as its non-zero entries in ``system.pattern``: values of shape ``(V, b, nnz)``."""
-    poses = _poses(system, q)
-    batch = q.shape[:-1]
-    vals = np.zeros(batch + (len(system.pattern.rows),))
-    for g in system.groups:
-        blocks = _call(system, g, "jacobian", _slots(g, poses), g.params)
-        shape = batch + g.rows.shape + (3,)
-        for (keep, where), blk in zip(g.nz, blocks):
-            if np.shape(blk) != shape:
-                blk = np.broadcast_to(blk, shape)
-            vals[..., where] += blk.reshape(batch + (-1,))[..., keep]
-    return SparseJac(vals, system.pattern)
+    return SparseJac(jacobian_entries(system, q), system.pattern)
 
 
 def solver_jacobian(system: System, q: np.ndarray, rows: np.ndarray, sparse: bool):
@@ -146,9 +68,31 @@ def solver_jacobian(system: System, q: np.ndarray, rows: np.ndarray, sparse: boo
     sparse (all rows) for a large mechanism."""
     if sparse:
         return jacobian_values(system, q)
-    jac = jacobian(system, q)
-    # all rows (the usual case): the view, not a fancy-indexed copy
+    return jacobian_for(system, jacobian_entries(system, q), rows)
+
+
+def jacobian_for(system: System, values: np.ndarray, rows: np.ndarray):
+    """The entries as the factorisation wants them: for the generated LU (a square system,
+    a batch large enough to pay for it), else dense."""
+    if (len(rows) == system.m == system.n and system.lu is not None
+            and values[..., 0].size >= LU_BATCH):
+        return LUJac(values, system.pattern, system.lu)
+    jac = system.fused.dense(values)
     return jac if len(rows) == system.m else jac[..., rows, :]
+
+
+def residual_and_jacobian(system: System, q: np.ndarray, t: np.ndarray, rows: np.ndarray,
+                          sparse: bool):
+    """Phi(q, t) ``(V, b, m)`` and Phi_q as :func:`solver_jacobian` gives it, from one
+    evaluation (Newton needs both at the same q: each body's cos and sin computed once)."""
+    with np.errstate(all="ignore"):
+        phi, vals = system.fused.evaluate_phi_jac(q)
+    if system.drive_functions:
+        phi = phi.copy()
+        phi[..., system.drive_rows] -= drive_values(system, t, "f", q.shape[:-1])
+    if sparse:
+        return phi, SparseJac(vals, system.pattern)
+    return phi, jacobian_for(system, vals, rows)
 
 
 def velocity_rhs(system: System, t: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
@@ -162,11 +106,8 @@ def velocity_rhs(system: System, t: np.ndarray, shape: tuple[int, ...]) -> np.nd
 def acceleration_rhs(system: System, q: np.ndarray, qd: np.ndarray,
                      t: np.ndarray) -> np.ndarray:
     """gamma = -(Phi_q qd)_q qd + f''(t) in the drive rows, shape ``(V, b, m)``."""
-    poses, rates = _poses(system, q), _poses(system, qd)
-    gamma = np.empty(q.shape[:-1] + (system.m,))
-    for g in system.groups:
-        gamma[..., g.rows] = _call(system, g, "gamma", _slots(g, poses), _slots(g, rates),
-                                   g.params)
+    with np.errstate(all="ignore"):
+        gamma = system.fused.evaluate_gamma(q, qd)
     if system.drive_functions:
         gamma[..., system.drive_rows] += drive_values(system, t, "fdd", q.shape[:-1])
     return gamma

@@ -11,7 +11,33 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .sparse import SparseJac, TransposedLU, lu_one
+from .compiled.lu import LUPlan
+from .sparse import SparseJac, lu_one, sparse_lu
+
+#: From this many states at once, a square Jacobian is factorised by the model's generated
+#: sparse LU (:mod:`mechdsl.compiled.lu`); below, numpy's batched LAPACK calls cost less
+#: (each generated operation has a fixed overhead that only a large batch amortises).
+LU_BATCH = 64
+
+
+@dataclass(frozen=True)
+class LUJac:
+    """Phi_q of a batch of states as its entries ``values`` (..., nnz) in ``pattern``, to be
+    factorised by the generated LU ``lu``."""
+
+    values: np.ndarray
+    pattern: "Pattern"
+    lu: LUPlan
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return self.values.shape[:-1] + self.pattern.shape
+
+    def dense(self) -> np.ndarray:
+        p = self.pattern
+        out = np.zeros(self.values.shape[:-1] + (p.shape[0] * p.shape[1],))
+        out[..., p.rows * p.shape[1] + p.cols] = self.values
+        return out.reshape(self.shape)
 
 
 def solve(a: np.ndarray | SparseJac, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -22,6 +48,8 @@ def solve(a: np.ndarray | SparseJac, b: np.ndarray) -> tuple[np.ndarray, np.ndar
     state by state with SuperLU."""
     if isinstance(a, SparseJac):
         return _solve_sparse(a, b)
+    if isinstance(a, LUJac):
+        return _solve_lu(a, b)
     if a.shape[-2] > a.shape[-1]:
         with np.errstate(all="ignore"):
             qm, r = np.linalg.qr(np.nan_to_num(a))
@@ -34,12 +62,21 @@ def solve(a: np.ndarray | SparseJac, b: np.ndarray) -> tuple[np.ndarray, np.ndar
     return x, np.isfinite(x).all(axis=-1)
 
 
+def _solve_lu(a: LUJac, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    f, ok = a.lu.factor(a.values)
+    x = a.lu.solve(f, b)
+    redo = ~ok.T
+    if redo.any():  # a pivot of the fixed order became small: LAPACK's pivoting there
+        x[redo] = solve(a.dense()[redo], b[redo])[0]
+    return x, np.isfinite(x).all(axis=-1)
+
+
 def _solve_sparse(a: SparseJac, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     x = np.full(b.shape[:-1] + (a.pattern.shape[1],), np.nan)
     for i in np.ndindex(*b.shape[:-1]):
         try:
             with np.errstate(all="ignore"):
-                x[i] = TransposedLU(a.values[i], a.pattern).solve(b[i])
+                x[i] = sparse_lu(a.values[i], a.pattern).solve(b[i])
         except (RuntimeError, ValueError):  # singular, or not finite
             pass
     return x, np.isfinite(x).all(axis=-1)
@@ -67,6 +104,23 @@ def _each(fn, shape: tuple[int, ...], core: int) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class GeneratedLU:
+    """Factors of the scaled Jacobians A = R Phi_q D of a (V, b) batch by the generated LU:
+    ``factors`` (slots, b, V) (:meth:`mechdsl.compiled.lu.LUPlan.factor`'s layout), ``r``
+    (V, b, m), ``d`` broadcastable to (V, b, n)."""
+
+    plan: LUPlan
+    factors: np.ndarray
+    r: np.ndarray
+    d: np.ndarray
+
+    def columns(self, cols) -> "GeneratedLU":
+        # factors are (slots, b, V): the batch axes reversed
+        return GeneratedLU(self.plan, self.factors[:, cols], self.r[:, cols],
+                           self.d[:, cols] if self.d.ndim == 3 else self.d)
+
+
+@dataclass(frozen=True)
 class Factor:
     """The factorised Jacobian of a batch of states.
 
@@ -81,9 +135,13 @@ class Factor:
     rcond: np.ndarray
     sign: np.ndarray
     lus: np.ndarray | None = None
+    gen: "GeneratedLU | None" = None
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         """Phi_q^-1 rhs for right-hand sides ``(..., m)``."""
+        if self.gen is not None:
+            g = self.gen
+            return g.d * g.plan.solve(g.factors, g.r * rhs)
         if self.lus is None:
             return np.einsum("...ij,...j->...i", self.inverse, rhs)
         out = np.full(rhs.shape, np.nan)
@@ -98,7 +156,8 @@ class Factor:
         """The factorisations of the states ``[:, cols]``."""
         return Factor(None if self.inverse is None else self.inverse[:, cols],
                       self.rcond[:, cols], self.sign[:, cols],
-                      None if self.lus is None else self.lus[:, cols])
+                      None if self.lus is None else self.lus[:, cols],
+                      None if self.gen is None else self.gen.columns(cols))
 
 
 def factor(jac: np.ndarray | SparseJac, col_scale: np.ndarray) -> Factor:
@@ -109,6 +168,8 @@ def factor(jac: np.ndarray | SparseJac, col_scale: np.ndarray) -> Factor:
     largest singular value), and sign 1 (no determinant). Sparse: SuperLU per state."""
     if isinstance(jac, SparseJac):
         return _factor_sparse(jac, col_scale)
+    if isinstance(jac, LUJac):
+        return _factor_lu(jac, col_scale)
     # in place where possible: for a sweep these arrays hold millions of entries, and each
     # pass over them costs more than the arithmetic
     with np.errstate(all="ignore"):
@@ -132,6 +193,41 @@ def factor(jac: np.ndarray | SparseJac, col_scale: np.ndarray) -> Factor:
     ainv *= r[..., None, :]
     ainv *= col_scale[..., :, None]
     return Factor(ainv, rcond, np.where(rcond > 0, sign, 0.0))
+
+
+def _factor_lu(jac: LUJac, col_scale: np.ndarray) -> Factor:
+    """:func:`factor` by the generated LU: the scaled entries A = R Phi_q D factorised in the
+    fixed order, kept for the solves; ||A^-1||_1 estimated (Hager, Higham) rather than
+    formed; the sign from the pivots. A batch where a pivot of the fixed order became small
+    is factorised by LAPACK instead."""
+    p, lu = jac.pattern, jac.lu
+    batch = jac.values.shape[:-1]
+    m, n = p.shape
+    with np.errstate(all="ignore"):
+        d = np.broadcast_to(col_scale, batch + (n,))
+        a = jac.values * d[..., p.cols]
+        norms = np.sqrt((a * a) @ _indicator(p.rows, m))  # BLAS, not einsum's loop
+        r = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
+        a *= r[..., p.rows]
+        f, ok = lu.factor(a)
+    if not ok.all() or not np.isfinite(a).all():
+        return factor(jac.dense(), col_scale)
+    with np.errstate(all="ignore"):
+        norm_a = (np.abs(a) @ _indicator(p.cols, n)).max(axis=-1)
+        rcond = _clean(1.0 / (norm_a * lu.inverse_norm1(f)), norms)
+    sign = np.where(rcond > 0, lu.sign(f), 0.0)
+    return Factor(None, rcond, sign, gen=GeneratedLU(lu, f, r, d))
+
+
+def _clean(rcond: np.ndarray, norms: np.ndarray) -> np.ndarray:
+    return np.where(np.isfinite(rcond) & np.isfinite(norms).all(axis=-1), rcond, 0.0)
+
+
+def _indicator(index: np.ndarray, size: int) -> np.ndarray:
+    """(nnz, size): 1 where entry k lies in row (or column) index[k]."""
+    out = np.zeros((len(index), size))
+    out[np.arange(len(index)), index] = 1.0
+    return out
 
 
 def _factor_sparse(jac: SparseJac, col_scale: np.ndarray) -> Factor:

@@ -47,17 +47,20 @@ def newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray, active: 
         part = cols.size < b
         qc = q[:, cols] if part else q
         tc = t[:, cols] if part and np.shape(t)[1] == b else t
+        stale = reuse is not None and sparse
         with np.errstate(all="ignore"):
-            phi = eq.constraint_values(system, qc, tc)
+            if stale:
+                phi = eq.constraint_values(system, qc, tc)
+            else:
+                phi, jac = eq.residual_and_jacobian(system, qc, tc, rows, sparse)
             if shift is not None:
                 phi = phi + (shift[:, cols] if part and shift.shape[1] == b else shift)
-        stale = reuse is not None and sparse
+        rhs = -phi if len(rows) == system.m else -phi[..., rows]
         if stale:
-            dqc = _solve_stale(reuse, -phi[..., rows])
+            dqc = _solve_stale(reuse, rhs)
             solvedc = np.isfinite(dqc).all(axis=-1)
         else:
-            jac = eq.solver_jacobian(system, qc, rows, sparse)
-            dqc, solvedc = solve(jac, -phi[..., rows])
+            dqc, solvedc = solve(jac, rhs)
         if part:
             dq = np.zeros(q.shape)
             dq[:, cols] = dqc

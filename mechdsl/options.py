@@ -58,10 +58,14 @@ class SolverOptions:
     #: Instants solved together at most, and at the start.
     max_block: int = 256
     initial_block: int = 8
-    #: Two-level march: every this-many-th instant is solved first (a scouting pass), the
-    #: rest from the quintic Hermite interpolation of those states, all at once; 1 turns it
-    #: off. The levers section of benchmarks/bench.py measures its effect.
-    coarse_stride: int = 16
+    #: Parallel-in-time march: every this-many-th instant is solved first (a coarse march),
+    #: then levels that split every gap by ``level_split``, each solved all at once from the
+    #: quintic Hermite interpolation of the states before; 1 turns it off. The levers
+    #: section of benchmarks/bench.py measures its effect.
+    coarse_stride: int = 128
+    #: Parallel-in-time march: each level splits the gaps between solved instants into this
+    #: many parts.
+    level_split: int = 16
     #: Newton's tolerance (scaled as newton_tol) in the scouting pass of the two-level march;
     #: its states are only starting points, from which the second pass converges fully.
     coarse_newton_tol: float = 1e-4
@@ -116,6 +120,6 @@ class SolverOptions:
             raise ValueError(f"max_memory must be a positive number of bytes, not "
                              f"{self.max_memory!r}")
         for name in ("max_iterations", "assembly_max_iterations", "max_block", "initial_block",
-                     "max_batch_elements", "coarse_stride", "window"):
+                     "max_batch_elements", "coarse_stride", "window", "level_split"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1")

@@ -46,6 +46,7 @@ from .memory import plan
 from .newton import correction_ratio, newton, use_sparse
 from .singular import singular_step
 from .hermite import quintic_hermite
+from .levels import coarse_march, polish
 from .options import SolverOptions
 from .results import Results
 
@@ -375,36 +376,69 @@ def _run(system: System, st: _State, opts: SolverOptions, data: dict,
 
 def _two_level(system: System, st: _State, opts: SolverOptions, data: dict, k: int,
                end: int) -> int:
-    """Solve the instants k .. end-1 in two levels; return the first instant not solved.
+    """Solve the instants k .. end-1 in levels, parallel in time; return the first instant
+    not solved.
 
-    1. Scout: march every ``coarse_stride``-th instant (and end-1) from a copy of the state,
-       keeping each state's q, qd, qdd; the copy is discarded, nothing is recorded.
-    2. Settle: every instant of the window, started from the quintic Hermite interpolation
-       of the scouted states (:mod:`mechdsl.hermite`), is solved by batched Newton and put
-       through the march's checks against its predecessor (convergence, conditioning, sign
-       of det Phi_q, size of Newton's correction); the instants up to the first that fails
-       are recorded. Any failure of the scout stops here, and the ordinary march takes the
-       window over: it finds and reports the failure at its exact instant.
+    1. Coarse: march every ``coarse_stride``-th instant (and end-1) from a copy of the state
+       with a loose Newton tolerance; then correct those states all at once to the full
+       tolerance (:func:`mechdsl.levels.polish`) and solve their velocities and
+       accelerations: the first nodes.
+    2. Levels: split every gap between nodes by ``level_split``; the new instants, predicted
+       by the quintic Hermite interpolation of the nodes (:mod:`mechdsl.hermite`), are
+       corrected all at once and become nodes, until the gaps are at most
+       ``level_split`` instants.
+    3. Settle: every instant of the window, predicted from the nodes, is solved by batched
+       Newton, factorised, checked against its predecessor and recorded.
+
+    At every level each state is checked as the march checks it: converged, regular
+    (condition above ``singular_rcond``), det(Phi_q) of the same sign as at the start of the
+    window (no singular position crossed), and Newton's correction small against the motion
+    from the node before (``branch_ratio``: no jump to another branch). Any failure stops
+    here, and the ordinary march takes the window over: it finds and reports the failure at
+    its exact instant. The number of sequential batched steps grows like log(instants).
     """
     times = system.times
-    grid = np.arange(k - 1 + opts.coarse_stride, end, opts.coarse_stride)
-    if grid[-1] != end - 1:
-        grid = np.append(grid, end - 1)
-    scout = _scout(st)
-    # the scouted states only start Newton in the second pass, which converges fully from
-    # them: a loose tolerance saves iterations and lets the scout's blocks grow
-    loose = replace(opts, newton_tol=max(opts.newton_tol, opts.coarse_newton_tol))
-    _march(system, scout, loose, {}, None, grid, record=False)
-    if scout.failures or scout.passages or (scout.active != st.active).any():
-        return k
-    st.block = scout.block
-    first = int(np.flatnonzero(st.active)[0])
-    parts = [(st.t[:, None], st.q[:, None], st.qd[:, None], st.qdd[:, None])] + scout.nodes
-    tn, qn, qdn, qddn = (np.concatenate([p[i] for p in parts], axis=1) for i in range(4))
-    tn = tn[first]
-    D, rows = col_scale(system), st.rows
-    floor = np.sqrt(opts.newton_tol)
     act = st.active[:, None]
+    first = int(np.flatnonzero(st.active)[0])
+    D, rows = col_scale(system), st.rows
+    if len(rows) != system.n:
+        return k  # not as many independent equations as coordinates: the careful march
+    floor = np.sqrt(opts.newton_tol)
+    split = opts.level_split
+    coarse = coarse_march(system, (st.t, st.q, st.qd, st.qdd), st.sign, times[k - 1 : end],
+                          opts.coarse_stride, D, opts, rows, min_gap=split, active=st.active)
+    if coarse is None:
+        return k
+    # the coarse states, corrected to the full tolerance: the first nodes
+    idx, (qc, _, _) = coarse[0] + k - 1, coarse[1]
+    Tc = np.where(act, times[idx][None, :], st.t[:, None])
+    start = (st.t[:, None], st.q[:, None], st.qd[:, None], st.qdd[:, None])
+    level = _level(system, st, opts, qc, Tc, qc, D, rows, floor, None)
+    if level is None:
+        return k
+    node = np.concatenate(([k - 1], idx))
+    tn, qn, qdn, qddn = (np.concatenate((a, b), axis=1) for a, b in zip(start, level))
+    while (np.diff(node) > split).any():
+        # split every gap longer than level_split into level_split parts, or into as few
+        # as leave none longer (sets, not np.unique: that imports numpy.ma, 10 ms of every
+        # start-up)
+        have = set(node.tolist())
+        pairs = zip(node[:-1].tolist(), node[1:].tolist())
+        new = np.array(sorted({a + (i * (b - a)) // parts for a, b in pairs if b - a > split
+                               for parts in (min(split, -(-(b - a) // split)),)
+                               for i in range(1, parts)} - have), np.intp)
+        T = np.where(act, times[new][None, :], st.t[:, None])
+        with np.errstate(all="ignore"):
+            pred = quintic_hermite(tn[first], qn, qdn, qddn, times[new])
+        left = np.searchsorted(node, new) - 1
+        level = _level(system, st, opts, pred, T, qn[:, left], D, rows, floor, "left")
+        if level is None:
+            return k
+        order = np.argsort(np.concatenate((node, new)), kind="stable")
+        node = np.concatenate((node, new))[order]
+        tn, qn, qdn, qddn = (np.concatenate((a, b), axis=1)[:, order]
+                             for a, b in zip((tn, qn, qdn, qddn), level))
+    tn = tn[first]
     cap = _batch_cap(system, opts)
     for j0 in range(k, end, cap):
         idx = np.arange(j0, min(j0 + cap, end))
@@ -426,6 +460,31 @@ def _two_level(system: System, st: _State, opts: SolverOptions, data: dict, k: i
         if nacc < len(idx) or not st.active.any():
             return j0 + nacc
     return end
+
+
+def _level(system: System, st: _State, opts: SolverOptions, pred: np.ndarray, T: np.ndarray,
+           base: np.ndarray, D: np.ndarray, rows: np.ndarray, floor: float,
+           measure: str | None) -> tuple[np.ndarray, ...] | None:
+    """Correct the predicted states ``pred`` (V, c, n) at ``T`` (V, c) all at once and
+    solve their rates: the new nodes (t, q, qd, qdd), or None if a state fails a check.
+    With ``measure`` = "left", Newton's correction is measured against the motion from
+    ``base``, the node before each state; without, ``base`` is the loosely solved state of
+    the coarse march itself, already checked."""
+    act = st.active[:, None]
+    if (_undefined_drives(system, T) & act).any():
+        return None
+    q, ok = polish(system, pred, T, D, opts, rows, st.active)
+    fac = factor(eq.solver_jacobian(system, q, rows, False), D)
+    ratio = (correction_ratio(q, pred, base, D, floor) if measure == "left"
+             else np.zeros(q.shape[:-1]))
+    good = (ok & (fac.rcond >= opts.singular_rcond) & (fac.sign == st.sign[:, None])
+            & (ratio <= opts.branch_ratio)) | ~act
+    if not good.all():
+        return None
+    with np.errstate(all="ignore"):
+        qd = fac.solve(eq.velocity_rhs(system, T, q.shape[:-1])[..., rows])
+        qdd = fac.solve(eq.acceleration_rhs(system, q, qd, T)[..., rows])
+    return T, q, qd, qdd
 
 
 def _scout(st: _State) -> _State:

@@ -72,6 +72,10 @@ class TransposedLU:
             if spec == "NATURAL":
                 self.lu = natural
 
+    @property
+    def n(self) -> int:
+        return self.lu.shape[0]
+
     def solve(self, b: np.ndarray) -> np.ndarray:
         return self.lu.solve(b, trans="T")
 
@@ -114,11 +118,11 @@ def permutation_sign(perm: np.ndarray) -> float:
     return -1.0 if (n - cycles) % 2 else 1.0
 
 
-def inverse_norm1(lu: TransposedLU) -> float:
+def inverse_norm1(lu) -> float:
     """An estimate (a lower bound, exact in most cases) of ||A^-1||_1 from three solves: one
     step of Hager's method from x = (1/n, ..., 1/n), with Higham's alternating vector
     b_i = (-1)^i (1 + i/(n-1)) as a safeguard (Higham 1988, the method of LAPACK's xLACN2)."""
-    n = lu.lu.shape[0]
+    n = lu.n
     i = np.arange(n)
     alt = (-1.0) ** i * (1 + i / max(n - 1, 1))
     y = lu.solve(np.stack((np.full(n, 1.0 / n), alt), axis=1))
@@ -132,6 +136,32 @@ def inverse_norm1(lu: TransposedLU) -> float:
     return est
 
 
+def band_of(pattern: Pattern):
+    """The band plan of the pattern (:mod:`mechdsl.compiled.band`), found once; None where
+    the matrix is not narrow-banded in any order found (SuperLU then)."""
+    if "band" not in pattern.parities:
+        from .compiled.band import band_plan
+
+        m, n = pattern.shape
+        pattern.parities["band"] = (band_plan(pattern.rows, pattern.cols, n) if m == n
+                                    else None)
+    return pattern.parities["band"]
+
+
+def sparse_lu(values: np.ndarray, pattern: Pattern):
+    """The LU of one state: LAPACK's band LU in the compile-time order where the pattern is
+    narrow-banded, else SuperLU. Raises RuntimeError where singular."""
+    band = band_of(pattern)
+    if band is None:
+        return TransposedLU(values, pattern)
+    from .compiled.band import BandLU
+
+    lu = BandLU(band, values)
+    if not lu.ok:
+        raise RuntimeError("singular")
+    return lu
+
+
 def lu_one(values: np.ndarray, pattern: Pattern, row_scale: np.ndarray,
            col_scale: np.ndarray):
     """Sparse LU of the scaled matrix A = R Phi_q D of one state, with its reciprocal 1-norm
@@ -141,13 +171,18 @@ def lu_one(values: np.ndarray, pattern: Pattern, row_scale: np.ndarray,
     if not np.isfinite(scaled).all():
         return None, 0.0, 0.0
     try:
-        lu = TransposedLU(scaled, pattern)
+        lu = sparse_lu(scaled, pattern)
     except RuntimeError:  # exactly singular
         return None, 0.0, 0.0
+    n = pattern.shape[0]
+    if not isinstance(lu, TransposedLU):  # band
+        norm_a = float(np.bincount(pattern.cols, np.abs(scaled), minlength=n).max())
+        with np.errstate(all="ignore"):
+            rcond = 1.0 / (norm_a * inverse_norm1(lu))
+        return (lu, rcond, lu.sign()) if rcond > 0 and np.isfinite(rcond) else (None, 0.0, 0.0)
     diag = lu.lu.U.diagonal()
     if not (np.isfinite(diag).all() and (diag != 0).all()):
         return None, 0.0, 0.0
-    n = pattern.shape[0]
     # ||A||_1: the largest column sum of |A|
     norm_a = float(np.bincount(pattern.cols, np.abs(scaled), minlength=n).max())
     with np.errstate(all="ignore"):

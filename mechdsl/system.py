@@ -18,6 +18,8 @@ import numpy as np
 from . import expr as E
 from .errors import Source, Span
 from .plugins.contract import ConstraintType
+from .compiled.fused import Fused
+from .compiled.lu import LUPlan, plan
 from .sparse import Pattern
 
 
@@ -42,13 +44,6 @@ class Group:
     slots: np.ndarray
     params: Mapping[str, np.ndarray]
     rows: np.ndarray
-    cols: tuple[np.ndarray, ...]
-    #: per attached body, the entries of its Jacobian block in the flattened extended
-    #: Jacobian (m rows of n + 3 columns, the ground's last): rows * (n + 3) + cols
-    flat: tuple[np.ndarray, ...] = ()
-    #: per attached body, (which entries of its flattened block are not the ground's, where
-    #: they go among the non-zeros of the system's sparse Jacobian pattern)
-    nz: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -124,14 +119,26 @@ class System:
     times: np.ndarray | None
     outputs: tuple[OutputSpec | ExprOutput, ...]
     order: int = field(default=0)
-    #: the non-zero entries of Phi_q, for the sparse solver of large mechanisms
+    #: the non-zero entries of Phi_q (the order of ``fused.jac``'s values)
     pattern: Pattern | None = None
+    #: the compiled evaluation of Phi, Phi_q, gamma (:mod:`mechdsl.compiled.fused`)
+    fused: Fused | None = None
     #: the geometry that drawings and exports show
     sketch: Sketch | None = None
     #: per moving body, the mass properties of its shape (shapes.MassProperties) or None
     mass: tuple = ()
     #: the unit of time, from the model's ``units`` statement ("" where none is given)
     time_unit: str = ""
+
+    @functools.cached_property
+    def lu(self) -> LUPlan | None:
+        """The generated sparse LU of Phi_q (square systems), its pivot order chosen on the
+        Jacobian at the first variant's guess (:mod:`mechdsl.compiled.lu`); None where that
+        Jacobian is singular in its pattern."""
+        if self.fused is None or self.m != self.n or self.n == 0:
+            return None
+        sample = self.fused.evaluate_jac(self.guess[:, None, :])[0, 0]
+        return plan(self.fused.rows, self.fused.cols, self.n, sample)
 
     @property
     def n_bodies(self) -> int:

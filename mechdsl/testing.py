@@ -4,22 +4,35 @@ own tests, in one call.
 >>> from mechdsl.testing import check_constraint_type
 >>> check_constraint_type(MyJoint())          # raises ContractViolation, with the numbers
 
-On random poses, velocities and accelerations of the attached bodies and random argument
-values, using the type's own ``phi`` as the truth, it checks
+A type writes its equations once (:meth:`~mechdsl.plugins.ConstraintType.equations`);
+mechdsl traces them and derives the Jacobian and gamma exactly, and the type's array methods
+``phi``, ``jacobian`` and ``gamma`` evaluate those forms (or the Jacobian and gamma the type
+supplies with ``jacobian_terms`` / ``gamma_terms``). On random poses, velocities and
+accelerations of the attached bodies and random argument values, it checks
 
-1. the declaration (name, kind, signature, number of equations), and that ``validate``
-   accepts the argument values the test uses;
-2. shapes: ``phi`` and ``gamma`` give ``(..., n_eq)`` and ``jacobian`` one ``(..., n_eq, 3)``
+1. the declaration (name, kind, signature, number of equations, an ``equations`` method),
+   and that ``validate`` accepts the argument values the test uses;
+2. that the equations, and the supplied terms, can be traced: an equation that branches on a
+   traced value (``if``, ``bool()``), calls a numpy function that cannot be differentiated,
+   returns the wrong number of values, or raises, is a violation with the message;
+3. shapes: ``phi`` and ``gamma`` give ``(..., n_eq)`` and ``jacobian`` one ``(..., n_eq, 3)``
    block per attached body, for one, two and three batch axes, with arguments whose batch
    shapes differ and must broadcast;
-3. no NaN or infinity on valid input, and each row of a batch computed from its own
+4. no NaN or infinity on valid input, and each row of a batch computed from its own
    arguments and poses (as if alone);
-4. the Jacobian against central differences of Phi in every coordinate;
-5. gamma against the second time derivative of Phi along random trajectories
+5. the Jacobian against central differences of Phi in every coordinate;
+6. gamma against the second time derivative of Phi along random trajectories
    q(t) = q0 + qd t + qdd t^2 / 2: d2Phi/dt2 = Phi_q qdd - gamma (types are functions of q
    only: Phi_qt and Phi_tt vanish; a drive's f(t) is the core's);
-6. for types that claim ``invariant``: |Phi| unchanged when all attached bodies move by one
+7. where the type supplies ``jacobian_terms`` or ``gamma_terms``: those values against the
+   ones derived from its equations, to round-off (a relative error of 1e-9 is caught, which
+   differences cannot see);
+8. for types that claim ``invariant``: |Phi| unchanged when all attached bodies move by one
    rigid motion.
+
+Checks 5 and 6 hold Phi's derivatives to an independent truth (differences of Phi), so they
+also guard mechdsl's derivation; check 7 is what makes a supplied Jacobian or gamma as exact
+as a derived one.
 
 ``params`` overrides the random values of arguments with a restricted domain: a callable
 ``f(rng, shape)`` for a point, vector or scalar, expression text (or an
@@ -29,12 +42,18 @@ random poses: ``f(rng, shape) -> tuple of (*shape, 3) arrays``, one per attached
 
 from __future__ import annotations
 
+import traceback
 from typing import Callable, Mapping
 
 import numpy as np
 
 from .functions import ExprFunction
 from .plugins.contract import REQUIRED, ConstraintType, contract_problems
+from .plugins.derived import EquationError
+from .symbolic import GraphError
+
+#: The methods a type writes that mechdsl runs on traced values.
+_TRACED_METHODS = ("equations", "jacobian_terms", "gamma_terms")
 
 #: The function a ``function`` argument gets unless the test gives one: smooth, positive.
 DEFAULT_FUNCTION = "1.5 + 0.3*sin({v}) + 0.1*cos(2*{v})"
@@ -111,6 +130,47 @@ def _finite(ctype: ConstraintType, what: str, a) -> None:
                                 f"{float(a[i])!r} at index {i} for valid input")
 
 
+def _traced(ctype: ConstraintType) -> None:
+    """Trace the type's equations (and supplied terms) as mechdsl does; what cannot be traced
+    is a violation with the message."""
+    prefix = f"{ctype.kind} type '{ctype.name}'"
+    try:
+        with np.errstate(all="ignore"):
+            ctype.derived
+    except (EquationError, GraphError) as err:
+        text = str(err)
+        own = f"the {prefix}: "
+        text = text[len(own):] if text.startswith(own) else text
+        raise ContractViolation(f"{prefix}: its equations cannot be traced: {text}") from err
+    except Exception as err:  # noqa: BLE001 - the plugin's failure is the finding
+        frames = [fr.name for fr in traceback.extract_tb(err.__traceback__)]
+        method = next((m for m in reversed(frames) if m in _TRACED_METHODS), "equations")
+        raise ContractViolation(f"{prefix}: its equations cannot be traced: {method}() raised "
+                                f"{type(err).__name__}: {err}") from err
+
+
+def _supplied(ctype: ConstraintType, q, qd, p, blocks, gamma) -> None:
+    """A supplied Jacobian or gamma equals the one derived from the equations, to round-off:
+    atol = 1e-12 (1 + max |derived|)."""
+    def close(got, want) -> bool:
+        return np.allclose(got, want, rtol=0, atol=1e-12 * (1.0 + np.abs(want).max()))
+
+    if ctype.supplies("jacobian_terms"):
+        with np.errstate(all="ignore"):
+            derived = ctype.derived.derived_jacobian(q, p)
+        for k, (blk, want) in enumerate(zip(blocks, derived)):
+            if not close(blk, want):
+                _fail(ctype, f"Jacobian block {k} (attached body {k}) supplied by "
+                      "jacobian_terms()", blk, want, " (against the Jacobian derived from its "
+                      "equations)")
+    if ctype.supplies("gamma_terms"):
+        with np.errstate(all="ignore"):
+            want = ctype.derived.derived_gamma(q, qd, p)
+        if not close(gamma, want):
+            _fail(ctype, "gamma supplied by gamma_terms()", gamma, want, " (against the gamma "
+                  "derived from its equations)")
+
+
 def _rotate(angle, v):
     c, s = np.cos(angle), np.sin(angle)
     return np.stack((c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]), axis=-1)
@@ -125,6 +185,7 @@ def check_constraint_type(ctype: ConstraintType, *, samples: int = 24, seed: int
     if problems:
         raise ContractViolation(f"type {getattr(ctype, 'name', ctype)!r} is declared wrongly: "
                                 + "; ".join(problems))
+    _traced(ctype)
     rng = np.random.default_rng(seed)
     S, m = len(ctype.slots), ctype.n_eq
     batch = (samples,)
@@ -183,6 +244,9 @@ def check_constraint_type(ctype: ConstraintType, *, samples: int = 24, seed: int
     if not np.allclose(gamma, want, rtol=0, atol=1e-5 * (1.0 + np.abs(want).max())):
         _fail(ctype, "gamma", gamma, want, " (against d2Phi/dt2 = Phi_q qdd - gamma along "
               "random trajectories)")
+
+    # a supplied Jacobian or gamma against the derived one, to round-off
+    _supplied(ctype, q, qd, p, blocks, gamma)
 
     # each constraint of a batch computes with its own arguments and poses
     _batch_members(ctype, q, qd, p, phi, blocks, gamma)

@@ -132,24 +132,43 @@ def test_a_validate_that_raises_is_located_and_names_the_plugin(registry):
 THRESHOLD = np.pi / 4 + OMEGA * 0.0565  # the crank's angle between instants 56 and 57
 
 
-class Fragile:
-    """A revolute joint that raises once the first body's angle passes THRESHOLD."""
+def fragile(raises: bool):
+    """A revolute joint whose equations raise when traced (``raises``), or are not defined
+    once the first body's angle passes THRESHOLD (the square root of a negative number)."""
+    from mechdsl.plugins import Arg, ConstraintType
 
-    name = "fragile"
+    class Fragile(ConstraintType):
+        name = "fragile"
+        signature = (Arg("p1", "point"), Arg("p2", "point"))
+        n_eq = 2
 
-    def phi(self, q, p):
-        if np.any(q[0][..., 2] > THRESHOLD):
-            raise RuntimeError("out of range")
-        return super().phi(q, p)
+        def equations(self, bodies, args):
+            if raises:
+                raise RuntimeError("out of range")
+            d = bodies[0].point(args.p1) - bodies[1].point(args.p2)
+            w = np.sqrt(THRESHOLD - bodies[0].phi)
+            return d.x * w / w, d.y
+
+    return Fragile()
 
 
-def test_a_plugin_that_raises_mid_run_keeps_every_instant_before_it(registry, tmp_path):
-    fragile = type("FragileRevolute", (Fragile, revolute()), {})()
-    reg = registry_with(registry, fragile)
+def test_a_plugin_that_raises_is_located_before_anything_runs(registry):
+    reg = registry_with(registry, fragile(raises=True))
+    mech = mechdsl.loads(joint_b_as("fragile"), "s.mech", registry=reg)
+    with pytest.raises(MechError) as err:
+        mech.simulate()
+    assert err.value.span.line == 24
+    assert ("the joint type 'fragile' failed in equations() for joint 'B': RuntimeError: out "
+            "of range" in err.value.message)
+    assert "defect of the plugin" in err.value.notes[0]
+
+
+def test_equations_undefined_mid_run_keep_every_instant_before_them(registry):
+    reg = registry_with(registry, fragile(raises=False))
     res = mechdsl.loads(joint_b_as("fragile"), "s.mech", registry=reg).simulate()
-    assert res.status == "error" and res.n_solved[0] == 57
-    assert res.error.span.line == 24
-    assert "the joint type 'fragile' failed in phi() for joint 'B': RuntimeError" in res.messages[0]
+    assert res.status == "failed" and res.n_solved[0] == 57
+    assert res.messages[0].startswith("the equations of joint B (fragile, line 24) are not "
+                                      "defined (not a number) near t = 0.0565")
     t = res["t"]
     x, v, a = slider_crank(2.0, 3.5, np.pi / 4 + OMEGA * t, OMEGA, 0.0)
     np.testing.assert_allclose(res["slider.x"], x, atol=1e-13)
@@ -160,9 +179,8 @@ def test_a_gamma_returning_nan_stops_the_run_and_names_the_joint(registry):
     class NanGamma(revolute()):
         name = "nan_gamma"
 
-        def gamma(self, q, qd, p):
-            return np.full(np.broadcast_shapes(q[0].shape[:-1], p["p1"].shape[:-1]) + (2,),
-                           np.nan)
+        def gamma_terms(self, bodies, rates, args):
+            return np.nan, np.nan
 
     reg = registry_with(registry, NanGamma())
     res = mechdsl.loads(joint_b_as("nan_gamma"), "s.mech", registry=reg).simulate()
@@ -203,12 +221,13 @@ def flipped(base, beyond=-np.inf):
     class Flipped(base):
         name = "flipped"
 
-        def jacobian(self, q, p):
-            a, b = super().jacobian(q, p)
-            if np.all(q[0][..., 2] > beyond):
-                b = b.copy()
-                b[..., 2] *= -1
-            return a, b
+        def jacobian_terms(self, bodies, args):
+            i, j = bodies
+            # -1 once phi_i > beyond, +1 before: a sign, not a branch
+            flip = -1.0 if beyond == -np.inf else np.sign(beyond - i.phi)
+            bi, bj = i.rotate(args.p1).perp(), j.rotate(args.p2).perp()  # B s' = perp(A s')
+            return ([[1, 0, bi.x], [0, 1, bi.y]],
+                    [[-1, 0, -bj.x * flip], [0, -1, -bj.y * flip]])
 
     return Flipped()
 

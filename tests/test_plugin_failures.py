@@ -39,29 +39,21 @@ def test_a_plugin_that_fails_to_import_is_listed_as_broken(tmp_path):
 
 
 WRONG_SHAPE = '''
-    import numpy as np
     from mechdsl.plugins import Arg, ConstraintType, hookimpl
 
     class Lazy(ConstraintType):
-        """x of a point equals c; breaks (wrong shape) when c is exactly 2."""
+        """x of a point equals c; breaks (two values for one equation) for a point whose
+        body coordinate is exactly 2: a defect that shows for one constraint only."""
         name = "lazy_x"
         kind = "drive"
         signature = (Arg("point", "point"),)
         n_eq = 1
         invariant = False
 
-        def phi(self, q, p):
-            return q[0][..., :1] + 0 * p["point"][..., :1]
-
-        def jacobian(self, q, p):
-            if np.any(p["point"][..., 0] == 2):
-                return (np.zeros(3),)
-            blk = np.zeros(np.broadcast_shapes(q[0].shape[:-1], p["point"].shape[:-1]) + (1, 3))
-            blk[..., 0, 0] = 1
-            return (blk,)
-
-        def gamma(self, q, qd, p):
-            return np.zeros(np.broadcast_shapes(q[0].shape[:-1], qd[0].shape[:-1]) + (1,))
+        def equations(self, bodies, args):
+            if getattr(args.point.x, "value", None) == 2.0:
+                return bodies[0].point(args.point).x, 0.0
+            return (bodies[0].point(args.point).x,)
 
     @hookimpl
     def mechdsl_constraint_types():
@@ -69,7 +61,7 @@ WRONG_SHAPE = '''
 '''
 
 
-def test_a_plugin_defect_during_a_run_names_the_plugin_the_joint_and_the_line(tmp_path):
+def test_a_plugin_defect_names_the_plugin_the_constraint_and_the_line(tmp_path):
     fake_distribution(tmp_path, "mechdsl-lazy", "mechdsl_lazy", WRONG_SHAPE, ["lazy_x"])
     f = tmp_path / "lazy.mech"
     f.write_text(textwrap.dedent("""\
@@ -85,8 +77,8 @@ def test_a_plugin_defect_during_a_run_names_the_plugin_the_joint_and_the_line(tm
     assert r.returncode == 1
     assert "Traceback" not in r.stderr
     first = r.stderr.splitlines()[0]
-    assert first.startswith(f"{f}:6:1: error: the drive type 'lazy_x' failed in jacobian() "
-                            "for drive 'second': ValueError: returned shape (3,)")
+    assert first == (f"{f}:6:1: error: the drive type 'lazy_x' failed in equations() for "
+                     "drive 'second': equations() gave 2 values, expected 1")
     assert "the plugin mechdsl_lazy" in r.stderr and "defect of the plugin" in r.stderr
 
 

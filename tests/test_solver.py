@@ -123,11 +123,11 @@ def test_velocities_and_accelerations_are_skipped_when_not_requested(loads, monk
     assert res.ok
     assert np.allclose(res["crank.x"], np.cos(res["t"]), atol=1e-12)
     # gamma is evaluated only where the predictors need it: at the last instant of each
-    # block of the plain march, and at the scouted instants of the two-level march, never
-    # at the instants that are only recorded
-    stride = solve.SolverOptions().coarse_stride
+    # block of the plain march, and at the nodes of the parallel-in-time march's levels (the
+    # coarse instants, and every level_split-th), never at the instants only recorded
+    opts = solve.SolverOptions()
     evaluated = sum(shape[1] for shape in calls)
-    assert evaluated <= 1001 // stride + len(calls)
+    assert evaluated <= 1001 // opts.coarse_stride + 1001 // opts.level_split + len(calls)
     assert all(shape[1] <= solve.SolverOptions().max_block for shape in calls)
     calls.clear()
     res = solve.simulate(system, solve.SolverOptions(coarse_stride=1))

@@ -1,24 +1,28 @@
-"""The contract of a constraint type: what a joint or drive plugin declares and computes.
+"""The contract of a constraint type: what a joint or drive plugin declares and writes.
 
 A constraint type contributes ``n_eq`` rows to Haug's constraint vector Phi(q, t). It declares
 a signature of arguments; every *reference* argument (a point ``body.P`` or a ``body``) attaches
-one body, called a *slot*. The solver hands the type, for all constraints of that type at once,
+one body, called a *slot*. It writes its equations once, in :meth:`ConstraintType.equations`,
+as plain arithmetic on named scalars:
 
-* ``q``: a tuple with one pose array per slot, each of shape ``(..., 3)`` = (x, y, phi);
-* ``qd``: the matching velocities (for :meth:`ConstraintType.gamma`);
-* ``p``: a dict from argument name to values: a point's coordinates in its body's frame
-  ``(..., 2)``, a vector ``(..., 2)``, a scalar ``(...)``, a function (:class:`Function`: an
-  expression of one variable written by the user, with exact derivatives); body arguments
-  have no entry.
+* ``bodies``: one :class:`~mechdsl.plugins.geometry.Body` per slot, with its ``x``, ``y``,
+  ``phi`` and ``c = cos phi``, ``s = sin phi``, and the helpers ``point(s')`` = r + A s' and
+  ``rotate(v)`` = A v;
+* ``args``: the other arguments by name (``args.p1``): a point's coordinates in its body's
+  frame and a vector as :class:`~mechdsl.plugins.geometry.Vec`, a scalar as a scalar, a
+  function (an expression of one variable written by the user) as a callable.
 
-The leading axes ``...`` are batch axes (constraints of the type, instants, sweep variants);
-they broadcast against each other, and every method must return arrays with the full
-broadcast batch shape. A type implements, in Haug's notation,
+From that one source mechdsl derives, exactly (symbolic differentiation of the traced
+arithmetic, :mod:`mechdsl.symbolic`), the Jacobian Phi_q and gamma = -(Phi_q qd)_q qd, and
+fuses every constraint of a mechanism into one compiled evaluation. The same source runs on
+numpy arrays: :meth:`ConstraintType.phi`, :meth:`~ConstraintType.jacobian` and
+:meth:`~ConstraintType.gamma` evaluate a type on its own (poses ``(..., 3)`` per slot,
+arguments with broadcasting batch axes), which is how the conformance kit
+(:mod:`mechdsl.testing`) tests it.
 
-* :meth:`~ConstraintType.phi`: Phi, shape ``(..., n_eq)``;
-* :meth:`~ConstraintType.jacobian`: the blocks dPhi/dq_k, one ``(..., n_eq, 3)`` per slot;
-* :meth:`~ConstraintType.gamma`: the velocity-quadratic right-hand side of the acceleration
-  equation, gamma = -(Phi_q qd)_q qd, shape ``(..., n_eq)``.
+A type may also supply its own Jacobian (:meth:`~ConstraintType.jacobian_terms`) or gamma
+(:meth:`~ConstraintType.gamma_terms`), in the same scalar form; they are then used, and the
+kit checks them against the derived ones to round-off.
 
 A *drive* type (``kind = "drive"``) computes one measure g(q) (``n_eq == 1``) and is used as
 ``drive NAME: TYPE(args) = f(t)``: the core adds the time function, Phi = g(q) - f(t),
@@ -28,9 +32,15 @@ nu = f'(t), gamma = -(g_q qd)_q qd + f''(t). Joint types are time-independent: n
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping, Protocol
+import functools
+from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Protocol, Sequence
 
 import numpy as np
+
+from .geometry import Body, Rate
+
+if TYPE_CHECKING:
+    from .derived import Derived
 
 KINDS = ("joint", "drive")
 ARG_KINDS = ("point", "body", "vector", "scalar", "function")
@@ -104,10 +114,28 @@ class ArgError(ValueError):
         self.message = message
 
 
+class Args(dict):
+    """A constraint's argument values by name, also as attributes: ``args.p1``. Points and
+    vectors are :class:`~mechdsl.plugins.geometry.Vec`, scalars are scalars, functions are
+    callables with exact derivatives (``f(x)``, ``f.d1(x)``)."""
+
+    def __getattr__(self, name: str):
+        try:
+            return self[name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+
 class ConstraintType:
-    """Base class of joint and drive types; subclass it, set the class attributes, implement
-    :meth:`phi`, :meth:`jacobian` and :meth:`gamma` (and :meth:`validate` if some values are
-    invalid). Instances must be stateless: one instance serves every constraint of the type.
+    """Base class of joint and drive types: subclass it, set the class attributes and write
+    :meth:`equations` (and :meth:`validate` if some values are invalid). Instances must be
+    stateless: one instance serves every constraint of the type.
+
+    mechdsl derives the Jacobian and gamma from :meth:`equations` exactly; a type may supply
+    its own (:meth:`jacobian_terms`, :meth:`gamma_terms`), which are then used, and which the
+    conformance kit checks against the derived ones to round-off. The array methods
+    :meth:`phi`, :meth:`jacobian` and :meth:`gamma` evaluate a type on its own, for its
+    tests; they are not meant to be overridden.
     """
 
     #: The name used in ``.mech`` files, e.g. ``revolute``.
@@ -137,19 +165,52 @@ class ConstraintType:
     def validate(self, p: Mapping[str, np.ndarray]) -> None:
         """Check argument values (arrays with batch axes); raise :class:`ArgError` to reject."""
 
-    def phi(self, q: tuple[np.ndarray, ...], p: Mapping[str, np.ndarray]) -> np.ndarray:
-        """Phi, shape ``(..., n_eq)``."""
+    def equations(self, bodies: tuple[Body, ...], args: Args) -> Sequence[Any]:
+        """Phi: ``n_eq`` scalars, written as plain arithmetic and numpy functions of the
+        attached bodies' scalars (``bodies[k].x, .y, .phi, .c, .s``, one
+        :class:`~mechdsl.plugins.geometry.Body` per reference argument, in order) and of
+        ``args``. The same code runs on numbers, on arrays and on traced values, so it may
+        not branch on them."""
         raise NotImplementedError
+
+    def jacobian_terms(self, bodies: tuple[Body, ...], args: Args) -> Sequence[Sequence[Any]]:
+        """Optional: dPhi/dq_k for each attached body k, as ``n_eq`` rows of 3 scalars
+        (d/dx, d/dy, d/dphi). Leave it out to have it derived from :meth:`equations`."""
+        raise NotImplementedError
+
+    def gamma_terms(self, bodies: tuple[Body, ...], rates: tuple[Rate, ...],
+                    args: Args) -> Sequence[Any]:
+        """Optional: gamma = -(Phi_q qd)_q qd, ``n_eq`` scalars, with ``rates[k]`` the
+        velocity (x, y, phi) of attached body k. Leave it out to have it derived."""
+        raise NotImplementedError
+
+    def supplies_equations(self) -> bool:
+        return type(self).equations is not ConstraintType.equations
+
+    def supplies(self, method: str) -> bool:
+        """Whether the type writes ``method`` ("jacobian_terms" or "gamma_terms") itself."""
+        return getattr(type(self), method) is not getattr(ConstraintType, method)
+
+    @functools.cached_property
+    def derived(self) -> "Derived":
+        """The type's equations traced and differentiated, compiled for arrays."""
+        from .derived import Derived
+        return Derived(self)
+
+    def phi(self, q: tuple[np.ndarray, ...], p: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Phi for poses ``q`` (one ``(..., 3)`` array per attached body): ``(..., n_eq)``."""
+        return self.derived.phi(q, p)
 
     def jacobian(self, q: tuple[np.ndarray, ...],
                  p: Mapping[str, np.ndarray]) -> tuple[np.ndarray, ...]:
-        """dPhi/dq_k for each slot k, each of shape ``(..., n_eq, 3)``."""
-        raise NotImplementedError
+        """dPhi/dq_k for each slot k, each of shape ``(..., n_eq, 3)`` (the supplied terms
+        where the type writes them, else the derived ones)."""
+        return self.derived.jacobian(q, p)
 
     def gamma(self, q: tuple[np.ndarray, ...], qd: tuple[np.ndarray, ...],
               p: Mapping[str, np.ndarray]) -> np.ndarray:
         """gamma = -(Phi_q qd)_q qd, shape ``(..., n_eq)``."""
-        raise NotImplementedError
+        return self.derived.gamma(q, qd, p)
 
 
 def contract_problems(ctype: object) -> list[str]:
@@ -186,7 +247,14 @@ def contract_problems(ctype: object) -> list[str]:
                                 "variable")
         if not any(a.is_reference for a in sig):
             problems.append("signature attaches no body (no point or body argument)")
-    for method in ("phi", "jacobian", "gamma"):
-        if not callable(getattr(ctype, method, None)):
-            problems.append(f"method {method}() is missing")
+    if isinstance(ctype, ConstraintType):
+        if not ctype.supplies_equations():
+            problems.append("method equations() is missing: a type writes its equations")
+        for method in ("phi", "jacobian", "gamma"):
+            if getattr(type(ctype), method) is not getattr(ConstraintType, method):
+                problems.append(f"method {method}() is overridden: the array methods evaluate "
+                                "equations() (and jacobian_terms(), gamma_terms()); the "
+                                "compiled model would not use an override")
+    else:
+        problems.append("a type must be an instance of a ConstraintType subclass")
     return problems

@@ -1,56 +1,120 @@
-"""Planar kinematics helpers for plugin authors, all broadcasting over leading batch axes.
+"""Planar kinematics for plugin authors: the scalars a type's equations are written on.
 
 Haug's notation: a body's pose is q = (x, y, phi), its rotation matrix A(phi) = [[c, -s],
-[s, c]], and B(phi) = dA/dphi = [[-s, -c], [c, -s]] = R A with R the rotation by +90 degrees,
-so that B s = perp(A s) and dA/dt s = perp(A s) phid.
+[s, c]] with c = cos phi, s = sin phi, and B(phi) = dA/dphi = R A with R the rotation by +90
+degrees, so that B s' = perp(A s') with perp(v) = (-v_y, v_x).
+
+A type's :meth:`~mechdsl.plugins.ConstraintType.equations` receive
+
+* one :class:`Body` per attached body: ``x``, ``y``, ``phi``, ``c``, ``s``, and
+  ``point(s')`` = r + A s' (Haug eq. 2.6.4), ``rotate(v)`` = A v, ``unrotate(v)`` = A^T v,
+  ``r`` = (x, y);
+* points and vectors as :class:`Vec`: ``+`` and ``-`` of two, ``*`` and ``/`` by a scalar,
+  ``dot``, ``cross``, ``perp()``, ``norm()``, ``x``, ``y``;
+
+and a type's optional ``gamma_terms`` one :class:`Rate` (the velocities ``x``, ``y``,
+``phi``) per attached body. Their components are scalars: numbers, numpy arrays, or the
+traced nodes of :mod:`mechdsl.symbolic` from which mechdsl derives the Jacobian and gamma;
+the same arithmetic serves all three.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-_PERP_SIGNS = np.array([-1.0, 1.0])
-_PERP_SIGNS.flags.writeable = False
+
+class Vec:
+    """A plane vector of two scalars (numbers, numpy arrays or traced nodes: the same
+    arithmetic serves all three)."""
+
+    __slots__ = ("x", "y")
+
+    def __init__(self, x, y) -> None:
+        self.x, self.y = x, y
+
+    def __add__(self, o: "Vec") -> "Vec":
+        return Vec(self.x + o.x, self.y + o.y)
+
+    def __sub__(self, o: "Vec") -> "Vec":
+        return Vec(self.x - o.x, self.y - o.y)
+
+    def __neg__(self) -> "Vec":
+        return Vec(-self.x, -self.y)
+
+    def __mul__(self, k) -> "Vec":
+        return Vec(self.x * k, self.y * k)
+
+    __rmul__ = __mul__
+
+    def __truediv__(self, k) -> "Vec":
+        return Vec(self.x / k, self.y / k)
+
+    def dot(self, o: "Vec"):
+        """a . b"""
+        return self.x * o.x + self.y * o.y
+
+    def cross(self, o: "Vec"):
+        """a x b = a_x b_y - a_y b_x (the z component)"""
+        return self.x * o.y - self.y * o.x
+
+    def perp(self) -> "Vec":
+        """R a = (-a_y, a_x): turned by +90 degrees."""
+        return Vec(-self.y, self.x)
+
+    def norm(self):
+        """|a|"""
+        return np.sqrt(self.x * self.x + self.y * self.y)
+
+    def __iter__(self):
+        return iter((self.x, self.y))
+
+    def __repr__(self) -> str:
+        return f"Vec({self.x!r}, {self.y!r})"
 
 
-def rotate(phi: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """A(phi) s = cos(phi) s + sin(phi) perp(s) for angles ``(...)`` and vectors ``(..., 2)``;
-    returns ``(..., 2)``."""
-    phi = np.asarray(phi)[..., None]
-    # written with whole-vector products (no stacking): the solver calls this on tiny
-    # batches where per-call overhead, not arithmetic, is the cost
-    return np.cos(phi) * s + np.sin(phi) * perp(s)
+class Body:
+    """A body's pose as scalars, in Haug's notation: r = (x, y), angle phi, and c = cos phi,
+    s = sin phi (given, not recomputed: the compiled model computes them once per body).
+    A(phi) = [[c, -s], [s, c]]."""
+
+    __slots__ = ("x", "y", "phi", "c", "s")
+
+    def __init__(self, x, y, phi, c, s) -> None:
+        self.x, self.y, self.phi, self.c, self.s = x, y, phi, c, s
+
+    @classmethod
+    def of(cls, q) -> "Body":
+        """From a pose array (..., 3) = (x, y, phi)."""
+        q = np.asarray(q, dtype=float)
+        return cls(q[..., 0], q[..., 1], q[..., 2], np.cos(q[..., 2]), np.sin(q[..., 2]))
+
+    @property
+    def r(self) -> Vec:
+        return Vec(self.x, self.y)
+
+    def rotate(self, v: Vec) -> Vec:
+        """A s': a vector of the body's frame in the global frame."""
+        return Vec(self.c * v.x - self.s * v.y, self.s * v.x + self.c * v.y)
+
+    def unrotate(self, v: Vec) -> Vec:
+        """A^T v: a global vector in the body's frame."""
+        return Vec(self.c * v.x + self.s * v.y, self.c * v.y - self.s * v.x)
+
+    def point(self, s: Vec) -> Vec:
+        """r^P = r + A s' (Haug eq. 2.6.4): where the body point s' is."""
+        a = self.rotate(s)
+        return Vec(self.x + a.x, self.y + a.y)
 
 
-def perp(v: np.ndarray) -> np.ndarray:
-    """R v = (-v_y, v_x): ``v`` turned by +90 degrees."""
-    return np.asarray(v)[..., ::-1] * _PERP_SIGNS
+class Rate:
+    """A body's velocity as scalars: (xd, yd, phid), named x, y, phi."""
 
+    __slots__ = ("x", "y", "phi")
 
-def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a . b over the last axis."""
-    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]
+    def __init__(self, x, y, phi) -> None:
+        self.x, self.y, self.phi = x, y, phi
 
-
-def position(q: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """r^P = r + A(phi) s': the global position of the body point ``s`` (Haug eq. 2.6.4)."""
-    return q[..., :2] + rotate(q[..., 2], s)
-
-
-def block(d_r: np.ndarray, d_phi: np.ndarray) -> np.ndarray:
-    """A Jacobian block ``(..., n_eq, 3)`` from dPhi/dr ``(..., n_eq, 2)`` and dPhi/dphi
-    ``(..., n_eq)``."""
-    d_r, d_phi = np.asarray(d_r), np.asarray(d_phi)
-    out = np.empty(np.broadcast(d_r[..., 0], d_phi).shape + (3,))
-    out[..., :2] = d_r
-    out[..., 2] = d_phi
-    return out
-
-
-def batch_shape(*arrays: np.ndarray, core: tuple[int, ...] = ()) -> tuple[int, ...]:
-    """The broadcast batch shape of ``arrays``, each with its ``core`` trailing dims stripped.
-
-    ``core`` gives the number of trailing axes that are not batch axes, per array.
-    """
-    shapes = [np.shape(a)[: np.ndim(a) - k] for a, k in zip(arrays, core)]
-    return np.broadcast_shapes(*shapes)
+    @classmethod
+    def of(cls, qd) -> "Rate":
+        qd = np.asarray(qd, dtype=float)
+        return cls(qd[..., 0], qd[..., 1], qd[..., 2])

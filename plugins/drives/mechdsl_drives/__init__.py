@@ -1,6 +1,9 @@
 """The basic drive types. Each computes one measure g(q); ``drive NAME: TYPE(...) = f(t)``
 adds the constraint g(q) - f(t) = 0 (the core supplies f, f' and f'').
 
+mechdsl derives the Jacobian and gamma from g (``distance`` also supplies its Jacobian, to
+have one where its points coincide); for reference:
+
 ==============================  =====================  ======================================
 type                            g(q)                   gamma = -(g_q qd)_q qd
 ==============================  =====================  ======================================
@@ -19,12 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from mechdsl.plugins import Arg, ConstraintType, hookimpl
-from mechdsl.plugins.geometry import block, dot, perp, position, rotate
-
-
-def _zeros(*arrays, core=1):
-    shape = np.broadcast_shapes(*(a.shape[: a.ndim - core] for a in arrays))
-    return np.zeros(shape)
+from mechdsl.plugins.geometry import Vec
 
 
 class Angle(ConstraintType):
@@ -35,15 +33,8 @@ class Angle(ConstraintType):
     doc = "the rotation phi of a body (rad)"
     invariant = False
 
-    def phi(self, q, p):
-        return q[0][..., 2:3]
-
-    def jacobian(self, q, p):
-        z = _zeros(q[0])
-        return (block(np.zeros(z.shape + (1, 2)), (z + 1.0)[..., None]),)
-
-    def gamma(self, q, qd, p):
-        return _zeros(q[0], qd[0])[..., None]
+    def equations(self, bodies, args):
+        return (bodies[0].phi,)
 
 
 class _Coordinate(ConstraintType):
@@ -53,18 +44,8 @@ class _Coordinate(ConstraintType):
     n_eq = 1
     axis: int
 
-    def phi(self, q, p):
-        return position(q[0], p["point"])[..., self.axis : self.axis + 1]
-
-    def jacobian(self, q, p):
-        bs = perp(rotate(q[0][..., 2], p["point"]))
-        d_r = np.zeros(bs.shape[:-1] + (1, 2))
-        d_r[..., 0, self.axis] = 1.0
-        return (block(d_r, bs[..., self.axis : self.axis + 1]),)
-
-    def gamma(self, q, qd, p):
-        a_s = rotate(q[0][..., 2], p["point"])
-        return a_s[..., self.axis : self.axis + 1] * qd[0][..., 2:3] ** 2
+    def equations(self, bodies, args):
+        return (tuple(bodies[0].point(args.point))[self.axis],)
 
 
 class X(_Coordinate):
@@ -86,16 +67,8 @@ class RelAngle(ConstraintType):
     n_eq = 1
     doc = "the relative rotation phi2 - phi1 (rad)"
 
-    def phi(self, q, p):
-        return q[1][..., 2:3] - q[0][..., 2:3]
-
-    def jacobian(self, q, p):
-        z = _zeros(q[0], q[1])
-        zr = np.zeros(z.shape + (1, 2))
-        return block(zr, (z - 1.0)[..., None]), block(zr, (z + 1.0)[..., None])
-
-    def gamma(self, q, qd, p):
-        return _zeros(q[0], q[1], qd[0], qd[1])[..., None]
+    def equations(self, bodies, args):
+        return (bodies[1].phi - bodies[0].phi,)
 
 
 class Distance(ConstraintType):
@@ -105,36 +78,21 @@ class Distance(ConstraintType):
     n_eq = 1
     doc = "the distance between two points (must stay positive)"
 
-    def _d(self, q, p):
-        return position(q[1], p["p2"]) - position(q[0], p["p1"])
+    def equations(self, bodies, args):
+        b1, b2 = bodies
+        return ((b2.point(args.p2) - b1.point(args.p1)).norm(),)
 
-    @staticmethod
-    def _unit(d):
-        """d / |d|; where the points coincide the gradient of |d| is undefined and any unit
-        vector is a subgradient: take (1, 0), so that an assembly can pull them apart."""
-        length = np.linalg.norm(d, axis=-1, keepdims=True)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(length > 0, d / length, np.array([1.0, 0.0])), length[..., 0]
-
-    def phi(self, q, p):
-        return np.linalg.norm(self._d(q, p), axis=-1, keepdims=True)
-
-    def jacobian(self, q, p):
-        e, _ = self._unit(self._d(q, p))
-        bs1 = perp(rotate(q[0][..., 2], p["p1"]))
-        bs2 = perp(rotate(q[1][..., 2], p["p2"]))
-        return (block(-e[..., None, :], -dot(e, bs1)[..., None]),
-                block(e[..., None, :], dot(e, bs2)[..., None]))
-
-    def gamma(self, q, qd, p):
-        e, length = self._unit(self._d(q, p))
-        as1 = rotate(q[0][..., 2], p["p1"])
-        as2 = rotate(q[1][..., 2], p["p2"])
-        w1, w2 = qd[0][..., 2:3], qd[1][..., 2:3]
-        dd = qd[1][..., :2] + perp(as2) * w2 - qd[0][..., :2] - perp(as1) * w1
-        g = (-(dot(dd, dd) - dot(e, dd) ** 2) / length
-             + dot(e, as2 * w2**2 - as1 * w1**2))
-        return g[..., None]
+    def jacobian_terms(self, bodies, args):
+        """The derived gradient of |d|, e = d / |d|, except where the points coincide: there
+        it is undefined and any unit vector is a subgradient; take (1, 0), so that an
+        assembly can pull them apart (``at`` is 1 there, else 0: no branch)."""
+        b1, b2 = bodies
+        d = b2.point(args.p2) - b1.point(args.p1)
+        length = d.norm()
+        at = 1 - np.sign(length)
+        e = Vec(d.x + at, d.y) / (length + at)
+        return (([-e.x, -e.y, -e.dot(b1.rotate(args.p1).perp())],),
+                ([e.x, e.y, e.dot(b2.rotate(args.p2).perp())],))
 
 
 @hookimpl

@@ -9,8 +9,9 @@ direction the gear angles imply, psi = (k phi_1 + s phi_2 - phase) / (k + s), as
 
     Phi = perp(e(psi)) . d = |d| sin(theta - psi)                       (1 equation)
 
-it stays smooth when theta turns past +-pi (a planet orbiting its sun). With m = perp(e(psi)),
-e = e(psi), a_1 = k / (k + s), a_2 = s / (k + s)::
+it stays smooth when theta turns past +-pi (a planet orbiting its sun). mechdsl derives the
+rest from Phi; for reference, with m = perp(e(psi)), e = e(psi), a_1 = k / (k + s),
+a_2 = s / (k + s)::
 
     dPhi/dq_1 = [ -m^T, -m . perp(A_1 c'_1) - a_1 e . d ]
     dPhi/dq_2 = [  m^T,  m . perp(A_2 c'_2) - a_2 e . d ]
@@ -32,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from mechdsl.plugins import Arg, ArgError, ConstraintType, hookimpl
-from mechdsl.plugins.geometry import block, dot, perp, rotate
+from mechdsl.plugins.geometry import Vec
 
 
 class _GearPair(ConstraintType):
@@ -52,37 +53,12 @@ class _GearPair(ConstraintType):
         if np.any(p["ratio"] <= 0):
             raise ArgError("ratio", "the ratio of pitch radii must be positive")
 
-    def _parts(self, q, p):
-        q1, q2 = q
-        k, s = p["ratio"], self.sense
-        a1, a2 = k / (k + s), s / (k + s)
-        psi = a1 * q1[..., 2] + a2 * q2[..., 2] - p["phase"] / (k + s)
-        e = np.stack((np.cos(psi), np.sin(psi)), axis=-1)
-        ac1 = rotate(q1[..., 2], p["center1"])
-        ac2 = rotate(q2[..., 2], p["center2"])
-        d = q2[..., :2] + ac2 - q1[..., :2] - ac1
-        e, ac1, ac2, d = np.broadcast_arrays(e, ac1, ac2, d)
-        return a1, a2, e, perp(e), ac1, ac2, d
-
-    def phi(self, q, p):
-        *_, m, _, _, d = self._parts(q, p)
-        return dot(m, d)[..., None]
-
-    def jacobian(self, q, p):
-        a1, a2, e, m, ac1, ac2, d = self._parts(q, p)
-        ed = dot(e, d)
-        return (block(-m[..., None, :], (-dot(m, perp(ac1)) - a1 * ed)[..., None]),
-                block(m[..., None, :], (dot(m, perp(ac2)) - a2 * ed)[..., None]))
-
-    def gamma(self, q, qd, p):
-        a1, a2, e, m, ac1, ac2, d = self._parts(q, p)
-        w1, w2 = qd[0][..., 2], qd[1][..., 2]
-        psid = a1 * w1 + a2 * w2
-        dd = (qd[1][..., :2] + perp(ac2) * w2[..., None]
-              - qd[0][..., :2] - perp(ac1) * w1[..., None])
-        g = (dot(m, d) * psid**2 + 2 * psid * dot(e, dd)
-             + dot(m, ac2 * (w2**2)[..., None] - ac1 * (w1**2)[..., None]))
-        return g[..., None]
+    def equations(self, bodies, args):
+        b1, b2 = bodies
+        k, s = args.ratio, self.sense
+        psi = (k * b1.phi + s * b2.phi - args.phase) / (k + s)
+        m = Vec(-np.sin(psi), np.cos(psi))  # perp(e(psi))
+        return (m.dot(b2.point(args.center2) - b1.point(args.center1)),)
 
 
 class Gear(_GearPair):
@@ -124,31 +100,11 @@ class RackPinion(ConstraintType):
         if np.any(np.linalg.norm(p["axis"], axis=-1) == 0):
             raise ArgError("axis", "the rack's axis must not be the zero vector")
 
-    def _parts(self, q, p):
-        qp, qr = q
-        axis = p["axis"] / np.linalg.norm(p["axis"], axis=-1, keepdims=True)
-        u = rotate(qr[..., 2], axis)
-        ac = rotate(qp[..., 2], p["center"])
-        d = qp[..., :2] + ac - qr[..., :2]
-        return np.broadcast_arrays(u, ac, d)
-
-    def phi(self, q, p):
-        u, _, d = self._parts(q, p)
-        g = dot(u, d) + p["radius"] * (q[0][..., 2] - q[1][..., 2]) - p["phase"]
-        return g[..., None]
-
-    def jacobian(self, q, p):
-        u, ac, d = self._parts(q, p)
-        R = np.broadcast_to(p["radius"], u.shape[:-1])
-        return (block(u[..., None, :], (dot(u, perp(ac)) + R)[..., None]),
-                block(-u[..., None, :], (dot(perp(u), d) - R)[..., None]))
-
-    def gamma(self, q, qd, p):
-        u, ac, d = self._parts(q, p)
-        wp, wr = qd[0][..., 2], qd[1][..., 2]
-        dd = qd[0][..., :2] + perp(ac) * wp[..., None] - qd[1][..., :2]
-        g = dot(u, d) * wr**2 - 2 * wr * dot(perp(u), dd) + dot(u, ac) * wp**2
-        return g[..., None]
+    def equations(self, bodies, args):
+        pinion, rack = bodies
+        u = rack.rotate(args.axis / args.axis.norm())
+        return (u.dot(pinion.point(args.center) - rack.r)
+                + args.radius * (pinion.phi - rack.phi) - args.phase,)
 
 
 @hookimpl

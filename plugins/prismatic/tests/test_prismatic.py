@@ -4,6 +4,7 @@ import pytest
 import mechdsl
 from mechdsl.errors import MechError
 from mechdsl.plugins import build_registry
+from mechdsl.plugins.geometry import Vec
 from mechdsl.testing import ContractViolation, check_constraint_type
 from mechdsl_prismatic import Prismatic
 
@@ -23,10 +24,16 @@ def test_phi_is_the_normal_offset_and_the_relative_angle():
 
 def test_a_gamma_without_its_coriolis_term_is_caught():
     class Broken(Prismatic):
-        def gamma(self, q, qd, p):
-            g = super().gamma(q, qd, p).copy()
-            g[..., 0] += qd[0][..., 2] * qd[1][..., 0]
-            return g
+        def gamma_terms(self, bodies, rates, args):
+            # the module docstring's gamma, with a spurious phid_1 xd_2 term
+            (b1, b2), (v1, v2) = bodies, rates
+            n = b1.rotate(args.axis.perp() / args.axis.norm())
+            a1, a2 = b1.rotate(args.p1), b2.rotate(args.p2)
+            d = b2.point(args.p2) - b1.point(args.p1)
+            dd = Vec(v2.x, v2.y) + a2.perp() * v2.phi - Vec(v1.x, v1.y) - a1.perp() * v1.phi
+            g = (n.dot(d) * v1.phi**2 - 2 * v1.phi * n.perp().dot(dd)
+                 + n.dot(a2 * v2.phi**2 - a1 * v1.phi**2))
+            return g + v1.phi * v2.x, 0.0
 
     with pytest.raises(ContractViolation, match="gamma"):
         check_constraint_type(Broken())

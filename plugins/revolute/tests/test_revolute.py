@@ -29,11 +29,11 @@ def test_gamma_is_the_centripetal_term():
 
 def test_a_wrong_jacobian_is_caught():
     class Broken(Revolute):
-        def jacobian(self, q, p):
-            a, b = super().jacobian(q, p)
-            a = a.copy()
-            a[..., 0, 2] *= 1.01
-            return a, b
+        def jacobian_terms(self, bodies, args):
+            # Phi_q = [ I  B_i s'_i | -I  -B_j s'_j ] with B s' = perp(A s'), one entry 1 % off
+            bi, bj = bodies[0].rotate(args.p1).perp(), bodies[1].rotate(args.p2).perp()
+            return ([[1, 0, bi.x * 1.01], [0, 1, bi.y]],
+                    [[-1, 0, -bj.x], [0, -1, -bj.y]])
 
     with pytest.raises(ContractViolation, match="Jacobian block 0"):
         check_constraint_type(Broken())

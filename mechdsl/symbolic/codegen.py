@@ -1,0 +1,160 @@
+"""Straight-line Python source from expression graphs, compiled once per model.
+
+:func:`kernel` turns a list of graph nodes into one function that evaluates all of them for a
+batch of states: each node of their common graph is computed once, in topological order, as
+one numpy operation on whole arrays (the batch axes), and each output is written into its
+column of one result array. Variables are read as columns of the inputs: ``("q", k)`` from
+``Q[..., k]``, ``("qd", k)`` from ``QD[..., k]``, ``("p", j)`` from ``P[j]`` (a sweep
+parameter, broadcasting against the batch), ``("t",)`` from ``T``. Functions of one variable
+are called as ``F[i][order](x)``.
+
+The same source, written as a loop over a flat batch of scalars, is what the optional numba
+backend compiles (:func:`loop_source`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .graph import Graph, Node
+
+_INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/", "pow": "**"}
+_CALLS = {"sin": "sin", "cos": "cos", "tan": "tan", "sqrt": "sqrt", "exp": "exp",
+          "log": "log", "arctan": "arctan", "abs": "absolute", "sign": "sign",
+          "arctan2": "arctan2", "mod": "remainder"}
+_NAMESPACE = {name: getattr(np, name) for name in set(_CALLS.values())}
+
+
+def _const(v) -> str:
+    if v == "nan":
+        return "nan"
+    text = repr(float(v))
+    if text in ("inf", "-inf"):
+        return f"({text[:-3]}inf)"
+    return f"({text})" if text.startswith("-") else text
+
+
+def _read(key: tuple, loop: bool, major: bool = False) -> str:
+    kind = key[0]
+    if kind == "q":
+        return f"Q[i, {key[1]}]" if loop else f"Qt[{key[1]}]"
+    if kind == "qd":
+        return f"QD[i, {key[1]}]" if loop else f"QDt[{key[1]}]"
+    if kind in ("gq", "gqd"):  # a gather of columns, with a zero column for the ground
+        return f"{'Q' if kind == 'gq' else 'QD'}x[..., {key[1]}]"
+    if kind == "p":  # in the entry-major layout, with its axes reversed like Q's
+        return f"P[{key[1]}, i]" if loop else f"P[{key[1]}]{'.T' if major else ''}"
+    if kind == "t":
+        return "T[i]" if loop else f"T{'.T' if major else ''}"
+    raise ValueError(f"unknown variable {key!r}")
+
+
+def _lines(graph: Graph, outputs: Sequence[Node], loop: bool, major: bool = False
+           ) -> tuple[list[str], dict[int, str]]:
+    """Assignments for every operation node the outputs need; the name of each node."""
+    names: dict[int, str] = {}
+    lines: list[str] = []
+    for n in graph.subgraph(outputs):
+        if n.op == "const":
+            names[n.id] = _const(n.value)
+            continue
+        if n.op == "var":
+            name = "v_" + "_".join(map(str, n.value))
+            lines.append(f"{name} = {_read(n.value, loop, major)}")
+        else:
+            a = [names[x.id] for x in n.args]
+            if n.op in _INFIX:
+                expr = f"{a[0]} {_INFIX[n.op]} {a[1]}"
+            elif n.op == "neg":
+                expr = f"-{a[0]}"
+            elif n.op == "select":  # some members of a group value (by an index array)
+                expr = f"{a[0]}[..., {n.value}]"
+            elif n.op == "call":
+                index, order = n.value
+                expr = f"F[{index}][{order}]({a[0]})"
+            else:
+                expr = f"{_CALLS[n.op]}({', '.join(a)})"
+            name = f"n{n.id}"
+            lines.append(f"{name} = {expr}")
+        names[n.id] = name
+    return lines, names
+
+
+@dataclass(frozen=True)
+class Kernel:
+    """A compiled evaluation: ``fn(Q, QD, T, P, F)`` returns an array of shape
+    ``batch + (len(outputs),)``; ``source`` is its text (for caching and for numba)."""
+
+    fn: Callable
+    source: str
+    n_out: int
+    key: str = field(default="")
+
+    def __call__(self, Q, QD=None, T=None, P=(), F=()):
+        return self.fn(Q, QD, T, P, F)
+
+
+def kernel(graph: Graph, outputs: Sequence[Node], name: str = "kernel",
+           positions: Sequence[int | str] | None = None, width: int | None = None,
+           constants: dict[str, np.ndarray] | None = None) -> Kernel:
+    """Compile ``outputs`` into one numpy function (see the module documentation).
+
+    By default output k is column k of the result. With ``positions``, output k goes to
+    ``out[..., positions[k]]``, an int or the name of an index array of ``constants``
+    (a group of constraints evaluated as one array), and the result has ``width`` columns.
+    Gather variables ``("gq", NAME)`` read ``Q[..., NAME]`` with a zero column appended
+    (index n: the ground's coordinates)."""
+    lines, names = _lines(graph, outputs, loop=False, major=positions is None)
+    used = {n.value[0] for n in graph.subgraph(outputs) if n.op == "var"}
+    body = [f"def {name}(Q, QD, T, P, F):"]
+    for kind, src in (("q", "Q"), ("qd", "QD")):
+        if kind in used:  # coordinate k is row k: entry-major views (all axes reversed)
+            body.append(f"    {src}t = {src}.T")
+    for kind, src in (("gq", "Q"), ("gqd", "QD")):
+        if kind in used:
+            body.append(f"    {src}x = concatenate(({src}, zeros({src}.shape[:-1] + (1,))), "
+                        "axis=-1)")
+    body += [f"    {ln}" for ln in lines]
+    width = len(outputs) if width is None else width
+    if positions is None:
+        # entry-major: output k is the contiguous row out[k] (what the generated LU reads),
+        # handed back as the transposed view, batch axes first
+        body.append(f"    out = empty(({width},) + Q.shape[-2::-1])")
+        consts = []
+        for k, n in enumerate(outputs):
+            if n.op == "const":
+                consts.append((k, names[n.id]))
+            else:
+                body.append(f"    out[{k}] = {names[n.id]}")
+        for k, v in consts:
+            body.append(f"    out[{k}] = {v}")
+        body.append("    return out.T")
+    else:
+        body.append(f"    out = empty(Q.shape[:-1] + ({width},))")
+        for k, n in zip(positions, outputs):
+            body.append(f"    out[..., {k}] = {names[n.id]}")
+        body.append("    return out")
+    source = "\n".join(body) + "\n"
+    namespace = dict(_NAMESPACE, empty=np.empty, zeros=np.zeros, concatenate=np.concatenate,
+                     moveaxis=np.moveaxis, nan=np.nan, inf=np.inf)
+    namespace.update(constants or {})
+    code = compile(source, f"<mechdsl generated {name}>", "exec")
+    exec(code, namespace)  # noqa: S102 - our own generated source, from the model's graph
+    return Kernel(namespace[name], source, width,
+                  hashlib.sha256(source.encode()).hexdigest()[:16])
+
+
+def loop_source(graph: Graph, outputs: Sequence[Node], name: str = "kernel") -> str:
+    """The same evaluation as a loop over a flat batch (for numba): ``name(Q, QD, T, P,
+    out)`` with Q, QD of shape (B, n), T (B,), P (np, B) and out (B, len(outputs))."""
+    lines, names = _lines(graph, outputs, loop=True)
+    body = [f"def {name}(Q, QD, T, P, out):", "    for i in range(Q.shape[0]):"]
+    body += [f"        {ln}" for ln in lines]
+    for k, n in enumerate(outputs):
+        body.append(f"        out[i, {k}] = {names[n.id]}")
+    body.append("    return out")
+    return "\n".join(body) + "\n"
