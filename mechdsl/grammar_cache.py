@@ -62,6 +62,23 @@ def cache_dir_path() -> str | None:
     return os.path.join(base, "mechdsl") if os.path.isabs(base) else None
 
 
+def safe_folder(name: str) -> str | None:
+    """A subfolder ``name`` of the cache folder, created private (0700), if it and the cache
+    folder are the user's own and writable by nobody else; else None."""
+    if not hasattr(os, "getuid"):
+        return None
+    base = cache_dir_path()
+    if base is None:
+        return None
+    path = os.path.join(base, name)
+    try:
+        os.makedirs(path, mode=0o700, exist_ok=True)
+        ok = all(_safe(os.lstat(p), stat.S_ISDIR) for p in (base, path))
+    except OSError:
+        return None
+    return path if ok else None
+
+
 def _safe(st: os.stat_result, kind: Callable[[int], bool]) -> bool:
     """Ours and writable by nobody else: no one else can have put or changed anything."""
     return kind(st.st_mode) and st.st_uid == os.getuid() and not st.st_mode & 0o022

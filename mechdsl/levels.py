@@ -48,7 +48,7 @@ def polish(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
         dq, solved = solve(jac, rhs)
         with np.errstate(all="ignore"):
             step = np.abs(dq / D).max(axis=-1)
-            left = np.where(step < 0.25 * prev, step**3 / prev**2, np.inf)
+            left = np.where((step < 0.25 * prev) & (prev < np.inf), step**3 / prev**2, np.inf)
         live = ~done & solved
         q += np.where(live[..., None], np.nan_to_num(dq), 0.0)
         done |= live & ((step <= opts.newton_tol) | (left <= opts.newton_error))

@@ -40,7 +40,9 @@ SPARSE_BYTES_PER_COORDINATE = 800
 #: tiny expressions: about 480 MB per MB measured; ordinary models take 130).
 PARSE_BYTES_PER_BYTE = 500
 #: Resident size that importing these adds (measured on CPython 3.11, numpy 2, Linux).
-IMPORT_BYTES = {"scipy.sparse": 25 * 2**20, "matplotlib": 45 * 2**20, "meshio": 15 * 2**20}
+IMPORT_BYTES = {"scipy.sparse": 25 * 2**20, "matplotlib": 45 * 2**20, "meshio": 15 * 2**20,
+                # numba and LLVM, with one model's march compiled or loaded (measured: 118 MB)
+                "numba": 130 * 2**20}
 
 
 @dataclass(frozen=True)
@@ -87,7 +89,8 @@ def results_bytes(system: System, *, poses: bool, rates: bool) -> int:
 
 
 def plan(system: System, limit: int, max_batch_elements: int, *, sparse: bool,
-         poses: bool = False, rates: bool = False, extra: int = 0) -> Plan:
+         poses: bool = False, rates: bool = False, extra: int = 0,
+         compiled: bool = False) -> Plan:
     """The batch cap for a run of ``system`` within ``limit`` bytes of resident memory, or a
     MechError with the estimate when it does not fit (see the module's docstring)."""
     V, m, n = system.n_variants, system.m, system.n
@@ -95,6 +98,12 @@ def plan(system: System, limit: int, max_batch_elements: int, *, sparse: bool,
              "the results": results_bytes(system, poses=poses, rates=rates),
              "libraries to load": IMPORT_BYTES["scipy.sparse"] if sparse else 0,
              "drawings and exports": extra}
+    if compiled:  # numba, and a chunk of the compiled march's states, rates and conditions
+        from .compiled.native import chunk_instants
+
+        instants = min(len(system.times), chunk_instants(V) + 1)
+        parts["the compiled backend"] = (IMPORT_BYTES["numba"]
+                                         + BYTES * V * instants * (3 * n + 6))
     fixed = sum(parts.values())
     if sparse:
         nnz = len(system.pattern.rows) if system.pattern is not None else m * n

@@ -72,6 +72,14 @@ class SolverOptions:
     #: Instants handled per window of the two-level march (the granularity at which a run
     #: that is interrupted keeps its results).
     window: int = 4096
+    #: Which code solves a fully driven mechanism: "numpy" (the default path, no compiler
+    #: needed), "compiled" (the model's generated code compiled by numba, the ``fast``
+    #: extra; where it does not apply, numpy) or "auto": compiled for runs of at least
+    #: ``compiled_from`` states (variants times instants) when numba is installed, so that
+    #: a small run never pays for importing or compiling it.
+    backend: str = "auto"
+    #: The size of run from which "auto" chooses the compiled backend.
+    compiled_from: int = 100_000
     #: Cap on V * b * m * n, the size of a batched Jacobian (lowered to fit max_memory).
     max_batch_elements: int = 2**22
     #: Peak resident memory of the whole process, in bytes: a run estimated to need more
@@ -112,6 +120,9 @@ class SolverOptions:
             raise ValueError(f"predictor_order must be 1 or 2, not {self.predictor_order!r}")
         if self.at_singular not in ("stop", "continue"):
             raise ValueError(f"at_singular must be 'stop' or 'continue', not {self.at_singular!r}")
+        if self.backend not in ("auto", "numpy", "compiled"):
+            raise ValueError(f"backend must be 'auto', 'numpy' or 'compiled', not "
+                             f"{self.backend!r}")
         if self.nonfinite not in ("stop", "keep"):
             raise ValueError(f"nonfinite must be 'stop' or 'keep', not {self.nonfinite!r}")
         if not 0 < self.singular_rcond < 1:
@@ -120,6 +131,8 @@ class SolverOptions:
             raise ValueError(f"max_memory must be a positive number of bytes, not "
                              f"{self.max_memory!r}")
         for name in ("max_iterations", "assembly_max_iterations", "max_block", "initial_block",
-                     "max_batch_elements", "coarse_stride", "window", "level_split"):
+                     "max_batch_elements", "coarse_stride", "window", "compiled_from"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1")
+        if self.level_split < 2:
+            raise ValueError("level_split must be at least 2")

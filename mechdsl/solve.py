@@ -47,6 +47,8 @@ from .newton import correction_ratio, newton, use_sparse
 from .singular import singular_step
 from .hermite import quintic_hermite
 from .levels import coarse_march, polish
+from .compiled import native
+from .compiled.lu import THRESHOLD
 from .options import SolverOptions
 from .results import Results
 
@@ -127,9 +129,19 @@ def simulate(system: System, options: SolverOptions | None = None, *,
         raise MechError("the system was compiled without a time grid")
     V, n, K = system.n_variants, system.n, len(times)
     count_check(system)  # before anything the size of the model is allocated
-    budget = plan(system, opts.max_memory, opts.max_batch_elements,
-                  sparse=use_sparse(system, opts, np.arange(system.m)), poses=poses or rates,
-                  rates=rates, extra=extra_memory)
+    sparse = use_sparse(system, opts, np.arange(system.m))
+    compiled = _wants_native(system, opts)
+    try:
+        budget = plan(system, opts.max_memory, opts.max_batch_elements, sparse=sparse,
+                      poses=poses or rates, rates=rates, extra=extra_memory, compiled=compiled)
+    except MechError:
+        if not compiled or opts.backend != "auto":
+            raise
+        compiled = False  # "auto": the numpy path fits where numba would not
+        budget = plan(system, opts.max_memory, opts.max_batch_elements, sparse=sparse,
+                      poses=poses or rates, rates=rates, extra=extra_memory)
+    if not compiled:
+        opts = replace(opts, backend="numpy")
     opts = replace(opts, max_batch_elements=budget.batch_elements)
     start = time.perf_counter()
     data = {o.label: np.full((V, K), np.nan) for o in system.outputs}
@@ -210,7 +222,8 @@ def _nothing_solved(system: System, data: dict, err: BaseException, elapsed: flo
 
 def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.ndarray,
             fac: Factor, mask: np.ndarray, data: dict, opts: SolverOptions,
-            rates: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+            rates: tuple[np.ndarray, np.ndarray] | None = None,
+            residual_known: bool = False) -> None:
     """Take the solved positions ``q`` (V, c, n) at ``t`` (V, c), with their factorised
     Jacobians, as the new state of the variants in ``mask``; solve velocities and
     accelerations (at every column when an output needs them, else at the last column only,
@@ -234,10 +247,11 @@ def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.nd
         if bad.any():
             _split_at_nonfinite(system, st, q, t, rec, fac, mask, data, opts, (qd, qdd), bad)
             return
-    with np.errstate(all="ignore"):
-        phi = eq.constraint_values(system, q, t)
-    st.residual = max(st.residual, float(np.abs(phi[mask]).max(initial=0.0)))
-    _watch_redundant(system, st, phi, t, mask, opts)
+    if not residual_known:  # (the compiled march measures it as it goes)
+        with np.errstate(all="ignore"):
+            phi = eq.constraint_values(system, q, t)
+        st.residual = max(st.residual, float(np.abs(phi[mask]).max(initial=0.0)))
+        _watch_redundant(system, st, phi, t, mask, opts)
     worst = np.argmin(fac.rcond, axis=1)
     lowest = fac.rcond[np.arange(len(worst)), worst]
     lower = mask & (lowest < st.min_rcond)
@@ -360,6 +374,9 @@ def _run(system: System, st: _State, opts: SolverOptions, data: dict,
     stride = opts.coarse_stride
     two_level = stride > 1 and not use_sparse(system, opts, st.rows)
     k = 1
+    march = _native(system, st, opts)
+    if march is not None:
+        k = _compiled(system, st, opts, data, march, progress)
     while k < K and st.active.any():
         end = min(K, k + max(opts.window, 2 * stride))
         if two_level and end - k >= 2 * stride:
@@ -460,6 +477,81 @@ def _two_level(system: System, st: _State, opts: SolverOptions, data: dict, k: i
         if nacc < len(idx) or not st.active.any():
             return j0 + nacc
     return end
+
+
+def _wants_native(system: System, opts: SolverOptions) -> bool:
+    """Whether the options ask for the compiled backend for this run: "compiled", or "auto"
+    for a run of at least ``compiled_from`` states with numba installed (a square system;
+    whether the model compiles is known only when it is loaded)."""
+    if opts.backend == "numpy" or system.m != system.n or system.times is None:
+        return False
+    return opts.backend == "compiled" or (
+        system.n_variants * len(system.times) >= opts.compiled_from and native.available())
+
+
+def _native(system: System, st: _State, opts: SolverOptions):
+    """The compiled march of the model, where the options ask for it and it applies (a
+    square system without redundant equations, the member layout, no function arguments,
+    numba installed); else None."""
+    if not _wants_native(system, opts) or len(st.rows) != system.n:
+        return None
+    return native.load(system)
+
+
+def _compiled(system: System, st: _State, opts: SolverOptions, data: dict, march,
+              progress: Callable[[int, int], None] | None) -> int:
+    """The instants by the compiled march (:mod:`mechdsl.compiled.native`), a chunk of
+    ``native.chunk_instants`` at a time from the last state (so that progress is shown and
+    an interrupt is taken between chunks); each chunk's instants up to the first where some
+    variant stops are accepted (with their rates, condition numbers and signs), and the
+    numpy march goes on from there. Returns the first instant not solved."""
+    times = system.times
+    K, V, n = len(times), system.n_variants, system.n
+    live = np.flatnonzero(st.active)
+    params = system.fused.params
+    P = (np.stack([np.broadcast_to(p, (V, 1))[:, 0] for p in params]) if params
+         else np.zeros((0, V)))
+    c = np.ascontiguousarray
+    P, D = c(P[:, live]), c(col_scale(system)[live, 0])
+    step = native.chunk_instants(len(live))
+    k = 1
+    while k < K:
+        end = min(K, k + step)
+        T = np.broadcast_to(times[k - 1 : end], (V, end - k + 1))
+        if (_undefined_drives(system, T) & st.active[:, None]).any():
+            return k
+        fd = np.zeros((len(live), end - k + 1, 3, len(system.drive_rows)))
+        for i, which in enumerate(("f", "fd", "fdd")):
+            if system.drive_functions:
+                fd[:, :, i] = eq.drive_values(system, T, which, T.shape)[live]
+        L, C = len(live), end - k + 1
+        out = ([np.full((L, C, n), np.nan) for _ in range(3)]
+               + [np.ones((L, C)), np.zeros((L, C))])
+        status, residual = np.zeros(L, np.int64), np.zeros(L)
+        march(c(st.q[live]), c(st.qd[live]), c(st.qdd[live]), c(st.sign[live], dtype=float),
+              c(times[k - 1 : end]), fd, P, D, opts.newton_tol, opts.newton_error,
+              opts.max_iterations, THRESHOLD, opts.branch_ratio, opts.singular_rcond, *out,
+              status, residual)
+        if L == V:  # the usual case: no copies of the results
+            Q, QD, QDD, RC, SG = out
+        else:
+            Q, QD, QDD = (np.full((V, C, n), np.nan) for _ in range(3))
+            RC, SG = np.ones((V, C)), np.zeros((V, C))
+            for full, part in zip((Q, QD, QDD, RC, SG), out):
+                full[live] = part
+        reached = int(status.min())  # the first column of the chunk not solved
+        if reached > 1:
+            cols = slice(1, reached)
+            st.residual = max(st.residual, float(residual.max(initial=0.0)))
+            _accept(system, st, Q[:, cols], T[:, cols], np.arange(k, k + reached - 1),
+                    Factor(None, RC[:, cols], SG[:, cols]), st.active.copy(), data, opts,
+                    (QD[:, cols], QDD[:, cols]), residual_known=True)
+        k += reached - 1
+        if progress is not None:
+            progress(k, K)
+        if reached < C:
+            break
+    return k
 
 
 def _level(system: System, st: _State, opts: SolverOptions, pred: np.ndarray, T: np.ndarray,

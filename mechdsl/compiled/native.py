@@ -1,0 +1,337 @@
+"""The optional compiled backend: the model's generated code, compiled by numba.
+
+Where numba is installed (``pip install mechdsl[fast]``), the same expression graphs and LU
+plan that give the numpy kernels (:mod:`mechdsl.compiled.fused`, :mod:`mechdsl.compiled.lu`)
+are written once more as scalar code, inside one loop over variants and instants: a march
+that predicts each instant from the last (q + tau qd + tau^2/2 qdd), corrects it by Newton
+with the model's own sparse LU, and solves the velocities and accelerations from the final
+factorisation, all in machine code. Drive functions are evaluated beforehand by numpy at
+every instant (they depend on t alone), so that nothing but arithmetic is compiled.
+
+The march checks what the numpy march checks (convergence, a pivot of the fixed order that
+became small, det(Phi_q)'s sign, Newton's correction against the motion, the condition
+number against ``singular_rcond``) and stops a variant at its first instant that fails one;
+the numpy solver takes over from there and reports it exactly. The condition number is
+exact: A^-1's columns from n solves, cheap in compiled code.
+
+The module source is keyed by the hash of the generated code and written, with numba's
+cache, under the user's cache folder (only if it is the user's own and private, as for the
+parser's tables), so that a model compiles once per machine; elsewhere it compiles in
+memory. numba is imported only here, and only when the backend is asked for.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import sys
+from typing import Callable
+
+import numpy as np
+
+from ..symbolic.graph import Graph, Node
+
+_INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/", "pow": "**"}
+_CALLS = {"sin": "np.sin", "cos": "np.cos", "tan": "np.tan", "sqrt": "np.sqrt",
+          "exp": "np.exp", "log": "np.log", "arctan": "np.arctan", "abs": "np.abs",
+          "sign": "np.sign", "arctan2": "np.arctan2", "mod": "np.remainder"}
+
+
+#: States (variants times instants) per call of the compiled march: about 0.1 s of work, so
+#: that progress is shown and an interrupt is taken between calls.
+CHUNK_STATES = 2**17
+
+
+def chunk_instants(variants: int) -> int:
+    """Instants per call of the compiled march for ``variants`` variants."""
+    return max(16, CHUNK_STATES // max(1, variants))
+
+
+def available() -> bool:
+    """Whether numba can be imported (without importing it)."""
+    return importlib.util.find_spec("numba") is not None
+
+
+def _scalar_code(graph: Graph, outputs: list[tuple[str, Node]], indent: str) -> list[str]:
+    """Straight-line scalar code assigning each output ``target = node``; variables read
+    ``q[k]``, ``qd[k]`` and ``p[j]``."""
+    names: dict[int, str] = {}
+    lines: list[str] = []
+    for n in graph.subgraph([node for _, node in outputs]):
+        if n.op == "const":
+            v = n.value
+            names[n.id] = "np.nan" if v == "nan" else f"({float(v)!r})"
+            continue
+        if n.op == "var":
+            kind, *rest = n.value
+            if kind not in ("q", "qd", "p"):
+                raise ValueError(f"the compiled backend cannot read {kind}")
+            name = f"v_{kind}_{rest[0]}"
+            lines.append(f"{name} = {kind}[{rest[0]}]")
+        else:
+            a = [names[x.id] for x in n.args]
+            if n.op in _INFIX:
+                expr = f"{a[0]} {_INFIX[n.op]} {a[1]}"
+            elif n.op == "neg":
+                expr = f"-{a[0]}"
+            elif n.op in _CALLS:
+                expr = f"{_CALLS[n.op]}({', '.join(a)})"
+            else:
+                raise ValueError(f"the compiled backend cannot compile {n.op}")
+            name = f"n{n.id}"
+            lines.append(f"{name} = {expr}")
+        names[n.id] = name
+    lines += [f"{target} = {names[node.id]}" for target, node in outputs]
+    return [indent + ln for ln in lines]
+
+
+def source(system) -> str | None:
+    """The module source of the compiled march of ``system``; None where the backend does
+    not apply (a large mechanism's group layout, function arguments, no square LU plan)."""
+    f, lu = system.fused, system.lu
+    if f is None or lu is None or f.layout != "member" or f.functions:
+        return None
+    graph: Graph = f.graph
+    m, n, nnz, slots = f.m, f.n, len(f.rows), lu.slots
+    code = ["import numpy as np", "from numba import njit", ""]
+    code += ["@njit(cache=True)", "def phi_jac(q, p, phi, a):"]
+    code += _scalar_code(graph, [(f"phi[{i}]", x) for i, x in enumerate(f.phi_nodes)]
+                         + [(f"a[{k}]", x) for k, x in enumerate(f.jac_nodes)], "    ")
+    code += ["", "@njit(cache=True)", "def gamma(q, qd, p, g):"]
+    code += _scalar_code(graph, [(f"g[{i}]", x) for i, x in enumerate(f.gamma_nodes)], "    ")
+    code += ["", "@njit(cache=True)", "def factor(a, threshold):",
+             f"    a[{nnz}:] = 0.0" if slots > nnz else "    pass"]
+    for pr, pc, below, right, p_slot in lu.steps:
+        if below:
+            terms = [f"abs(a[{l}])" for _, l in below]
+            big = f"max({', '.join(terms)})" if len(terms) > 1 else terms[0]
+            code.append(f"    if not abs(a[{p_slot}]) >= threshold * {big}:")
+        else:
+            code.append(f"    if not a[{p_slot}] != 0.0:")
+        code.append("        return False")
+        for i, l in below:
+            code.append(f"    a[{l}] = a[{l}] / a[{p_slot}]")
+            for u, t in right[i]:
+                code.append(f"    a[{t}] = a[{t}] - a[{l}] * a[{u}]")
+    code.append("    return True")
+    code += ["", "@njit(cache=True)", "def solve(a, b, x):", f"    y = b.copy()"]
+    for pr, pc, below, right, p_slot in lu.steps:
+        for i, l in below:
+            code.append(f"    y[{i}] -= a[{l}] * y[{pr}]")
+    for pr, pc, terms, p_slot in reversed(lu.back):
+        rest = "".join(f" - a[{u}] * x[{c}]" for u, c in terms)
+        code.append(f"    x[{pc}] = (y[{pr}]{rest}) / a[{p_slot}]")
+    code += ["", "@njit(cache=True)", "def solve_t(a, c, w):", "    c = c.copy()"]
+    for k, (pr, pc, terms, p_slot) in enumerate(lu.back):
+        code.append(f"    w[{pr}] = c[{pc}] / a[{p_slot}]")
+        for u, col in terms:
+            code.append(f"    c[{col}] -= a[{u}] * w[{pr}]")
+    for pr, pc, below, right, p_slot in reversed(lu.steps):
+        for i, l in below:
+            code.append(f"    w[{pr}] -= a[{l}] * w[{i}]")
+    pivots = ", ".join(str(k) for k in lu.pivots)
+    drive_rows = ", ".join(str(int(r)) for r in system.drive_rows)
+    code += ["", f"PIVOTS = np.array([{pivots}], dtype=np.int64)",
+             f"DRIVES = np.array([{drive_rows}], dtype=np.int64)",
+             f"ROWS = np.array([{', '.join(str(int(r)) for r in f.rows)}], dtype=np.int64)",
+             f"COLS = np.array([{', '.join(str(int(c)) for c in f.cols)}], dtype=np.int64)",
+             "", MARCH.format(m=m, n=n, nnz=nnz, slots=slots, parity=float(lu.parity))]
+    return "\n".join(code) + "\n"
+
+
+MARCH = '''
+@njit(cache=True)
+def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, maxit, threshold, branch_ratio,
+          singular_rcond, Q, QD, QDD, RC, SG, status, RES):
+    """Instants 1.. of every variant from instant 0 (see the module documentation);
+    status[v] = the first instant not solved (len(TT) when all are); RES[v] the largest
+    |Phi| of the solved states."""
+    V, K = Q0.shape[0], TT.shape[0]
+    phi = np.empty({m})
+    a = np.empty({slots})
+    g = np.empty({m})
+    rhs = np.empty({n})
+    dx = np.empty({n})
+    r = np.empty({m})
+    col = np.empty({n})
+    e = np.empty({n})
+    z = np.empty({n})
+    floor = np.sqrt(tol)
+    for v in range(V):
+        p = P[:, v]
+        q = Q0[v].copy()
+        qd = QD0[v].copy()
+        qdd = QDD0[v].copy()
+        sign = SIGN0[v]
+        status[v] = K
+        for k in range(1, K):
+            tau = TT[k] - TT[k - 1]
+            pred = q + tau * qd + 0.5 * tau * tau * qdd
+            x = pred.copy()
+            conv = False
+            prev = np.inf
+            for it in range(maxit):
+                phi_jac(x, p, phi, a)
+                for j in range(DRIVES.shape[0]):
+                    phi[DRIVES[j]] -= FD[v, k, 0, j]
+                if not factor(a, threshold):
+                    break
+                for i in range({n}):
+                    rhs[i] = -phi[i]
+                solve(a, rhs, dx)
+                step = 0.0
+                for i in range({n}):
+                    x[i] += dx[i]
+                    s = abs(dx[i] / D[v, i])
+                    if not s <= step:
+                        step = s
+                if step <= tol or (prev < np.inf and step < 0.25 * prev
+                                   and step ** 3 / prev ** 2 <= err_tol):
+                    conv = True
+                    break
+                if it >= 2 and step > 0.5 * prev:
+                    break
+                prev = step
+            if not conv:
+                status[v] = k
+                break
+            # the factorisation at the converged position, scaled: A = R Phi_q D
+            phi_jac(x, p, phi, a)
+            for j in range(DRIVES.shape[0]):
+                phi[DRIVES[j]] -= FD[v, k, 0, j]
+            for i in range({m}):
+                if not abs(phi[i]) <= RES[v]:
+                    RES[v] = abs(phi[i])
+            for i in range({m}):
+                r[i] = 0.0
+            for k2 in range({nnz}):
+                a[k2] *= D[v, COLS[k2]]
+                r[ROWS[k2]] += a[k2] * a[k2]
+            for i in range({m}):
+                r[i] = 1.0 / np.sqrt(r[i]) if r[i] > 0 else 1.0
+            norm_a = 0.0
+            for i in range({n}):
+                col[i] = 0.0
+            for k2 in range({nnz}):
+                a[k2] *= r[ROWS[k2]]
+                col[COLS[k2]] += abs(a[k2])
+            for i in range({n}):
+                if col[i] > norm_a:
+                    norm_a = col[i]
+            if not factor(a, threshold):
+                status[v] = k
+                break
+            det = {parity}
+            for j in range(PIVOTS.shape[0]):
+                det *= np.sign(a[PIVOTS[j]])
+            # ||A^-1||_1 by Hager's method with Higham's safeguard, as the numpy path
+            for i in range({n}):
+                e[i] = 1.0 / {n}
+            solve(a, e, dx)
+            inv_norm = 0.0
+            for i in range({n}):
+                inv_norm += abs(dx[i])
+                e[i] = 1.0 if dx[i] >= 0 else -1.0
+            solve_t(a, e, z)
+            zmax, jmax, zsum = 0.0, 0, 0.0
+            for i in range({n}):
+                zsum += z[i] / {n}
+                if abs(z[i]) > zmax:
+                    zmax, jmax = abs(z[i]), i
+            if zmax > zsum:
+                for i in range({n}):
+                    e[i] = 0.0
+                e[jmax] = 1.0
+                solve(a, e, dx)
+                s = 0.0
+                for i in range({n}):
+                    s += abs(dx[i])
+                inv_norm = max(inv_norm, s)
+            for i in range({n}):
+                e[i] = (1.0 if i % 2 == 0 else -1.0) * (1.0 + i / max({n} - 1, 1))
+            solve(a, e, dx)
+            s = 0.0
+            for i in range({n}):
+                s += abs(dx[i])
+            inv_norm = max(inv_norm, 2.0 * s / (3.0 * {n}))
+            rcond = 1.0 / (norm_a * inv_norm)
+            moved = 0.0
+            corr = 0.0
+            for i in range({n}):
+                moved = max(moved, abs(x[i] - q[i]) / D[v, i], abs(pred[i] - q[i]) / D[v, i])
+                corr = max(corr, abs(x[i] - pred[i]) / D[v, i])
+            ratio = corr / max(moved, floor)
+            if not (det == sign and rcond >= singular_rcond and ratio <= branch_ratio):
+                status[v] = k
+                break
+            # rates: Phi_q^-1 b = D A^-1 R b
+            for i in range({n}):
+                rhs[i] = 0.0
+            for j in range(DRIVES.shape[0]):
+                rhs[DRIVES[j]] = FD[v, k, 1, j]
+            for i in range({m}):
+                rhs[i] *= r[i]
+            solve(a, rhs, dx)
+            for i in range({n}):
+                qd[i] = D[v, i] * dx[i]
+            gamma(x, qd, p, g)
+            for j in range(DRIVES.shape[0]):
+                g[DRIVES[j]] += FD[v, k, 2, j]
+            for i in range({m}):
+                rhs[i] = g[i] * r[i]
+            solve(a, rhs, dx)
+            for i in range({n}):
+                qdd[i] = D[v, i] * dx[i]
+            q = x
+            Q[v, k] = x
+            QD[v, k] = qd
+            QDD[v, k] = qdd
+            RC[v, k] = rcond
+            SG[v, k] = det
+    return status
+'''
+
+
+def _cache_folder() -> str | None:
+    from ..grammar_cache import safe_folder
+
+    return safe_folder("native")
+
+
+def load(system) -> Callable | None:
+    """The compiled march of ``system`` (numba imported, the module compiled or loaded from
+    the cache), or None where the backend does not apply or numba is missing."""
+    text = source(system)
+    if text is None or not available():
+        return None
+    key = hashlib.sha256(text.encode()).hexdigest()[:20]
+    name = f"mechdsl_native_{key}"
+    if name in sys.modules:
+        return sys.modules[name].march
+    folder = _cache_folder()
+    if folder is not None:
+        path = os.path.join(folder, name + ".py")
+        try:
+            with open(path, "rb") as fh:
+                same = fh.read() == text.encode()
+        except OSError:
+            same = False
+        if not same:
+            tmp = f"{path}.{os.getpid()}.tmp"
+            with open(tmp, "w") as fh:
+                fh.write(text)
+            os.replace(tmp, path)
+        spec = importlib.util.spec_from_file_location(name, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)  # our own generated source, checked byte for byte
+        return module.march
+    import types
+
+    module = types.ModuleType(name)
+    # no file, no cache: numba compiles in memory
+    exec(compile(text.replace("cache=True", "cache=False"), f"<{name}>", "exec"),  # noqa: S102
+         module.__dict__)
+    sys.modules[name] = module
+    return module.march
