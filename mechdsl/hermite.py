@@ -1,4 +1,4 @@
-"""Quintic Hermite interpolation of solved states: the predictor of the two-level march.
+"""Quintic Hermite interpolation of solved states: the predictor of the parallel-in-time march.
 
 Between two states at t_a and t_b = t_a + h, each with q, qd and qdd, the quintic
 p(t_a + s h) = q_a H0 + h qd_a H1 + h^2 qdd_a H2 + q_b H3 + h qd_b H4 + h^2 qdd_b H5

@@ -2,7 +2,7 @@
 
 Positions at different instants are independent root-finding problems, Phi(q_j, t_j) = 0;
 only the starting guesses and the branch checks need the neighbours. The march
-(:func:`mechdsl.solve._two_level`) solves a coarse grid first, then levels that split every
+(:func:`mechdsl.solve._parallel`) solves a coarse grid first, then levels that split every
 gap, each level's instants started from the quintic Hermite interpolation of the states
 already solved (q, qd, qdd at both ends of a gap: error O(gap^6)) and corrected all at once.
 
@@ -23,15 +23,16 @@ from .system import System
 
 
 def polish(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
-           opts: SolverOptions, rows: np.ndarray, active: np.ndarray | None = None
-           ) -> tuple[np.ndarray, np.ndarray]:
+           opts: SolverOptions, rows: np.ndarray, active: np.ndarray | None = None,
+           tol: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Newton-Raphson on Phi(q, t) = 0 for a batch of states ``q`` (V, b, n) at ``t``
     (V, b), all iterated together until every state's scaled step max|dq / D| is at most
-    ``opts.newton_tol`` or its error left, estimated from the quadratic contraction
+    ``tol`` (``opts.newton_tol`` by default) or its error left, estimated from the quadratic contraction
     |dq_k|^3 / |dq_(k-1)|^2, at most ``opts.newton_error``. Returns the states and a (V, b)
     mask of the converged ones (a state whose step stopped contracting is not). Variants
     not ``active`` (V,) are left as they are, and count as converged."""
     q = np.array(q, dtype=float)
+    tol = opts.newton_tol if tol is None else tol
     f = (eq.drive_values(system, t, "f", q.shape[:-1]) if system.drive_functions else None)
     prev = np.full(q.shape[:-1], np.inf)
     done = np.zeros(q.shape[:-1], bool)
@@ -51,7 +52,7 @@ def polish(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
             left = np.where((step < 0.25 * prev) & (prev < np.inf), step**3 / prev**2, np.inf)
         live = ~done & solved
         q += np.where(live[..., None], np.nan_to_num(dq), 0.0)
-        done |= live & ((step <= opts.newton_tol) | (left <= opts.newton_error))
+        done |= live & ((step <= tol) | (left <= opts.newton_error))
         if done.all():
             break
         if it >= 3 and not (step[~done] <= 0.5 * prev[~done]).all():
@@ -77,8 +78,7 @@ def coarse_march(system: System, start: tuple[np.ndarray, ...], sign: np.ndarray
     are."""
     from .newton import correction_ratio
 
-    loose = opts.__class__(**{**opts.__dict__,
-                              "newton_tol": max(opts.newton_tol, opts.coarse_newton_tol)})
+    loose = max(opts.newton_tol, opts.coarse_newton_tol)
     t, q, qd, qdd = (np.array(a, dtype=float) for a in start)
     V = len(q)
     live = np.flatnonzero(active)[0]
@@ -96,7 +96,7 @@ def coarse_march(system: System, start: tuple[np.ndarray, ...], sign: np.ndarray
         with np.errstate(all="ignore"):
             taylor = q + tau * (qd + tau / 2 * (qdd + tau / 3 * jerk))
             pred = np.where(still[..., None], q[:, None], taylor[:, None])
-        qn, ok = polish(system, pred, T, D, loose, rows, active)
+        qn, ok = polish(system, pred, T, D, opts, rows, active, tol=loose)
         # no condition estimate here (every instant gets one when it is settled): the sign of
         # det(Phi_q) and the rates, by LAPACK on the small dense Jacobian
         jac = eq.jacobian(system, qn)

@@ -66,10 +66,10 @@ class SolverOptions:
     #: Parallel-in-time march: each level splits the gaps between solved instants into this
     #: many parts.
     level_split: int = 16
-    #: Newton's tolerance (scaled as newton_tol) in the scouting pass of the two-level march;
-    #: its states are only starting points, from which the second pass converges fully.
-    coarse_newton_tol: float = 1e-4
-    #: Instants handled per window of the two-level march (the granularity at which a run
+    #: Newton's tolerance (scaled as newton_tol) in the coarse march of the parallel-in-time
+    #: march; its states are only starting points, corrected to newton_tol all at once.
+    coarse_newton_tol: float = 1e-2
+    #: Instants handled per window of the parallel-in-time march (the granularity at which a run
     #: that is interrupted keeps its results).
     window: int = 4096
     #: Which code solves a fully driven mechanism: "numpy" (the default path, no compiler
@@ -113,8 +113,8 @@ class SolverOptions:
     def __post_init__(self) -> None:
         if not 0 < self.newton_tol <= 1e-4:
             raise ValueError(f"newton_tol must be in (0, 1e-4], not {self.newton_tol!r}")
-        if not 0 < self.coarse_newton_tol <= 1e-4:
-            raise ValueError("coarse_newton_tol must be in (0, 1e-4], not "
+        if not 0 < self.coarse_newton_tol <= 1e-1:
+            raise ValueError("coarse_newton_tol must be in (0, 0.1], not "
                              f"{self.coarse_newton_tol!r}")
         if self.predictor_order not in (1, 2):
             raise ValueError(f"predictor_order must be 1 or 2, not {self.predictor_order!r}")

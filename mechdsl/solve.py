@@ -86,9 +86,6 @@ class _State:
     rates: np.ndarray | None = None
     #: Instants per block of the march, grown while Newton converges fast.
     block: int = 8
-    #: A scouting pass collects every accepted state here, as (t, q, qd, qdd) arrays of
-    #: shapes (V, c) and (V, c, n), for the interpolating predictor of the second pass.
-    nodes: list[tuple[np.ndarray, ...]] | None = None
     #: Named outputs already warned about for values that are not finite.
     undefined_outputs: set[str] = field(default_factory=set)
 
@@ -229,7 +226,7 @@ def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.nd
     accelerations (at every column when an output needs them, else at the last column only,
     for the predictor), unless ``rates`` gives them; record the columns whose ``rec`` index is
     not negative. Redundant equations left out of the solve must still hold."""
-    order = 2 if st.rates is not None or st.nodes is not None else system.order
+    order = 2 if st.rates is not None else system.order
     rows = st.rows
     c = q.shape[1]
     if rates is not None:
@@ -268,8 +265,6 @@ def _accept(system: System, st: _State, q: np.ndarray, t: np.ndarray, rec: np.nd
         st.good = (st.t.copy(), st.qd.copy(), st.qdd.copy())
     gt, gqd, gqdd = st.good
     gt[regular], gqd[regular], gqdd[regular] = t[regular, -1], qd[regular, -1], qdd[regular, -1]
-    if st.nodes is not None:
-        st.nodes.append((t, q, qd, qdd))
     keep = rec >= 0
     if not keep.any():
         return
@@ -368,20 +363,20 @@ def _run(system: System, st: _State, opts: SolverOptions, data: dict,
          progress: Callable[[int, int], None] | None) -> None:
     """March from the state at instant 0 to the last instant, window by window.
 
-    Each window is first tried in two levels (:func:`_two_level`); what that does not settle
+    Each window is first tried parallel in time (:func:`_parallel`); what that does not settle
     is marched instant by instant (:func:`_march`), which reports any failure exactly."""
     K = len(system.times)
     stride = opts.coarse_stride
-    two_level = stride > 1 and not use_sparse(system, opts, st.rows)
+    parallel = stride > 1 and not use_sparse(system, opts, st.rows)
     k = 1
     march = _native(system, st, opts)
     if march is not None:
         k = _compiled(system, st, opts, data, march, progress)
     while k < K and st.active.any():
         end = min(K, k + max(opts.window, 2 * stride))
-        if two_level and end - k >= 2 * stride:
+        if parallel and end - k >= 2 * stride:
             try:
-                k = _two_level(system, st, opts, data, k, end)
+                k = _parallel(system, st, opts, data, k, end)
             except eq.PluginError:  # the march below finds the instant it fails at
                 k = max(k, int(st.n_solved.max()))
             if progress is not None:
@@ -391,7 +386,7 @@ def _run(system: System, st: _State, opts: SolverOptions, data: dict,
         k = end
 
 
-def _two_level(system: System, st: _State, opts: SolverOptions, data: dict, k: int,
+def _parallel(system: System, st: _State, opts: SolverOptions, data: dict, k: int,
                end: int) -> int:
     """Solve the instants k .. end-1 in levels, parallel in time; return the first instant
     not solved.
@@ -579,16 +574,6 @@ def _level(system: System, st: _State, opts: SolverOptions, pred: np.ndarray, T:
     return T, q, qd, qdd
 
 
-def _scout(st: _State) -> _State:
-    """A copy of the state for a scouting pass: same last state, nothing recorded."""
-    return replace(st, t=st.t.copy(), q=st.q.copy(), qd=st.qd.copy(), qdd=st.qdd.copy(),
-                   sign=st.sign.copy(), active=st.active.copy(), n_solved=st.n_solved.copy(),
-                   min_rcond=st.min_rcond.copy(), min_rcond_t=st.min_rcond_t.copy(),
-                   failures=[], warnings=[], passages=[], residual=0.0, fac=None,
-                   good=None if st.good is None else tuple(a.copy() for a in st.good),
-                   poses=None, rates=None, nodes=[])
-
-
 def _batch_cap(system: System, opts: SolverOptions) -> int:
     """Instants solved together at most: V * b * m * n within ``max_batch_elements``."""
     per_instant = system.n_variants * system.m * system.n
@@ -606,20 +591,17 @@ def _good_prefix(good: np.ndarray) -> int:
     return len(col_ok) if col_ok.all() else int(np.argmin(col_ok))
 
 
-def _recorded(instant: np.ndarray, rec: np.ndarray, record: bool) -> np.ndarray:
+def _recorded(instant: np.ndarray, rec: np.ndarray) -> np.ndarray:
     """The instants (indices into system.times) that the march's positions ``rec`` record;
-    -1 for substeps, and for everything in a scouting pass."""
-    if not record:
-        return np.full(len(rec), -1)
+    -1 for substeps."""
     return np.where(rec >= 0, instant[np.maximum(rec, 0)], -1)
 
 
 def _march(system: System, st: _State, opts: SolverOptions, data: dict,
-           progress: Callable[[int, int], None] | None, grid: np.ndarray,
-           record: bool = True) -> None:
+           progress: Callable[[int, int], None] | None, grid: np.ndarray) -> None:
     """Solve the instants ``grid`` (indices into ``system.times``, increasing, after the
-    state's time) one block after another, each block predicted from the last state; record
-    them unless ``record`` is False (a scouting pass that only collects states)."""
+    state's time) one block after another, each block predicted from the last state, and
+    record them."""
     # position 0 is the state's own time; position j >= 1 is instant grid[j - 1]
     times = np.concatenate(([float(st.t[st.active][0])], system.times[grid]))
     instant = np.concatenate(([-1], np.asarray(grid)))
@@ -673,7 +655,7 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict,
         if nacc:
             try:
                 _accept(system, st, qn[:, :nacc], T[:, :nacc],
-                        _recorded(instant, rec[:nacc], record), fac.columns(slice(0, nacc)),
+                        _recorded(instant, rec[:nacc]), fac.columns(slice(0, nacc)),
                         st.active.copy(), data, opts)
             except eq.PluginError:
                 if nacc == 1:
@@ -734,7 +716,7 @@ def _march(system: System, st: _State, opts: SolverOptions, data: dict,
         st.active &= ~bad
         if st.active.any():
             fac = factor(eq.solver_jacobian(system, qn, rows, sparse), D)
-            _accept(system, st, qn, T, _recorded(instant, rec, record), fac, st.active.copy(),
+            _accept(system, st, qn, T, _recorded(instant, rec), fac, st.active.copy(),
                     data, opts, rates)
             if rec[0] >= 0:
                 hsub, attempts, k = None, 0, k + 1
