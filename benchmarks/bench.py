@@ -6,16 +6,20 @@
 
 Sections (each prints a table; the plots and a Markdown copy of the tables go to --out):
 
-* levers: each speed lever of the engine switched off in turn (two-level march, blocks of
-  instants, predictor order, Newton's early stop), time against the default;
+* levers: each speed lever of the engine switched off in turn (the parallel-in-time march,
+  blocks of instants, the generated LU, the fused evaluation, predictor order, Newton's early
+  stop) and the compiled backend, time against the default;
 * seed: the slider-crank of the seed (1001 instants), in-process solve time (model compiled)
-  and relative error of x, vx, ax against the closed form, beside Exudyn (if installed: the
+  and relative error of x, vx, ax against the closed form, on the numpy path and the compiled
+  backend (if numba is installed: the ``fast`` extra), beside Exudyn (if installed: the
   ``bench`` extra) and a plain per-instant numpy Newton;
 * work-precision: maximal relative error against run time over Newton tolerance, output step
   and predictor order, for the slider-crank, a four-bar and a chain of 101 bodies;
 * scaling: time per instant of a row of parallelograms from 11 to 10,001 bodies, dense and
   sparse, beside Exudyn's sparse solver;
-* sweep: variants per second for a sweep of slider-cranks over the rod length;
+* sweep: variants per second for a sweep of slider-cranks over the rod length, on the numpy
+  path and the compiled backend;
+* long: the slider-crank over 100,001 instants, numpy and compiled;
 * startup: wall time of ``mechdsl run examples/slider_crank.mech -o out.csv`` as a process,
   and of importing mechdsl (and exudyn);
 * animation: solving a 101-body chain over 1000 instants and writing its GIF.
@@ -26,6 +30,8 @@ Times are medians of repeated runs; ratios are taken between figures of the same
 from __future__ import annotations
 
 import argparse
+import dataclasses
+from dataclasses import replace
 import importlib.util
 import statistics
 import subprocess
@@ -45,9 +51,23 @@ import mechdsl  # noqa: E402
 import models  # noqa: E402
 import peers  # noqa: E402
 from closed_forms import angle_error, four_bar  # noqa: E402
+from mechdsl import equations as mechdsl_equations  # noqa: E402
+from mechdsl.compiled.fused import fuse  # noqa: E402
+from mechdsl.sparse import Pattern  # noqa: E402
 from mechdsl.options import SolverOptions  # noqa: E402
 from mechdsl.solve import simulate  # noqa: E402
 from mechdsl.variants import Overrides  # noqa: E402
+
+
+NUMPY = SolverOptions(backend="numpy")
+COMPILED = SolverOptions(backend="compiled")
+
+
+def have_numba() -> bool:
+    if importlib.util.find_spec("numba") is None:
+        print("(numba not installed: pip install -e .[fast])")
+        return False
+    return True
 
 
 def median_time(fn: Callable[[], object], repeat: int) -> tuple[float, object]:
@@ -126,24 +146,33 @@ def seed(rep: Report, quick: bool) -> None:
     have_exudyn = importlib.util.find_spec("exudyn") is not None
     if not have_exudyn:
         print("(exudyn not installed: pip install -e .[bench])")
-    t_full, t_pos, t_exu = [], [], []
-    res = res_pos = exu = None
+    fast = have_numba()
+    t_full, t_pos, t_exu, t_fast = [], [], [], []
+    res = res_pos = exu = res_fast = None
     for i in range(repeat + 1):  # the first round warms up
         start = time.perf_counter()
-        res = simulate(full)
+        res = simulate(full, NUMPY)
         t_full.append(time.perf_counter() - start)
         start = time.perf_counter()
-        res_pos = simulate(pos)
+        res_pos = simulate(pos, NUMPY)
         t_pos.append(time.perf_counter() - start)
+        if fast:
+            start = time.perf_counter()
+            res_fast = simulate(full, COMPILED)
+            t_fast.append(time.perf_counter() - start)
         if have_exudyn:
             exu = peers.exudyn_slider_crank(repeat=1)
             t_exu.append(exu["time"])
     med = {k: statistics.median(v[1:]) for k, v in
-           (("full", t_full), ("pos", t_pos), ("exu", t_exu)) if v}
+           (("full", t_full), ("pos", t_pos), ("exu", t_exu), ("fast", t_fast)) if v}
     ex, evx, eax = slider_crank_errors(res)
     x_exact = models.slider_crank_exact(res_pos["t"])[0]
-    entries = [("mechdsl, x vx ax", med["full"], ex, evx, eax),
-               ("mechdsl, x only", med["pos"], rel(res_pos["slider.x"], x_exact), None, None)]
+    entries = [("mechdsl numpy, x vx ax", med["full"], ex, evx, eax),
+               ("mechdsl numpy, x only", med["pos"], rel(res_pos["slider.x"], x_exact), None,
+                None)]
+    if fast:
+        entries.append(("mechdsl compiled (numba), x vx ax", med["fast"],
+                        *slider_crank_errors(res_fast)))
     if have_exudyn:
         entries.append(("Exudyn 1.13 (gen.-alpha)", med["exu"], exu["err_x"], exu["err_vx"],
                         exu["err_ax"]))
@@ -151,11 +180,14 @@ def seed(rep: Report, quick: bool) -> None:
     entries.append(("numpy Newton per instant", base["time"], base["err_x"], base["err_vx"],
                     base["err_ax"]))
     rows = []
+    exu_t = med.get("exu")
     for name, t, a, b, c in entries:
-        rows.append([name, f"{1e3 * t:.1f}", f"{t / med['full']:.2f}", f"{a:.1e}",
+        rows.append([name, f"{1e3 * t:.2f}", f"{t / med['full']:.2f}",
+                     "-" if exu_t is None else f"{t / exu_t:.3f}", f"{a:.1e}",
                      "-" if b is None else f"{b:.1e}", "-" if c is None else f"{c:.1e}"])
     rep.table("Seed slider-crank, 1001 instants (solve, model compiled)",
-              ["solver", "ms", "x mechdsl", "err x", "err vx", "err ax"], rows)
+              ["solver", "ms", "x mechdsl numpy", "x Exudyn", "err x", "err vx", "err ax"],
+              rows)
 
 
 def work_precision(rep: Report, quick: bool) -> None:
@@ -231,7 +263,7 @@ def scaling(rep: Report, quick: bool) -> None:
         bodies = 2 * n_loops + 1
         # large rows: more instants between the two runs, so that the difference of their
         # times stands above the machine's noise
-        k2 = 26 if n_loops < 500 else 46
+        k2 = 86 if n_loops < 500 else 46
         compiled = {k: mech.compile(Overrides(t1=(k - 1) * 0.01, step=0.01)) for k in (6, k2)}
         row = [str(bodies)]
         for kind, threshold in (("dense", 10**9), ("sparse", 0)):
@@ -283,15 +315,35 @@ def sweep(rep: Report, quick: bool) -> None:
     mech = mechdsl.load(ROOT / "examples" / "slider_crank.mech")
     rods = np.linspace(2.5, 5.0, variants)
     system = mech.compile(Overrides(sweeps={"l": list(rods)}))
-    t, res = median_time(lambda: simulate(system), 1)
-    t1, _ = median_time(lambda: simulate(slider_crank_system()), 5)
-    ex = models.slider_crank_exact(res["t"][None, :], l=rods[:, None])
-    err = max(float((np.abs(res[k] - e).max(axis=1) / np.abs(e).max(axis=1)).max())
-              for k, e in zip(("slider.x", "slider.vx", "slider.ax"), ex))
-    rep.table(f"Sweep: {variants} slider-cranks (rod 2.5 .. 5 m) x 1001 instants",
-              ["variants", "s", "variants/s", "one variant alone, ms", "batched/loop", "max err"],
-              [[str(variants), f"{t:.2f}", f"{variants / t:.0f}", f"{1e3 * t1:.1f}",
-                f"{t / (variants * t1):.2f}", f"{err:.1e}"]])
+    alone = slider_crank_system()
+    t1, _ = median_time(lambda: simulate(alone, NUMPY), 5)
+    rows = []
+    for name, opts in (("numpy", NUMPY), ("compiled (numba)", COMPILED)):
+        if opts is COMPILED and not have_numba():
+            continue
+        t, res = median_time(lambda: simulate(system, opts), 1 if quick else 3)
+        ex = models.slider_crank_exact(res["t"][None, :], l=rods[:, None])
+        err = max(float((np.abs(res[k] - e).max(axis=1) / np.abs(e).max(axis=1)).max())
+                  for k, e in zip(("slider.x", "slider.vx", "slider.ax"), ex))
+        rows.append([name, str(variants), f"{t:.3f}", f"{variants / t:.0f}",
+                     f"{t / (variants * t1):.3f}", f"{err:.1e}"])
+    rep.table(f"Sweep: {variants} slider-cranks (rod 2.5 .. 5 m) x 1001 instants "
+              f"(one variant alone on numpy: {1e3 * t1:.1f} ms)",
+              ["engine", "variants", "s", "variants/s", "batched/loop", "max err"], rows)
+
+
+def long_span(rep: Report, quick: bool) -> None:
+    """The seed's slider-crank over 100,001 instants (step 1e-5)."""
+    system = slider_crank_system(1e-4 if quick else 1e-5)
+    rows = []
+    for name, opts in (("numpy", NUMPY), ("compiled (numba)", COMPILED)):
+        if opts is COMPILED and not have_numba():
+            continue
+        t, res = median_time(lambda: simulate(system, opts), 3)
+        rows.append([name, str(len(res["t"])), f"{t:.3f}",
+                     f"{1e6 * t / len(res['t']):.2f}", f"{max(slider_crank_errors(res)):.1e}"])
+    rep.table("Long span: the seed's slider-crank, step 1e-5",
+              ["engine", "instants", "s", "us per instant", "max err (x, vx, ax)"], rows)
 
 
 def startup(rep: Report, quick: bool) -> None:
@@ -342,27 +394,42 @@ def levers(rep: Report, quick: bool) -> None:
     settings interleaved so that a change of the machine's speed hits all alike."""
     repeat = 3 if quick else 7
     settings = [
-        ("default", SolverOptions()),
-        ("two-level march off (coarse_stride=1)", SolverOptions(coarse_stride=1)),
-        ("no blocks: one instant at a time", SolverOptions(coarse_stride=1, max_block=1,
-                                                           initial_block=1)),
-        ("predictor order 1", SolverOptions(predictor_order=1)),
-        ("no early stop (newton_error=0)", SolverOptions(newton_error=0.0)),
+        ("default (numpy)", NUMPY),
+        ("parallel-in-time march off (coarse_stride=1)", replace(NUMPY, coarse_stride=1)),
+        ("no blocks: one instant at a time", replace(NUMPY, coarse_stride=1, max_block=1,
+                                                     initial_block=1)),
+        ("generated LU off (LAPACK on every batch)", "lapack"),
+        ("fusion off (each type evaluated on its own)", "unfused"),
+        ("predictor order 1", replace(NUMPY, predictor_order=1)),
+        ("no early stop (newton_error=0)", replace(NUMPY, newton_error=0.0)),
     ]
+    if have_numba():
+        settings.append(("compiled backend (numba)", COMPILED))
     rows = []
     for step in (1e-3, 1e-4):
         system = slider_crank_system(step)
         times: dict[str, list[float]] = {name: [] for name, _ in settings}
         errs = {}
         # one instant at a time is ~100 times slower: measured on the 1001 instants only
-        chosen = [(n, o) for n, o in settings if step == 1e-3 or o.max_block > 1]
+        chosen = [(n, o) for n, o in settings
+                  if step == 1e-3 or isinstance(o, str) or o.max_block > 1]
+        plain = fuse(list(system.groups), system.n_bodies, system.m, force="group")
+        unfused = dataclasses.replace(system, fused=plain, pattern=Pattern.from_entries(
+            plain.rows, plain.cols, (system.m, system.n)))
         for _ in range(repeat + 1):  # the first round warms up
             for name, opts in chosen:
+                run_system, run_opts = system, opts
+                if opts == "unfused":
+                    run_system, run_opts = unfused, NUMPY
+                saved = mechdsl_equations.LU_BATCH
+                if opts == "lapack":
+                    run_opts, mechdsl_equations.LU_BATCH = NUMPY, 10**12
                 start = time.perf_counter()
-                res = simulate(system, opts)
+                res = simulate(run_system, run_opts)
                 times[name].append(time.perf_counter() - start)
+                mechdsl_equations.LU_BATCH = saved
                 errs[name] = max(slider_crank_errors(res))
-        base = statistics.median(times["default"][1:])
+        base = statistics.median(times["default (numpy)"][1:])
         for name, _ in chosen:
             t = statistics.median(times[name][1:])
             rows.append([f"{len(system.times)}", name, f"{1e3 * t:.1f}", f"{t / base:.2f}",
@@ -372,7 +439,7 @@ def levers(rep: Report, quick: bool) -> None:
 
 
 SECTIONS = {"seed": seed, "levers": levers, "work-precision": work_precision, "scaling": scaling,
-            "sweep": sweep, "startup": startup, "animation": animation}
+            "sweep": sweep, "long": long_span, "startup": startup, "animation": animation}
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -490,7 +490,7 @@ def _native(system: System, st: _State, opts: SolverOptions):
     numba installed); else None."""
     if not _wants_native(system, opts) or len(st.rows) != system.n:
         return None
-    return native.load(system)
+    return system.native
 
 
 def _compiled(system: System, st: _State, opts: SolverOptions, data: dict, march,

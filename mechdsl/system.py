@@ -140,6 +140,15 @@ class System:
         sample = self.fused.evaluate_jac(self.guess[:, None, :])[0, 0]
         return plan(self.fused.rows, self.fused.cols, self.n, sample)
 
+    @functools.cached_property
+    def native(self):
+        """The compiled march of this model (:mod:`mechdsl.compiled.native`: numba imported,
+        the march compiled or loaded from the disk cache), or None where the backend does
+        not apply or numba is missing. Loaded on first use only."""
+        from .compiled import native
+
+        return native.load(self)
+
     @property
     def n_bodies(self) -> int:
         return len(self.body_names)

@@ -58,6 +58,16 @@ def test_flat_follower_on_an_eccentric_cam_is_harmonic(load_example):
     assert rel_err(res["follower.ay"], -e * w * w * np.sin(w * t)) < 1e-11
 
 
+def test_a_swept_param_inside_a_cam_profile_moves_each_variant_its_own_way(load_example):
+    # the eccentricity e is read by the profile function R + e cos(theta): per variant
+    res = load_example("cam_flat.mech").simulate(sweep={"e": [0.005, 0.01, 0.02]})
+    assert res.ok
+    t, R, w = res["t"], 0.04, 10 * np.pi
+    for v, e in enumerate((0.005, 0.01, 0.02)):
+        assert rel_err(res["follower.y"][v], R + e * np.sin(w * t)) < 1e-13
+        assert rel_err(res["follower.ay"][v], -e * w * w * np.sin(w * t)) < 1e-11
+
+
 def test_roller_follower_lift_is_the_tabulated_profile(load_example):
     from scipy.interpolate import CubicSpline
 

@@ -75,7 +75,9 @@ def _lines(graph: Graph, outputs: Sequence[Node], loop: bool, major: bool = Fals
                 expr = f"{a[0]}[..., {n.value}]"
             elif n.op == "call":
                 index, order = n.value
-                expr = f"F[{index}][{order}]({a[0]})"
+                # a function sees its argument with the batch axes first, as its params
+                expr = (f"F[{index}][{order}]({a[0]}.T).T" if major
+                        else f"F[{index}][{order}]({a[0]})")
             else:
                 expr = f"{_CALLS[n.op]}({', '.join(a)})"
             name = f"n{n.id}"
