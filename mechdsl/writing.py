@@ -107,18 +107,26 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
 
 
 def _block_signals() -> Callable[[], None]:
-    """Block SIGINT and SIGTERM (where the platform can) until the returned function is
-    called (once or more): a step that must not be cut in two."""
-    mask = getattr(signal, "pthread_sigmask", None)
-    if mask is None or threading.current_thread() is not threading.main_thread():
+    """Hold SIGINT and SIGTERM until the returned function is called (once or more): a step
+    that must not be cut in two. The signals' handlers are replaced by one that only notes
+    them, and the noted ones are raised again once the old handlers are back. (Blocking them
+    with pthread_sigmask is not enough: it blocks them in this thread only, and numpy's BLAS
+    threads, started by a matrix product, would receive them, Python then running the
+    handler in this thread all the same.)"""
+    if threading.current_thread() is not threading.main_thread():
         return lambda: None
-    old = mask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-    done = []
+    noted: list[int] = []
+    old = {s: signal.signal(s, lambda signum, frame: noted.append(signum))
+           for s in (signal.SIGINT, signal.SIGTERM)}
+    done: list[bool] = []
 
     def unblock() -> None:
         if not done:
             done.append(True)
-            mask(signal.SIG_SETMASK, old)
+            for s, handler in old.items():
+                signal.signal(s, handler)
+            for s in noted:
+                signal.raise_signal(s)
 
     return unblock
 

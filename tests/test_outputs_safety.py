@@ -656,7 +656,7 @@ def test_a_signal_at_an_awkward_moment_keeps_the_csv_and_leaves_no_temporary(tmp
                         "--plot", "p.png"], cwd=tmp_path, capture_output=True, text=True,
                        timeout=120, preexec_fn=_default_signals)
     assert r.returncode == 143, r.stderr
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.csv"], r.stderr
     rows = csv_rows((tmp_path / "out.csv").read_text())[1]
     assert len(rows) == 1001
     assert_slider_crank(rows)
