@@ -51,12 +51,11 @@ import mechdsl  # noqa: E402
 import models  # noqa: E402
 import peers  # noqa: E402
 from closed_forms import angle_error, four_bar  # noqa: E402
-from mechdsl import equations as mechdsl_equations  # noqa: E402
+from mechdsl.compiled import equations as mechdsl_equations  # noqa: E402
 from mechdsl.compiled.fused import fuse  # noqa: E402
-from mechdsl.sparse import Pattern  # noqa: E402
-from mechdsl.options import SolverOptions  # noqa: E402
-from mechdsl.solve import simulate  # noqa: E402
-from mechdsl.variants import Overrides  # noqa: E402
+from mechdsl.compiled.sparse import Pattern  # noqa: E402
+from mechdsl.solve import SolverOptions, simulate  # noqa: E402
+from mechdsl.compiled.variants import Overrides  # noqa: E402
 
 
 NUMPY = SolverOptions(backend="numpy")
@@ -369,7 +368,7 @@ def startup(rep: Report, quick: bool) -> None:
 
 def animation(rep: Report, quick: bool) -> None:
     """The animation of a 101-body chain over 1000 instants, solve and GIF."""
-    from mechdsl.draw import animate
+    from mechdsl.outputs.draw import animate
 
     n_loops = 50
     text = models.chain_text(n_loops, t1=9.99, step=0.01) + f"trace coupler{n_loops - 1}\n"

@@ -1,12 +1,15 @@
 """mechdsl: kinematics of planar mechanisms described in ``.mech`` files.
 
-The pipeline, one module per stage: :mod:`~mechdsl.parse` (text -> model),
-:mod:`~mechdsl.compile` (model + plugins -> system), :mod:`~mechdsl.solve` (system -> results),
-:mod:`~mechdsl.results` (CSV), :mod:`~mechdsl.plot` (figures).
+The pipeline, one package per stage, each importing only the stages before it:
+:mod:`~mechdsl.grammar` (text -> model), :mod:`~mechdsl.compiled` (model + plugins ->
+system), :mod:`~mechdsl.solve` (system -> :mod:`~mechdsl.results`), :mod:`~mechdsl.outputs`
+(CSV, plots, drawings, exports). :mod:`~mechdsl.api` joins them; :mod:`~mechdsl.cli` is the
+command line.
 """
 
-from .api import Mechanism, load, loads
+from .api import CheckReport, Mechanism, load, loads
 from .errors import MechError, NumericalError
 
 __version__ = "0.1.0"
-__all__ = ["Mechanism", "MechError", "NumericalError", "load", "loads", "__version__"]
+__all__ = ["CheckReport", "Mechanism", "MechError", "NumericalError", "load", "loads",
+           "__version__"]

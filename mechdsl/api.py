@@ -1,28 +1,82 @@
-"""The Python API: ``load``/``loads`` give a :class:`Mechanism`, which compiles and simulates.
+"""The Python API: ``load``/``loads`` give a :class:`Mechanism`, which compiles, checks and
+simulates.
 
 >>> import mechdsl
 >>> mech = mechdsl.load("examples/slider_crank.mech")
 >>> res = mech.simulate(span=(0, 0.5), step=0.01, l=3.0)
 >>> res["t"], res["slider.x"]
+>>> print(mech.check())       # what `mechdsl check` prints
 """
 
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from typing import Iterable, Mapping, Sequence
 
-from . import expr as E
-from .compile import check_structure, compile_model
-from .errors import MechError, Source, Span
-from .model import Model
-from .parse import parse, parse_expr
+import numpy as np
+
+from .compiled import equations as eq
+from .compiled.compile import check_structure, compile_model
+from .compiled.files import read_files, read_tables
+from .compiled.system import System
+from .compiled.variants import Overrides
+from .errors import MechError, NumericalError, Source, Span
+from .grammar import Model, normalise, parse, parse_expr, parse_expr_list
+from .grammar.expr import to_text
 from .plugins.manager import allowed_plugins, build_registry
 from .plugins.registry import Registry
 from .results import Results
-from .system import System
-from .variants import Overrides
-from .options import SolverOptions
-from .solve import simulate
+from .solve import SolverOptions, assemble, simulate
+from .solve.diagnose import col_scale, one_variant, singularity
+from .solve.linalg import factor
+from .solve.mobility import redundancy_warning, report
+from .solve.newton import use_sparse
+
+
+@dataclass(frozen=True)
+class CheckReport:
+    """What ``mechdsl check`` prints (:meth:`Mechanism.check`): what the model declares,
+    its assembly at t0, the mobility by rank and the conditioning there.
+
+    Counts of the compiled model: ``bodies`` (moving), their ``coordinates`` (3 each),
+    ``joints`` and their ``equations``, ``drives``. Once assembled at ``t0``: ``mobility`` =
+    coordinates - ``rank`` (the rank of the joint equations' Jacobian at the assembled
+    configuration of the first variant), ``redundant`` naming the redundant equations ('' if
+    none), ``condition`` the largest condition number of the scaled Jacobian over the
+    variants. ``lines`` are what was found, ``verdict`` the conclusion ("ok: assembles at
+    t = ..."), '' when ``error`` stopped the check: the mechanism does not assemble, is not
+    fully driven, or is singular at t0 (the MechError the command line reports). ``warnings``
+    are for the user although the check went on (redundant constraints left out).
+    """
+
+    source: str
+    bodies: int
+    coordinates: int
+    joints: int
+    equations: int
+    drives: int
+    t0: float
+    lines: tuple[str, ...]
+    verdict: str = ""
+    mobility: int | None = None
+    rank: int | None = None
+    redundant: str = ""
+    condition: float | None = None
+    warnings: tuple[str, ...] = ()
+    error: MechError | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+    @property
+    def text(self) -> str:
+        """The report as ``mechdsl check`` prints it."""
+        return "\n".join(self.lines + ((self.verdict,) if self.verdict else ()))
+
+    def __str__(self) -> str:
+        return self.text
 
 
 class Mechanism:
@@ -79,15 +133,76 @@ class Mechanism:
             self._pending_model_plugins = False
         return self._registry
 
-    def check(self) -> None:
+    def check_names(self) -> None:
         """Resolve every name of the model (joint and drive types, their arguments, bodies,
         points, outputs) against the registry, evaluating nothing: the located MechError the
-        command line gives for the same mistake (see :func:`mechdsl.compile.check_structure`).
-        :func:`load` and :func:`loads` call it."""
+        command line gives for the same mistake (see
+        :func:`mechdsl.compiled.compile.check_structure`). :func:`load` and :func:`loads`
+        call it."""
         check_structure(self.model, self.registry)
 
+    def check(self, overrides: Overrides | None = None) -> CheckReport:
+        """Compile (with ``overrides``) and check the mechanism as ``mechdsl check`` does:
+        what it declares, its assembly at t0 (the simulated span's start, else 0), the
+        mobility by rank and redundancy at the assembled configuration, and the conditioning
+        of the Jacobian there. A model that cannot be compiled raises its MechError; a
+        mechanism that does not assemble, is not fully driven or is singular at t0 gives a
+        report whose ``error`` says so."""
+        system = self.compile(overrides, need_times=self.model.simulate is not None)
+        drives = len(system.drive_rows)
+        lines = _structure(self.model, system)
+        t0 = float(system.times[0]) if system.times is not None else 0.0
+
+        def done(**found) -> CheckReport:
+            return CheckReport(source=system.source.name, bodies=len(system.body_names),
+                               coordinates=system.n, joints=len(system.constraints) - drives,
+                               equations=system.m - drives, drives=drives, t0=t0,
+                               lines=tuple(lines), **found)
+
+        opts = SolverOptions().for_size(system.n_bodies)
+        try:
+            asm = assemble(system, t0, opts)
+        except MechError as err:  # not fully driven, a plugin's defect
+            return done(error=err)
+        if not asm.ok.all():
+            return done(error=NumericalError(asm.messages[0], source=system.source))
+        lines.append(f"assembled at t = {t0:g}:")
+        width = max(len(b) for b in system.body_names)
+        for i, b in enumerate(system.body_names):
+            x, y, phi = (0.0 if abs(c) < 1e-14 * s else c for c, s in
+                         zip(asm.q[0, 3 * i : 3 * i + 3], (system.scale[0], system.scale[0], 1)))
+            lines.append(f"  {b:<{width}}  x = {x:< 12.6g} y = {y:< 12.6g} phi = {phi:.6g}")
+        D = col_scale(system)
+        mobility, rank, redundant = report(one_variant(system, 0), asm.q[0], D[0, 0])
+        equations = system.m - drives
+        extra = f", {equations - rank} redundant" if equations > rank else ""
+        lines.append(f"mobility {mobility} = {system.n} coordinates - {rank} independent joint "
+                     f"equations ({equations} in all{extra}, rank of Phi_q at the assembled "
+                     f"configuration); {_count(drives, 'drive')}: fully driven")
+        if redundant:
+            lines.append(f"redundant: {redundant}")
+        found = dict(mobility=mobility, rank=rank, redundant=redundant)
+        warning = redundancy_warning(system, asm.mobility) if asm.mobility is not None else None
+        if warning:
+            found["warnings"] = (warning,)
+        rows = asm.mobility.rows
+        jac = eq.solver_jacobian(system, asm.q[:, None], rows, use_sparse(system, opts, rows))
+        rcond = factor(jac, D).rcond[:, 0]
+        bad = np.flatnonzero(~(rcond >= opts.singular_rcond))
+        if bad.size:
+            v = int(bad[0])
+            cond, names = singularity(system, asm.q[v], v)
+            return done(**found, error=NumericalError(
+                f"the Jacobian is singular at the assembled configuration (condition number "
+                f"{cond:.3g}); dependent equations involve {names}", source=system.source))
+        variants = f" (all {system.n_variants} sweep variants)" if system.n_variants > 1 else ""
+        return done(**found, condition=float(1 / rcond.min()),
+                    verdict=f"ok: assembles at t = {t0:g}{variants}; scaled Jacobian "
+                            f"condition number {1 / rcond.min():.3g}")
+
     def compile(self, overrides: Overrides | None = None, *, need_times: bool = True) -> System:
-        """Resolve the model against the registry (see :func:`mechdsl.compile.compile_model`)."""
+        """Resolve the model against the registry (see
+        :func:`mechdsl.compiled.compile.compile_model`)."""
         return compile_model(self.model, self.registry, overrides, need_times=need_times)
 
     def simulate(
@@ -113,7 +228,7 @@ class Mechanism:
         names = [p.name for p in self.model.params]
 
         def value(v, what: str):
-            return parse_expr(v, what, names) if isinstance(v, str) else v
+            return parse_value(v, what, names) if isinstance(v, str) else v
 
         values = {k: value(v, k) for k, v in {**(params or {}), **param_values}.items()}
         sweeps = {k: [value(x, k) for x in ([vs] if isinstance(vs, str) else vs)]
@@ -126,13 +241,23 @@ class Mechanism:
         return simulate(self.compile(ov), options, poses=poses)
 
 
+def parse_value(text: str, what: str, params: Iterable[str], many: bool = False):
+    """A value given as text on the command line or to the API (``--set l=2*r``,
+    ``l="2*r"``): one expression of ``params`` (with ``many``, a comma-separated list of
+    them), with the table files it names read. Errors are located in ``text``, named
+    ``what``."""
+    value = (parse_expr_list if many else parse_expr)(text, what, params)
+    return read_tables(value, Source(what, normalise(text)))
+
+
 def loads(text: str, name: str = "<string>", *, check: bool = True, **kwargs) -> Mechanism:
-    """Parse ``.mech`` text and, with ``check``, resolve its names against the plugins
-    (:meth:`Mechanism.check`), so that a mistake is a located :class:`MechError` here, not
-    later; keyword arguments go to :class:`Mechanism`."""
-    mech = Mechanism(parse(text, name), **kwargs)
+    """Parse ``.mech`` text, read the files it names (tables, meshes:
+    :func:`mechdsl.compiled.files.read_files`) and, with ``check``, resolve its names against
+    the plugins (:meth:`Mechanism.check_names`), so that a mistake is a located
+    :class:`MechError` here, not later; keyword arguments go to :class:`Mechanism`."""
+    mech = Mechanism(read_files(parse(text, name)), **kwargs)
     if check:
-        mech.check()
+        mech.check_names()
     return mech
 
 
@@ -143,7 +268,6 @@ def load(path: str | os.PathLike, *, max_memory: int | None = None, **kwargs) ->
     The file is read as data (:func:`mechdsl.reading.read_data`): a regular file of at most
     :data:`mechdsl.reading.MAX_MODEL_BYTES`, else a :class:`MechError` naming it.
     """
-    from .parse import normalise
     from .reading import read_data
 
     path = os.fspath(path)
@@ -167,3 +291,47 @@ def load(path: str | os.PathLike, *, max_memory: int | None = None, **kwargs) ->
                         Span(line, col, line, col + 1),
                         Source(path, normalise(raw.decode("utf-8", "replace")))) from None
     return loads(text, path, **kwargs)
+
+
+def _count(k: int, what: str, plural: str | None = None) -> str:
+    """'1 drive', '3 drives', '2 moving bodies'."""
+    return f"{k} {what if k == 1 else plural or what + 's'}"
+
+
+def _structure(model: Model, system: System) -> list[str]:
+    """The lines of what the model declares; the mobility, which needs the rank at the
+    assembled configuration, is reported once, after the assembly."""
+    drives = len(system.drive_rows)
+    joints = len(system.constraints) - drives
+    bodies = _count(len(system.body_names), "moving body", "moving bodies")
+    lines = [f"{system.source.name}: {bodies} ({system.n} coordinates); "
+             f"{_count(joints, 'joint')} ({_count(system.m - drives, 'equation')}) and "
+             f"{_count(drives, 'drive')}"]
+    lines.append("bodies:")
+    for b in (model.ground, *model.bodies):
+        pts = ", ".join(p.name for p in b.points)
+        guess = "fixed" if b.is_ground else ("guess " + _fmt(system.guess[0][
+            3 * system.body_names.index(b.name): 3 * system.body_names.index(b.name) + 3]))
+        lines.append(f"  {b.name:<12} {guess:<28} points: origin{', ' + pts if pts else ''}")
+    lines.append("joints and drives:")
+    functions = {d.name: d.function for d in model.drives}
+    for c in system.constraints:
+        neq = c.rows[1] - c.rows[0]
+        extra = f"  = {to_text(functions[c.name])}" if c.name in functions else ""
+        lines.append(f"  {c.kind:<5} {c.name:<14} {c.type_name:<10} {', '.join(c.bodies):<22} "
+                     f"{neq} equation{'s' if neq != 1 else ''}{extra}")
+    shaped = [(name, mp) for name, mp in zip(system.body_names, system.mass) if mp is not None]
+    if shaped:
+        lines.append("shapes (body frame; polar moment J about the centroid):")
+        for name, mp in shaped:
+            mass = ("" if not np.isfinite(mp.mass[0]) else
+                    f"  mass {mp.mass[0]:.6g}  inertia {mp.inertia[0]:.6g}")
+            size = float(np.sqrt(mp.area[0]))
+            centroid = np.where(np.abs(mp.centroid[0]) < 1e-12 * size, 0.0, mp.centroid[0])
+            lines.append(f"  {name:<12} area {mp.area[0]:.6g}  centroid {_fmt(centroid)}  "
+                         f"J {mp.polar[0]:.6g}{mass}")
+    return lines
+
+
+def _fmt(v: np.ndarray) -> str:
+    return "(" + ", ".join(f"{x:g}" for x in v) + ")"

@@ -11,26 +11,25 @@ from typing import Iterator
 
 import numpy as np
 
-from .api import Mechanism, load
+from .api import Mechanism, load, parse_value
+from .compiled.system import System
+from .compiled.variants import MAX_MEMORY, Overrides
+from .errors import MechError, NumericalError, Source, format_error, suggest
+from .outputs import FORMATS
 from .results import summary
 from .writing import Output, SignalGuard, check_distinct, emit
-from .system import System
-from .variants import MAX_MEMORY, Overrides
-from .errors import MechError, NumericalError, Source, format_error, suggest
-from .parse import parse_expr, parse_expr_list
 
 
 def _overrides(mech: Mechanism, args) -> Overrides:
     names = [p.name for p in mech.model.params]
     ov = Overrides()
-    for opt, target, parse_value in (("--set", ov.params, parse_expr),
-                                     ("--sweep", ov.sweeps, parse_expr_list)):
+    for opt, target, many in (("--set", ov.params, False), ("--sweep", ov.sweeps, True)):
         for item in getattr(args, opt.lstrip("-")):
             name, eq_sign, value = item.partition("=")
             name = name.strip()
             if not eq_sign or not name.isidentifier():
                 raise MechError(f"{opt} takes NAME=VALUE, not '{item}'")
-            target[name] = parse_value(value, f"{opt} {name}", names)
+            target[name] = parse_value(value, f"{opt} {name}", names, many)
     for attr in ("t0", "t1", "step"):
         value = getattr(args, attr, None)
         if value is not None:
@@ -45,7 +44,7 @@ def _max_memory(args) -> int | None:
     """The bytes of --max-memory, if given."""
     if not getattr(args, "max_memory", None):
         return None
-    from .variants import parse_size
+    from .compiled.variants import parse_size
 
     try:
         return parse_size(args.max_memory)
@@ -55,7 +54,7 @@ def _max_memory(args) -> int | None:
 
 
 def _options(args):
-    from .options import SolverOptions
+    from .solve import SolverOptions
 
     given = {}
     if getattr(args, "newton_tol", None) is not None:
@@ -75,15 +74,13 @@ def _options(args):
 
 def _outputs(args) -> list[tuple[str, str]]:
     """The files ``mechdsl run`` is asked to write, as (option, path), in the order written."""
-    given = (("-o", args.output), ("--plot", args.plot), ("--snapshot", args.snapshot),
-             ("--animate", args.animate), ("--export", args.export))
+    given = ((f.option, getattr(args, f.arg)) for f in FORMATS.values())
     return [(option, path) for option, path in given if path and path != "-"]
 
 
 def _check_targets(args) -> None:
     """Refuse unwritable output paths, unknown formats and bad drawing options before
     loading anything."""
-    from .plot import FORMATS
     from .writing import is_direct
 
     for option, path in _outputs(args):
@@ -100,32 +97,24 @@ def _check_targets(args) -> None:
         if os.path.exists(target) and not os.access(target, os.W_OK):
             # a plain open() would fail; replacing the read-only file would defeat its mode
             raise MechError(f"{option} {path}: the file is read-only")
-    for option, path in (("--plot", args.plot), ("--snapshot", args.snapshot)):
-        ext = os.path.splitext(path or "")[1].lstrip(".").lower()
-        if path and ext not in FORMATS:
-            raise MechError(f"{option} {path}: unknown image format '{ext}'; use one of "
-                            + ", ".join(sorted(FORMATS)))
-    if args.animate:
-        ext = os.path.splitext(args.animate)[1].lower()
-        if ext not in (".gif", ".mp4"):
-            raise MechError(f"--animate {args.animate}: an animation is a .gif or an .mp4")
-        if ext == ".mp4":
-            from matplotlib import animation
-            if not animation.writers.is_available("ffmpeg"):
-                raise MechError(f"--animate {args.animate}: an .mp4 needs ffmpeg on the PATH, "
-                                "which is not there; install ffmpeg or write a .gif")
+    for fmt in FORMATS.values():
+        path = getattr(args, fmt.arg)
+        if path and fmt.kind != "csv":
+            fmt.check(path)
+    if args.animate and os.path.splitext(args.animate)[1].lower() == ".mp4":
+        from matplotlib import animation
+        if not animation.writers.is_available("ffmpeg"):
+            raise MechError(f"--animate {args.animate}: an .mp4 needs ffmpeg on the PATH, "
+                            "which is not there; install ffmpeg or write a .gif")
     if args.frames < 2:
         raise MechError(f"--frames {args.frames}: an animation needs at least 2 frames")
-    if args.export and os.path.splitext(args.export)[1].lower() not in (".xdmf", ".vtu"):
-        raise MechError(f"--export {args.export}: use .xdmf (one time series) or .vtu (one "
-                        "file per instant, with a .pvd index)")
     if args.at is not None and not args.snapshot:
         raise MechError("--at chooses the instants of --snapshot, which is not given")
 
 
 def _override_files(ov: Overrides) -> list[str]:
     """The files that tables in --set and --sweep values read."""
-    from . import expr as E
+    from .grammar import expr as E
 
     values = [*ov.params.values(), *(v for vs in ov.sweeps.values() for v in vs)]
     return [n.path for v in values if isinstance(v, E.Expr.__args__)
@@ -137,7 +126,7 @@ def _check_outputs(args, mech: Mechanism, ov: Overrides, system: System,
     """Once the model is read and the run known, before solving: refuse an output that is
     the model file, a file the model reads, or another output of the run (every file of an
     --export series included); refuse --at instants outside the run."""
-    from .export import series
+    from .outputs.export import series
 
     inputs = [("the model file", args.file)]
     inputs += [("the model's data file", f) for f in mech.model.files]
@@ -237,7 +226,7 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
     if args.trace:
         from dataclasses import replace
 
-        from .model import OutputRef
+        from .grammar.model import OutputRef
         extra = tuple(OutputRef(tuple(_trace_ref(mech.model, r)), None) for r in args.trace)
         mech.model = replace(mech.model, traces=mech.model.traces + extra)
     ov = _overrides(mech, args)
@@ -273,48 +262,33 @@ def _writing(option: str, path: str) -> Iterator[None]:
 
 def _write_outputs(args, system: System, results, at: list[float] | None,
                    signals: SignalGuard) -> tuple[list[str], KeyboardInterrupt | None]:
-    """Write every output asked for, the CSV first and whole: a signal from the end of the
-    solve until the CSV is complete is held back until then. Returns the outputs written and the interrupt that
-    stopped the others, if one did (their temporary files are removed as it goes up)."""
-    from .results import write_csv
-
+    """Write every output asked for (:data:`mechdsl.outputs.FORMATS`), the CSV first and
+    whole: a signal from the end of the solve until the CSV is complete is held back until
+    then. Returns the outputs written and the interrupt that stopped the others, if one did
+    (their temporary files are removed as it goes up)."""
     written: list[str] = []
     solved = results.n_solved.max(initial=0) > 0
+    title = os.path.basename(args.file)
+    if args.set:
+        title += " (" + ", ".join(s.replace("=", " = ", 1) for s in args.set) + ")"
+    options = {"plot": {"title": title}, "snapshot": {"at": at},
+               "animation": {"max_frames": args.frames}}
     try:
+        csv = FORMATS["csv"]
         if args.output:
-            with signals.held(), _writing("-o", args.output):
-                write_csv(results, args.output)
+            with signals.held(), _writing(csv.option, args.output):
+                csv.write(results, system, args.output)
                 written.append(args.output)
         # the CSV is whole: a signal received meanwhile stops the rest now, and the next one
         # may interrupt the pictures and exports
         signals.release()
-        if args.plot:
-            from .plot import plot_results
-
-            title = os.path.basename(args.file)
-            if args.set:
-                title += " (" + ", ".join(s.replace("=", " = ", 1) for s in args.set) + ")"
-            with _writing("--plot", args.plot):
-                plot_results(results, args.plot, title=title)
-            written.append(args.plot)
-        if args.snapshot and solved:
-            from .draw import snapshot
-
-            with _writing("--snapshot", args.snapshot):
-                snapshot(results, system, args.snapshot, at=at)
-            written.append(args.snapshot)
-        if args.animate and solved:
-            from .draw import animate
-
-            with _writing("--animate", args.animate):
-                animate(results, system, args.animate, max_frames=args.frames)
-            written.append(args.animate)
-        if args.export and solved:
-            from .export import export
-
-            with _writing("--export", args.export):
-                export(results, system, args.export)
-            written.append(args.export)
+        for fmt in FORMATS.values():
+            path = getattr(args, fmt.arg)
+            if fmt is csv or not path or (fmt.mechanism and not solved):
+                continue
+            with _writing(fmt.option, path):
+                fmt.write(results, system, path, **options.get(fmt.kind, {}))
+            written.append(path)
     except KeyboardInterrupt as err:
         return written, err
     return written, None
@@ -376,18 +350,18 @@ def _written_lines(args, results, written: list[str]) -> list[str]:
         n = len(results.labels)
         lines.append(f"{args.plot}: plot of {n} quantit{'ies' if n != 1 else 'y'}")
     if args.snapshot in written:
-        from .draw import snapshot_instants
+        from .outputs.draw import snapshot_instants
 
         ks = snapshot_instants(results, _instants_option(args.at))
         lines.append(f"{args.snapshot}: snapshot at t = "
                      + ", ".join(f"{results.times[k]:g}" for k in ks))
     if args.animate in written:
-        from .draw import frame_count
+        from .outputs.draw import frame_count
 
         n = frame_count(results, args.frames)
         lines.append(f"{args.animate}: animation of {n} frame{'s' if n != 1 else ''}")
     if args.export in written:
-        from .export import written_files
+        from .outputs.export import written_files
 
         per_variant = [f for f in written_files(args.export, results.n_solved) if f]
         count = sum(len(f) for f in per_variant)
@@ -424,105 +398,19 @@ def _interrupted_text(args, results, written: list[str], signum: int) -> str:
 
 
 def check_command(args) -> int:
-    """``mechdsl check``: structure, equations, mobility and redundancy at the assembled
-    configuration, assembly at t0."""
-    from . import equations as eq
-    from .assembly import assemble
-    from .diagnose import col_scale, one_variant, singularity
-    from .linalg import factor
-    from .mobility import redundancy_warning, report
-    from .newton import use_sparse
-    from .options import SolverOptions
-
+    """``mechdsl check``: what the model declares, its assembly at t0, mobility and
+    redundancy at the assembled configuration (:meth:`Mechanism.check`), printed."""
     # compile() comes next and finds the same mistakes: no separate check of the names
     mech = load(args.file, plugins=args.plugin, allow_plugins=args.allow_plugin, check=False,
                 max_memory=_max_memory(args) or MAX_MEMORY)
-    system = mech.compile(_overrides(mech, args), need_times=mech.model.simulate is not None)
-    emit(_structure(mech, system))
-    t0 = float(system.times[0]) if system.times is not None else 0.0
-    opts = SolverOptions().for_size(system.n_bodies)
-    asm = assemble(system, t0, opts)
-    if not asm.ok.all():
-        raise NumericalError(asm.messages[0], source=system.source)
-    emit(f"assembled at t = {t0:g}:")
-    width = max(len(b) for b in system.body_names)
-    for i, b in enumerate(system.body_names):
-        x, y, phi = (0.0 if abs(c) < 1e-14 * s else c for c, s in
-                     zip(asm.q[0, 3 * i : 3 * i + 3], (system.scale[0], system.scale[0], 1)))
-        emit(f"  {b:<{width}}  x = {x:< 12.6g} y = {y:< 12.6g} phi = {phi:.6g}")
-    D = col_scale(system)
-    mobility, rank, redundant = report(one_variant(system, 0), asm.q[0], D[0, 0])
-    joints = system.m - len(system.drive_rows)
-    drives = len(system.drive_rows)
-    extra = f", {joints - rank} redundant" if joints > rank else ""
-    emit(f"mobility {mobility} = {system.n} coordinates - {rank} independent joint equations "
-         f"({joints} in all{extra}, rank of Phi_q at the assembled configuration); "
-         f"{_count(drives, 'drive')}: fully driven")
-    if redundant:
-        emit(f"redundant: {redundant}")
-    warning = redundancy_warning(system, asm.mobility) if asm.mobility is not None else None
-    if warning:
-        print(f"{system.source.name}: warning: {warning}", file=sys.stderr)
-    rows = asm.mobility.rows
-    jac = eq.solver_jacobian(system, asm.q[:, None], rows, use_sparse(system, opts, rows))
-    rcond = factor(jac, D).rcond[:, 0]
-    bad = np.flatnonzero(~(rcond >= opts.singular_rcond))
-    if bad.size:
-        v = int(bad[0])
-        cond, names = singularity(system, asm.q[v], v)
-        raise NumericalError(f"the Jacobian is singular at the assembled configuration "
-                             f"(condition number {cond:.3g}); dependent equations involve "
-                             f"{names}", source=system.source)
-    variants = f" (all {system.n_variants} sweep variants)" if system.n_variants > 1 else ""
-    emit(f"ok: assembles at t = {t0:g}{variants}; scaled Jacobian condition number "
-         f"{1 / rcond.min():.3g}")
+    report = mech.check(_overrides(mech, args))
+    emit("\n".join(report.lines))
+    for warning in report.warnings:
+        print(f"{report.source}: warning: {warning}", file=sys.stderr)
+    if report.error is not None:
+        raise report.error
+    emit(report.verdict)
     return 0
-
-
-def _count(k: int, what: str, plural: str | None = None) -> str:
-    """'1 drive', '3 drives', '2 moving bodies'."""
-    return f"{k} {what if k == 1 else plural or what + 's'}"
-
-
-def _structure(mech: Mechanism, system: System) -> str:
-    """What the model declares; the mobility, which needs the rank at the assembled
-    configuration, is reported once, after the assembly."""
-    drives = len(system.drive_rows)
-    joints = len(system.constraints) - drives
-    lines = [f"{system.source.name}: {_count(len(system.body_names), 'moving body', 'moving bodies')} "
-             f"({system.n} coordinates); {_count(joints, 'joint')} "
-             f"({_count(system.m - drives, 'equation')}) and {_count(drives, 'drive')}"]
-    lines.append("bodies:")
-    model = mech.model
-    for b in (model.ground, *model.bodies):
-        pts = ", ".join(p.name for p in b.points)
-        guess = "fixed" if b.is_ground else ("guess " + _fmt(system.guess[0][
-            3 * system.body_names.index(b.name): 3 * system.body_names.index(b.name) + 3]))
-        lines.append(f"  {b.name:<12} {guess:<28} points: origin{', ' + pts if pts else ''}")
-    lines.append("joints and drives:")
-    from .expr import to_text
-
-    drives = {d.name: d for d in model.drives}
-    for c in system.constraints:
-        neq = c.rows[1] - c.rows[0]
-        extra = f"  = {to_text(drives[c.name].function)}" if c.name in drives else ""
-        lines.append(f"  {c.kind:<5} {c.name:<14} {c.type_name:<10} {', '.join(c.bodies):<22} "
-                     f"{neq} equation{'s' if neq != 1 else ''}{extra}")
-    shaped = [(name, mp) for name, mp in zip(system.body_names, system.mass) if mp is not None]
-    if shaped:
-        lines.append("shapes (body frame; polar moment J about the centroid):")
-        for name, mp in shaped:
-            mass = ("" if not np.isfinite(mp.mass[0]) else
-                    f"  mass {mp.mass[0]:.6g}  inertia {mp.inertia[0]:.6g}")
-            size = float(np.sqrt(mp.area[0]))
-            centroid = np.where(np.abs(mp.centroid[0]) < 1e-12 * size, 0.0, mp.centroid[0])
-            lines.append(f"  {name:<12} area {mp.area[0]:.6g}  centroid {_fmt(centroid)}  "
-                         f"J {mp.polar[0]:.6g}{mass}")
-    return "\n".join(lines)
-
-
-def _fmt(v: np.ndarray) -> str:
-    return "(" + ", ".join(f"{x:g}" for x in v) + ")"
 
 
 def plugins_command() -> int:
@@ -551,16 +439,13 @@ def plugins_command() -> int:
 
 def plot_command(args) -> int:
     """``mechdsl plot FILE.csv``: the time-history figure of a CSV written by ``run``."""
-    from .plot import FORMATS, plot_results
-    from .results import read_csv
+    from .outputs.csv import read_csv
+    from .outputs.plot import plot_results
 
     results = read_csv(args.file)
     out = args.output or os.path.splitext(args.file)[0] + ".png"
     check_distinct([("the CSV file", args.file)], [Output("-o", out)])
-    ext = os.path.splitext(out)[1].lstrip(".").lower()
-    if ext not in FORMATS:
-        raise MechError(f"-o {out}: unknown image format '{ext}'; use one of "
-                        + ", ".join(sorted(FORMATS)))
+    FORMATS["plot"].check(out, option="-o")
     labels = None
     if args.only:
         labels = [x.strip() for x in args.only.split(",") if x.strip()]

@@ -13,8 +13,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from . import expr as E
-from .derive import derivative
+from .grammar import expr as E
+from .grammar.derive import derivative
 
 
 class ExprFunction:
@@ -36,7 +36,7 @@ class ExprFunction:
     @classmethod
     def of(cls, text: str, var: str, **params: float) -> "ExprFunction":
         """One elementwise function from ``.mech`` expression text (for tests and the kit)."""
-        from .parse import parse_expr
+        from .grammar.parser import parse_expr
 
         return cls([parse_expr(text, "function", [var, *params])], var, params,
                    elementwise=True)

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 from .errors import MechError
 
 if TYPE_CHECKING:
-    from .system import System
+    from .compiled.system import System
 
 BYTES = 8
 #: Arrays the size of one batched Jacobian alive at the peak of a dense Newton step.

@@ -17,7 +17,8 @@ import pytest
 
 from conftest import EXAMPLES, ROOT
 from mechdsl.cli import main
-from mechdsl.results import Results, read_csv, write_csv
+from mechdsl.outputs.csv import read_csv, write_csv
+from mechdsl.results import Results
 
 SLIDER = str(EXAMPLES / "slider_crank.mech")
 UNITS = "# units: t [s], slider.x [m], slider.vx [m/s], slider.ax [m/s^2]"
@@ -54,9 +55,9 @@ SPECIAL = [0.0, -0.0, 0.1, 0.1 + 0.2, 1 / 3, 2.0, 1e-5, 1e16, 1e22, 123456789.12
 
 @pytest.mark.parametrize("chunk", [1, 5, 2**16])
 def test_every_double_is_its_repr_and_reads_back_bit_for_bit(tmp_path, monkeypatch, chunk):
-    import mechdsl.results
+    import mechdsl.outputs.csv
 
-    monkeypatch.setattr(mechdsl.results, "CHUNK_VALUES", chunk)
+    monkeypatch.setattr(mechdsl.outputs.csv, "CHUNK_VALUES", chunk)
     rng = np.random.default_rng(7)
     k = 400
     raw = rng.integers(0, 2**64, size=(2, 2, k), dtype=np.uint64).view(np.float64)  # any bits

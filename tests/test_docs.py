@@ -76,7 +76,7 @@ def test_every_documented_run_option_exists():
 
 
 def test_documented_functions_are_the_functions():
-    from mechdsl.expr import FUNCTIONS
+    from mechdsl.grammar.expr import FUNCTIONS
 
     line = re.search(r"functions `(.*?)`", LANGUAGE, flags=re.S).group(1)
     names = set(re.findall(r"[a-z][a-z0-9]*", line)) - {"a", "b", "x", "y"}

@@ -31,7 +31,7 @@ def coupler_point(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def test_traced_path_is_the_coupler_curve(loads):
-    from mechdsl.draw import paths
+    from mechdsl.outputs.draw import paths
     from mechdsl.solve import simulate
 
     text = FOURBAR.read_text() + "\ntrace rocker\n"  # the file itself traces coupler.P
@@ -95,7 +95,7 @@ def test_mp4_needs_ffmpeg(tmp_path):
 
 
 def _coupler_p_index(system) -> int:
-    from mechdsl.export import _layout
+    from mechdsl.outputs.export import _layout
 
     owners, _, _ = _layout(system)
     coupler = system.body_names.index("coupler")
@@ -176,7 +176,7 @@ def test_plot_redraws_a_sweep_csv_without_solving(tmp_path):
     from PIL import Image
 
     from closed_forms import slider_crank
-    from mechdsl.results import read_csv
+    from mechdsl.outputs.csv import read_csv
 
     csv = tmp_path / "sweep.csv"
     r = mechdsl("run", EXAMPLES / "slider_crank.mech", "--sweep", "l=3.5,2.5", "--step", "0.01",
@@ -201,14 +201,14 @@ def test_plot_redraws_a_sweep_csv_without_solving(tmp_path):
 
 
 def test_units_label_every_quantity(loads):
-    from mechdsl.compile import unit_of
+    from mechdsl.compiled.compile import unit_of
     from mechdsl.solve import simulate
 
     assert [unit_of(q, "mm", "s") for q in ("x", "vy", "ax", "phi", "omega", "alpha")] == \
         ["mm", "mm/s", "mm/s^2", "rad", "rad/s", "rad/s^2"]
     assert unit_of("vx", "mm", "") == "" and unit_of("phi", "", "") == "rad"
     text = (EXAMPLES / "fourbar.mech").read_text() + '\nunits length = "mm", time = "ms"\n'
-    res = simulate(loads(text).compile(__import__("mechdsl").variants.Overrides(step=0.5)))
+    res = simulate(loads(text).compile(__import__("mechdsl").compiled.variants.Overrides(step=0.5)))
     assert res.units == {"rocker.phi": "rad", "rocker.omega": "rad/ms", "rocker.alpha":
                          "rad/ms^2", "coupler.phi": "rad", "coupler.P.x": "mm",
                          "coupler.P.y": "mm"}

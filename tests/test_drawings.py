@@ -53,22 +53,22 @@ def pose(t: float) -> dict[str, np.ndarray]:
 @pytest.fixture
 def figures(monkeypatch):
     """The matplotlib figures drawn while the test runs (snapshots and animations)."""
-    import mechdsl.plot
+    import mechdsl.outputs.plot
 
     made = []
-    original = mechdsl.plot.new_figure
+    original = mechdsl.outputs.plot.new_figure
 
     def new_figure(**kwargs):
         made.append(original(**kwargs))
         return made[-1]
 
-    monkeypatch.setattr(mechdsl.plot, "new_figure", new_figure)
+    monkeypatch.setattr(mechdsl.outputs.plot, "new_figure", new_figure)
     return made
 
 
 def solve(loads, text: str, **sweeps):
     from mechdsl.solve import simulate
-    from mechdsl.variants import Overrides
+    from mechdsl.compiled.variants import Overrides
 
     system = loads(text).compile(Overrides(sweeps=sweeps))
     return system, simulate(system, poses=True, rates=True)
@@ -119,7 +119,7 @@ def check_pinned_drawing(ax, t: float) -> None:
 
 def test_bodies_pinned_at_their_origin_are_drawn_through_it_in_a_snapshot(loads, figures,
                                                                           tmp_path):
-    from mechdsl.draw import snapshot
+    from mechdsl.outputs.draw import snapshot
 
     system, res = solve(loads, PINNED)
     assert res.ok
@@ -132,7 +132,7 @@ def test_bodies_pinned_at_their_origin_are_drawn_through_it_in_a_snapshot(loads,
 
 def test_bodies_pinned_at_their_origin_are_drawn_through_it_in_an_animation(loads, figures,
                                                                             tmp_path):
-    from mechdsl.draw import animate
+    from mechdsl.outputs.draw import animate
 
     system, res = solve(loads, PINNED)
     animate(res, system, str(tmp_path / "a.gif"), max_frames=5)
@@ -141,7 +141,7 @@ def test_bodies_pinned_at_their_origin_are_drawn_through_it_in_an_animation(load
 
 
 def test_outlines_put_attached_points_first_then_the_declared_ones(loads):
-    from mechdsl.draw import outlines
+    from mechdsl.outputs.draw import outlines
 
     system = loads(PINNED).compile()
     drawn = dict(zip((*system.body_names, "ground"), outlines(system.sketch)))
@@ -159,7 +159,7 @@ def test_outlines_put_attached_points_first_then_the_declared_ones(loads):
 
 @pytest.mark.parametrize("ext", [".vtu", ".xdmf"])
 def test_exported_cells_join_the_origin_and_none_has_zero_length(loads, tmp_path, ext):
-    from mechdsl.export import export
+    from mechdsl.outputs.export import export
 
     system, res = solve(loads, PINNED)
     export(res, system, str(tmp_path / f"e{ext}"))
@@ -230,8 +230,8 @@ def test_a_pivot_at_the_ground_origin_has_its_support_beside_the_declared_ones(
     support under the origin and under O4, in the snapshot and in the export's ground cell."""
     import meshio
 
-    from mechdsl.draw import snapshot
-    from mechdsl.export import export
+    from mechdsl.outputs.draw import snapshot
+    from mechdsl.outputs.export import export
     from mechdsl.solve import simulate
 
     text = (EXAMPLES / "fourbar.mech").read_text()
@@ -256,9 +256,9 @@ def legend_texts(ax) -> list[str]:
 
 def test_a_sweep_snapshot_names_its_variants_and_draws_their_supports(load_example, figures,
                                                                       tmp_path):
-    from mechdsl.draw import _colors, snapshot
+    from mechdsl.outputs.draw import _colors, snapshot
     from mechdsl.solve import simulate
-    from mechdsl.variants import Overrides
+    from mechdsl.compiled.variants import Overrides
 
     system = load_example("fourbar.mech").compile(Overrides(sweeps={"d": [3.8, 4.2]}))
     res = simulate(system, poses=True)
@@ -282,7 +282,7 @@ def test_a_sweep_snapshot_names_its_variants_and_draws_their_supports(load_examp
 
 
 def test_a_sweep_without_traces_has_a_legend_and_no_warning(loads, figures, tmp_path):
-    from mechdsl.draw import animate, snapshot
+    from mechdsl.outputs.draw import animate, snapshot
 
     system, res = solve(loads, PINNED, l=[3.5, 4.0])
     with warnings.catch_warnings():
@@ -315,7 +315,7 @@ def test_an_animation_draws_its_fixed_parts_once_and_keeps_palette_frames(
     from matplotlib.figure import Figure
     from PIL import Image
 
-    from mechdsl.draw import animate
+    from mechdsl.outputs.draw import animate
     from mechdsl.solve import simulate
 
     draws = []

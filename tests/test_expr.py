@@ -4,9 +4,9 @@ forms; evaluation broadcasting; printing that parses back to the same function."
 import numpy as np
 import pytest
 
-from mechdsl import expr as E
-from mechdsl.derive import derivative
-from mechdsl.parse import parse_expr
+from mechdsl.grammar import expr as E
+from mechdsl.grammar.derive import derivative
+from mechdsl.grammar import parse_expr
 
 PARAMS = {"a": 0.7, "b": 1.3}
 T = np.linspace(0.05, 0.95, 37)

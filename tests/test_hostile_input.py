@@ -18,15 +18,15 @@ import numpy as np
 import pytest
 
 import mechdsl
-import mechdsl.grammar_cache as grammar_cache
-import mechdsl.parse as parse_module
+import mechdsl.grammar.cache as grammar_cache
+import mechdsl.grammar.parser as parse_module
 import mechdsl.reading as reading
 from conftest import EXAMPLES, ROOT
-from mechdsl import expr as E
+from mechdsl.grammar import expr as E
 from mechdsl.cli import main
-from mechdsl.derive import derivative
+from mechdsl.grammar.derive import derivative
 from mechdsl.errors import MechError, format_error
-from mechdsl.parse import MAX_DEPTH, parse, parse_expr
+from mechdsl.grammar.parser import MAX_DEPTH, parse, parse_expr
 
 # A crank of length r pinned at its end A to the ground's origin: its centre is at
 # x = (r/2) cos(phi), y = (r/2) sin(phi), whatever drives phi.

@@ -112,7 +112,7 @@ def test_massless_coupler_and_weld_keep_the_four_bar_closed_form(load_example):
                                   "cam_flat.mech", "cam_roller.mech", "fourbar_coupler.mech"])
 def test_library_examples_pass_check(name, registry):
     import mechdsl
-    from mechdsl.assembly import assemble
+    from mechdsl.solve import assemble
 
     system = mechdsl.load(EXAMPLES / name, registry=registry).compile()
     asm = assemble(system, system.times[0])

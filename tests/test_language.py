@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 import mechdsl
-from mechdsl import expr as E
-from mechdsl.derive import derivative
+from mechdsl.grammar import expr as E
+from mechdsl.grammar.derive import derivative
 from mechdsl.errors import MechError, format_error
-from mechdsl.parse import parse
+from mechdsl.grammar import parse
 
 # The language sample of the specification, verbatim, completed into a mechanism.
 SPEC = """

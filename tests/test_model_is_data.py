@@ -16,7 +16,7 @@ from closed_forms import slider_crank
 from conftest import EXAMPLES, ROOT
 from mechdsl.cli import main
 from mechdsl.errors import MechError
-from mechdsl.options import SolverOptions
+from mechdsl.solve import SolverOptions
 from mechdsl.plugins import build_registry, hookimpl
 
 SLIDER = (EXAMPLES / "slider_crank.mech").read_text()
@@ -251,7 +251,7 @@ def test_a_wrong_jacobian_is_named_when_newton_fails_mid_run(registry):
 
 
 def test_a_correct_jacobian_is_not_called_wrong(load_example):
-    from mechdsl.diagnose import jacobian_defects
+    from mechdsl.solve.diagnose import jacobian_defects
 
     system = load_example("fourbar.mech").compile()
     res = load_example("fourbar.mech").simulate(poses=True)

@@ -14,7 +14,7 @@ import mechdsl
 from closed_forms import slider_crank
 from conftest import EXAMPLES, ROOT
 from mechdsl.compiled import native
-from mechdsl.options import SolverOptions
+from mechdsl.solve import SolverOptions
 from mechdsl.solve import simulate
 
 COMPILED = SolverOptions(backend="compiled")
@@ -82,7 +82,7 @@ def test_a_small_run_never_imports_numba():
 
 CACHED_RUN = """
 import mechdsl
-from mechdsl.options import SolverOptions
+from mechdsl.solve import SolverOptions
 res = mechdsl.load("examples/slider_crank.mech").simulate(
     options=SolverOptions(backend="compiled"))
 print(res.status, float(res["slider.x"][-1]))

@@ -380,7 +380,7 @@ def test_a_signal_while_solving_keeps_a_complete_csv_of_the_instants_solved(
 # when it has written a few chunks, so that the signal comes in the middle of the CSV.
 SIGNAL_WHILE_WRITING = '''
 import os, signal, sys
-import mechdsl.results as results
+import mechdsl.outputs.csv as results
 
 results.CHUNK_VALUES = 40  # ten rows a chunk: many writes
 write_rows = results.write_rows
@@ -494,10 +494,10 @@ def fake_results(k: int, sweep: bool = False):
 
 @pytest.mark.parametrize("chunk", [1, 7, 2**16])
 def test_the_streamed_csv_holds_the_results_exactly(tmp_path, monkeypatch, chunk):
-    import mechdsl.results
-    from mechdsl.results import write_csv
+    import mechdsl.outputs.csv
+    from mechdsl.outputs.csv import write_csv
 
-    monkeypatch.setattr(mechdsl.results, "CHUNK_VALUES", chunk)
+    monkeypatch.setattr(mechdsl.outputs.csv, "CHUNK_VALUES", chunk)
     res = fake_results(1000, sweep=True)
     write_csv(res, tmp_path / "out.csv")
     header, rows = csv_rows((tmp_path / "out.csv").read_text())
@@ -515,7 +515,7 @@ def test_the_streamed_csv_holds_the_results_exactly(tmp_path, monkeypatch, chunk
 def test_the_csv_writer_holds_bounded_memory(tmp_path):
     import tracemalloc
 
-    from mechdsl.results import write_csv
+    from mechdsl.outputs.csv import write_csv
 
     peaks = {}
     for k in (100_000, 400_000):

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from closed_forms import slider_crank
-from mechdsl.hermite import quintic_hermite
-from mechdsl.options import SolverOptions
+from mechdsl.solve.hermite import quintic_hermite
+from mechdsl.solve import SolverOptions
 
 PLAIN = SolverOptions(coarse_stride=1)
 
@@ -90,7 +90,7 @@ def test_the_coarse_tolerance_is_checked_where_it_is_set(value):
 
 
 def test_a_jacobian_with_a_nan_entry_is_singular():
-    from mechdsl.linalg import factor
+    from mechdsl.solve.linalg import factor
 
     fac = factor(np.array([[np.nan, 1.0], [1.0, 1.0]])[None, None], np.ones((1, 1, 2)))
     assert fac.rcond[0, 0] == 0.0 and fac.sign[0, 0] == 0.0

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-import mechdsl.solve as solve
+import mechdsl.solve.run as solve
 from closed_forms import slider_crank
 from conftest import EXAMPLES, ROOT
 from mechdsl.errors import MechError
@@ -191,7 +191,7 @@ def test_output_to_a_pipe_is_written_into_it_not_over_it(tmp_path, load_example)
     import stat
     import threading
 
-    from mechdsl.results import write_csv
+    from mechdsl.outputs.csv import write_csv
 
     fifo = tmp_path / "pipe"
     os.mkfifo(fifo)

@@ -141,7 +141,7 @@ def test_a_shaped_body_is_drawn(tmp_path):
 
 
 def test_mesh_boundary_is_the_outline():
-    from mechdsl.shapes import boundary
+    from mechdsl.compiled.shapes import boundary
 
     # two triangles of a square: the diagonal is inner, the four sides are the boundary
     edges = boundary(np.array([[0, 1, 2], [0, 2, 3]]))

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from closed_forms import angle_error, four_bar, slider_crank, start_from_rest
-from mechdsl.assembly import assemble
-from mechdsl.options import SolverOptions
+from mechdsl.solve import assemble
+from mechdsl.solve import SolverOptions
 
 
 def rel_err(got, want):
@@ -104,7 +104,7 @@ def test_a_coarse_step_is_bridged_without_losing_the_branch(load_example):
 
 
 def test_velocities_and_accelerations_are_skipped_when_not_requested(loads, monkeypatch):
-    import mechdsl.solve as solve
+    import mechdsl.solve.run as solve
 
     mech = loads("""
         body crank { point A = (-1, 0) }

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from mechdsl import equations as eq
-from mechdsl.linalg import factor, solve
-from mechdsl.options import SolverOptions
+from mechdsl.compiled import equations as eq
+from mechdsl.solve.linalg import factor, solve
+from mechdsl.solve import SolverOptions
 from mechdsl.solve import simulate
-from mechdsl.sparse import permutation_sign
-from mechdsl.variants import Overrides
+from mechdsl.compiled.sparse import permutation_sign
+from mechdsl.compiled.variants import Overrides
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
 import models  # noqa: E402

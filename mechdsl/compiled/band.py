@@ -49,7 +49,7 @@ def band_plan(rows: np.ndarray, cols: np.ndarray, n: int) -> BandPlan | None:
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import maximum_bipartite_matching, reverse_cuthill_mckee
 
-    from ..sparse import permutation_sign
+    from .sparse import permutation_sign
 
     pattern = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
     match = maximum_bipartite_matching(pattern, perm_type="column")  # row i -> column

@@ -294,7 +294,7 @@ def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, maxit, threshold, br
 
 
 def _cache_folder() -> str | None:
-    from ..grammar_cache import safe_folder
+    from ..grammar.cache import safe_folder
 
     return safe_folder("native")
 

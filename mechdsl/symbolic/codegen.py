@@ -76,7 +76,7 @@ def _lines(graph: Graph, outputs: Sequence[Node], loop: bool, major: bool = Fals
             elif n.op == "call":
                 index, order = n.value
                 # a function sees its argument with the batch axes first, as its params
-                expr = (f"F[{index}][{order}]({a[0]}.T).T" if major
+                expr = (f"_T(F[{index}][{order}](_T({a[0]})))" if major
                         else f"F[{index}][{order}]({a[0]})")
             else:
                 expr = f"{_CALLS[n.op]}({', '.join(a)})"
@@ -142,7 +142,7 @@ def kernel(graph: Graph, outputs: Sequence[Node], name: str = "kernel",
         body.append("    return out")
     source = "\n".join(body) + "\n"
     namespace = dict(_NAMESPACE, empty=np.empty, zeros=np.zeros, concatenate=np.concatenate,
-                     moveaxis=np.moveaxis, nan=np.nan, inf=np.inf)
+                     nan=np.nan, inf=np.inf, _T=lambda a: np.asarray(a).T)
     namespace.update(constants or {})
     code = compile(source, f"<mechdsl generated {name}>", "exec")
     exec(code, namespace)  # noqa: S102 - our own generated source, from the model's graph

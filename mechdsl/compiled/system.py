@@ -15,11 +15,11 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from . import expr as E
-from .errors import Source, Span
-from .plugins.contract import ConstraintType
-from .compiled.fused import Fused
-from .compiled.lu import LUPlan, plan
+from ..errors import Source, Span
+from ..grammar import expr as E
+from ..plugins.contract import ConstraintType
+from .fused import Fused
+from .lu import LUPlan, plan
 from .sparse import Pattern
 
 
@@ -145,7 +145,7 @@ class System:
         """The compiled march of this model (:mod:`mechdsl.compiled.native`: numba imported,
         the march compiled or loaded from the disk cache), or None where the backend does
         not apply or numba is missing. Loaded on first use only."""
-        from .compiled import native
+        from . import native
 
         return native.load(self)
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import equations as eq
-from .system import System
+from ..compiled import equations as eq
+from ..compiled.system import System
 from .linalg import Factor, solve
 from .options import SolverOptions
 

@@ -11,34 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .compiled.lu import LUPlan
-from .sparse import SparseJac, lu_one, sparse_lu
-
-#: From this many states at once, a square Jacobian is factorised by the model's generated
-#: sparse LU (:mod:`mechdsl.compiled.lu`); below, numpy's batched LAPACK calls cost less
-#: (each generated operation has a fixed overhead that only a large batch amortises).
-LU_BATCH = 64
-
-
-@dataclass(frozen=True)
-class LUJac:
-    """Phi_q of a batch of states as its entries ``values`` (..., nnz) in ``pattern``, to be
-    factorised by the generated LU ``lu``."""
-
-    values: np.ndarray
-    pattern: "Pattern"
-    lu: LUPlan
-
-    @property
-    def shape(self) -> tuple[int, ...]:
-        return self.values.shape[:-1] + self.pattern.shape
-
-    def dense(self) -> np.ndarray:
-        p = self.pattern
-        out = np.zeros(self.values.shape[:-1] + (p.shape[0] * p.shape[1],))
-        out[..., p.rows * p.shape[1] + p.cols] = self.values
-        return out.reshape(self.shape)
-
+from ..compiled.lu import LUPlan
+from ..compiled.sparse import LUJac, SparseJac, lu_one, sparse_lu
 
 def solve(a: np.ndarray | SparseJac, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Batched a x = b; ``ok`` is False (and x NaN) where a is singular or x not finite.

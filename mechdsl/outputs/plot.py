@@ -12,12 +12,7 @@ import os
 
 import numpy as np
 
-from .results import Results
-
-#: Image formats matplotlib writes without extra software, by file extension.
-FORMATS = frozenset({"png", "pdf", "svg", "svgz", "eps", "ps", "jpg", "jpeg", "tif", "tiff",
-                     "webp", "pgf"})
-
+from ..results import Results
 
 def _variant_label(results: Results, v: int) -> str:
     return ", ".join(f"{k} = {a[v]:g}" for k, a in results.sweep.items())
@@ -102,7 +97,7 @@ def new_figure(**kwargs):
 def save_figure(fig, path: str | os.PathLike) -> None:
     """Save in the format of the file name's extension (png by default), atomically
     (:func:`mechdsl.writing.atomic_path`)."""
-    from .writing import atomic_path
+    from ..writing import atomic_path
 
     path = os.fspath(path)
     ext = os.path.splitext(path)[1].lstrip(".").lower() or "png"

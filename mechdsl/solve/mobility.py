@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import equations as eq
+from ..compiled import equations as eq
+from ..compiled.system import System
+from ..errors import MechError, NumericalError, listing
 from .diagnose import MAX_NAMED
-from .errors import MechError, NumericalError, listing
-from .system import System
 
 #: A row is independent of the rows kept before it when its component orthogonal to them is
 #: larger than this (rows scaled to unit norm, columns by the model's length scale).
@@ -116,7 +116,7 @@ def independent_rows(a: np.ndarray, tol: float = RANK_TOL) -> tuple[list[int], l
 
 def analyse(system: System, q: np.ndarray, col_scale: np.ndarray) -> Mobility:
     """The mobility at the joints' configuration ``q`` (n,), and the equations to solve;
-    ``system`` holds one variant (see :func:`mechdsl.diagnose.one_variant`).
+    ``system`` holds one variant (see :func:`mechdsl.solve.diagnose.one_variant`).
 
     Raises MechError when the drives do not match the mobility (too few, too many, or a drive
     on a coordinate the joints already fix), and NumericalError when the rank falls short of

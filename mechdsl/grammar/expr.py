@@ -1,7 +1,7 @@
 """Expression trees: the nodes, simplifying constructors, and evaluation over numpy arrays.
 
 A driving constraint ``g(q) = f(t)`` needs f, f' and f'' exactly (Haug's nu = f'(t) and the
-f''(t) term of gamma): :mod:`mechdsl.derive` derives them from these trees, never by finite
+f''(t) term of gamma): :mod:`mechdsl.grammar.derive` derives them from these trees, never by finite
 differences. Every node keeps the :class:`~mechdsl.errors.Span` it was written at.
 
 Evaluation is vectorised: a compiled expression takes a mapping of names to floats or arrays
@@ -22,7 +22,7 @@ from typing import Callable, Generator, Mapping, Union
 
 import numpy as np
 
-from .errors import Span
+from ..errors import Span
 
 # ---------------------------------------------------------------------------------------------
 # Nodes
@@ -104,7 +104,10 @@ class Table:
     evaluated at ``arg``; ``order`` > 0 is its derivative of that order. Periodic with period
     ``period`` when given (then ys[0] == ys[-1] over one period), else undefined (NaN)
     outside [xs[0], xs[-1]]. ``label`` is how the data was written, for display; ``path``
-    the real path of the file it was read from, if any (an output must never replace it)."""
+    the real path of the file it is read from, if any (an output must never replace it), and
+    ``data_span`` where the data is written. A table of a file is parsed without its points
+    (:attr:`unread`); they are read when the model is compiled
+    (:func:`mechdsl.compiled.files.read_files`)."""
 
     xs: tuple[float, ...]
     ys: tuple[float, ...]
@@ -114,6 +117,12 @@ class Table:
     label: str = ""
     span: Span | None = field(default=None, compare=False)
     path: str | None = field(default=None, compare=False)
+    data_span: Span | None = field(default=None, compare=False)
+
+    @property
+    def unread(self) -> bool:
+        """A table of a file whose points are not read yet."""
+        return self.path is not None and not self.xs
 
 
 Expr = Union[Num, Name, Ref, Unary, Binary, Compare, Logic, Call, Cond, Table]

@@ -2,9 +2,10 @@
 
 Positions at different instants are independent root-finding problems, Phi(q_j, t_j) = 0;
 only the starting guesses and the branch checks need the neighbours. The march
-(:func:`mechdsl.solve._parallel`) solves a coarse grid first, then levels that split every
-gap, each level's instants started from the quintic Hermite interpolation of the states
-already solved (q, qd, qdd at both ends of a gap: error O(gap^6)) and corrected all at once.
+(:meth:`mechdsl.solve.run.KinematicRun.parallel`) solves a coarse grid first, then levels
+that split every gap, each level's instants started from the quintic Hermite interpolation
+of the states already solved (q, qd, qdd at both ends of a gap: error O(gap^6)) and
+corrected all at once.
 
 :func:`polish` is the batched Newton of a level, lean on purpose: one evaluation of Phi and
 the Jacobian's entries per iteration (:mod:`mechdsl.compiled.fused`), the model's generated
@@ -16,10 +17,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import equations as eq
+from ..compiled import equations as eq
+from ..compiled.system import System
 from .linalg import solve
 from .options import SolverOptions
-from .system import System
 
 
 def polish(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,

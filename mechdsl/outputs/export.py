@@ -1,10 +1,11 @@
 """Results as meshes for ParaView and other VTK tools, written with meshio.
 
-Every body becomes cells through the points it is drawn through (:func:`mechdsl.draw.outlines`:
-the points it declares and those a joint or drive attaches, its origin included): one line
-segment for a bar, the closed loop of edges for a plate, the segments between successive
-points for the ground, a vertex cell for a body of one point; and line cells along the
-outline of its shape, if it has one. Every point carries its velocity and acceleration
+Every body becomes cells through the points it is drawn through
+(:func:`mechdsl.outputs.draw.outlines`: the points it declares and those a joint or drive
+attaches, its origin included): one line segment for a bar, the closed loop of edges for a
+plate, the segments between successive points for the ground, a vertex cell for a body of
+one point; and line cells along the outline of its shape, if it has one. Every point carries
+its velocity and acceleration
 (rd^P = rd + phid B s', rdd^P = rdd + phidd B s' - phid^2 A s', Haug eq. 2.6.4 differentiated)
 and every cell the index of its body (-1 for the ground), so that ParaView can colour the
 mechanism by speed or by body.
@@ -37,12 +38,10 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from .errors import MechError
-from .results import Results
-from .system import System
-from .writing import atomic_path, write_text
-
-FORMATS = (".xdmf", ".vtu")
+from ..compiled.system import System
+from ..results import Results
+from ..writing import atomic_path, write_text
+from . import FORMATS
 
 
 def _variant_stem(stem: str, v: int, n_variants: int) -> str:
@@ -95,7 +94,7 @@ def written_files(path: str, n_solved) -> list[list[str]]:
 def _layout(system: System) -> tuple[list[tuple[int, np.ndarray]], list, list]:
     """Which body and body-frame point each exported point is ((body, (V, 2)) per point), the
     cell blocks and the body index of each cell, per block. The points of each body are
-    those it is drawn through (:func:`mechdsl.draw.outlines`), so that every point a joint
+    those it is drawn through (:func:`mechdsl.outputs.draw.outlines`), so that every point a joint
     or drive attaches is in its cells. A bar is one line segment, a plate the closed loop of
     its edges, the ground the segments between its successive points, a body (or a ground)
     of one point a vertex cell: no line cell has zero length."""
@@ -169,11 +168,9 @@ def export(results: Results, system: System, path: str) -> list[str]:
 
     if results.poses is None:
         raise ValueError("the run kept no poses: simulate(..., poses=True, rates=True)")
+    FORMATS["export"].check(path)
     stem, ext = os.path.splitext(path)
     ext = ext.lower()
-    if ext not in FORMATS:
-        raise MechError(f"--export {path}: use .xdmf (one time series) or .vtu (one file per "
-                        "instant, with a .pvd index)")
     owners, blocks, bodies = _layout(system)
     written = []
     for v in range(results.n_variants):

@@ -1,4 +1,5 @@
-"""Model + registry -> :class:`~mechdsl.system.System`: names resolved, numbers evaluated.
+"""Model + registry -> :class:`~mechdsl.compiled.system.System`: names resolved, numbers
+evaluated.
 
 Compiling resolves names (bodies, points, types, arguments, outputs) against the model and
 the plugin registry, evaluates every number for every sweep variant (:mod:`.variants`), and
@@ -12,22 +13,23 @@ from dataclasses import replace
 
 import numpy as np
 
-from . import expr as E
-from .derive import derivative, total_derivative
-from .errors import MechError, Span, cut, suggest
-from .functions import ExprFunction
-from .memory import check_compile
-from .model import (
+from ..errors import MechError, Span, cut, suggest
+from ..functions import ExprFunction
+from ..grammar import expr as E
+from ..grammar.checks import TIME, check_expr
+from ..grammar.derive import derivative, total_derivative
+from ..grammar.model import (
     BODY_QUANTITIES, GROUND, ORIGIN, POINT_QUANTITIES, Body, Drive, Joint, Model, NamedOutput,
     Vector,
 )
-from .checks import TIME, check_expr
-from .plugins.contract import REQUIRED, ArgError, ConstraintType
-from .plugins.manager import PLUGIN_FAILURES
-from .plugins.registry import Registry
+from ..memory import check_compile
+from ..plugins.contract import REQUIRED, ArgError, ConstraintType
+from ..plugins.derived import EquationError
+from ..plugins.manager import PLUGIN_FAILURES
+from ..plugins.registry import Registry
+from .files import read_files, read_tables
+from .fused import Fused, TraceFailure, fuse
 from .shapes import mass_properties, shape_edges
-from .compiled.fused import Fused, TraceFailure, fuse
-from .plugins.derived import EquationError
 from .sparse import Pattern
 from .system import Constraint, DriveFunction, ExprOutput, Group, OutputSpec, Sketch, System
 from .variants import Overrides, evaluate, time_grid
@@ -48,8 +50,10 @@ def compile_model(model: Model, registry: Registry, overrides: Overrides | None 
     Raises :class:`MechError` (with the model's source attached) for every unknown name, bad
     argument, non-finite value or inconsistent time grid.
     """
+    model = read_files(model)  # (already read by mechdsl.load: then the model itself)
+    overrides = read_tables(overrides or Overrides(), model.source)
     try:
-        return _Compiler(model, registry, overrides or Overrides()).run(need_times)
+        return _Compiler(model, registry, overrides).run(need_times)
     except MechError as err:
         raise err.with_source(model.source) from None
 
@@ -68,7 +72,7 @@ def check_structure(model: Model, registry: Registry) -> None:
 
 
 class _Unevaluated:
-    """Stands for :class:`~mechdsl.variants.Variants` when only names are resolved: one
+    """Stands for :class:`~mechdsl.compiled.variants.Variants` when only names are resolved: one
     variant, every value zero, nothing evaluated."""
 
     count = 1

@@ -7,8 +7,8 @@ a :class:`~mechdsl.errors.MechError` located at the offending text.
 
 from __future__ import annotations
 
+from ..errors import MechError, Source, Span, cut, suggest
 from . import expr as E
-from .errors import MechError, Source, Span, cut, suggest
 from .model import (
     BODY_QUANTITIES, GROUND, ORIGIN, Body, Drive, Joint, Model, NamedOutput, OutputRef, Param,
     Point, Polygon, Simulate, Sweep, Vector,
@@ -152,7 +152,7 @@ def _build_body(name: str, name_span: Span, items: list, span: Span, is_ground: 
 
 def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -> Model:
     """The :class:`Model` of the statements the parser gives, checked; ``files`` are the
-    real paths of the files the model read."""
+    real paths of the files the model names."""
     params: list[Param] = []
     param_names = _Names("param")
     bodies: list[Body] = []

@@ -14,10 +14,10 @@ from typing import Sequence
 
 import numpy as np
 
-from . import expr as E
-from .errors import MechError, Span, suggest
-from .memory import size_text
-from .model import Model, Sweep, Vector
+from ..errors import MechError, Span, suggest
+from ..grammar import expr as E
+from ..grammar.model import Model, Sweep, Vector
+from ..memory import size_text
 
 #: Largest memory (bytes) a run's results may take unless the caller raises it.
 MAX_MEMORY = 4 * 2**30

@@ -25,10 +25,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import MechError, Span, cut, listing
-from . import reading
-from .reading import check_data
-from .model import Body, Polygon
+from .. import reading
+from ..errors import MechError, Span, cut, listing
+from ..grammar.model import Body, Polygon
+from ..reading import check_data
 from .variants import Variants
 
 
@@ -92,7 +92,7 @@ def boundary(triangles: np.ndarray) -> np.ndarray:
 
 #: meshio formats refused for a shape: they make meshio read files the model does not name
 #: (XDMF's data files, Abaqus' *INCLUDE, TetGen's sibling file, HDF5's external links), which
-#: could be a FIFO, a device or anybody's file, beyond the checks of :mod:`.reading`.
+#: could be a FIFO, a device or anybody's file, beyond the checks of :mod:`mechdsl.reading`.
 FORMATS_READING_OTHER_FILES = frozenset(
     {"xdmf", "abaqus", "tetgen", "h5m", "hmf", "med", "cgns", "exodus", "dolfin-xml"})
 
@@ -102,7 +102,7 @@ def read_mesh(path: str, base_dir: str, span: Span | None) -> MeshShape:
     triangles, and its quads split in two. A mesh that does not lie in the plane z = 0 (an
     STL of a solid, say) is refused: a body's shape is planar.
 
-    The file is read as data (:mod:`.reading`: a regular file within
+    The file is read as data (:mod:`mechdsl.reading`: a regular file within
     :data:`~mechdsl.reading.MAX_DATA_BYTES`); formats that would read other files, and
     compressed ones, are refused. What meshio prints is discarded (standard output may be
     the CSV stream), and whatever it raises, ``sys.exit`` included, becomes a located error

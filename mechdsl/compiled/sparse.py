@@ -10,8 +10,12 @@ instead of as N^2 and N^3.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .lu import LUPlan
 
 
 @dataclass(frozen=True)
@@ -105,6 +109,32 @@ class SparseJac:
         return np.sqrt(out)
 
 
+#: From this many states at once, a square Jacobian is factorised by the model's generated
+#: sparse LU (:mod:`mechdsl.compiled.lu`); below, numpy's batched LAPACK calls cost less
+#: (each generated operation has a fixed overhead that only a large batch amortises).
+LU_BATCH = 64
+
+
+@dataclass(frozen=True)
+class LUJac:
+    """Phi_q of a batch of states as its entries ``values`` (..., nnz) in ``pattern``, to be
+    factorised by the generated LU ``lu``."""
+
+    values: np.ndarray
+    pattern: Pattern
+    lu: "LUPlan"
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return self.values.shape[:-1] + self.pattern.shape
+
+    def dense(self) -> np.ndarray:
+        p = self.pattern
+        out = np.zeros(self.values.shape[:-1] + (p.shape[0] * p.shape[1],))
+        out[..., p.rows * p.shape[1] + p.cols] = self.values
+        return out.reshape(self.shape)
+
+
 def permutation_sign(perm: np.ndarray) -> float:
     """+1 or -1: the parity of ``perm`` from its number of cycles, found by pointer doubling
     (each index learns the smallest index of its cycle in log2(n) vectorised rounds)."""
@@ -140,7 +170,7 @@ def band_of(pattern: Pattern):
     """The band plan of the pattern (:mod:`mechdsl.compiled.band`), found once; None where
     the matrix is not narrow-banded in any order found (SuperLU then)."""
     if "band" not in pattern.parities:
-        from .compiled.band import band_plan
+        from .band import band_plan
 
         m, n = pattern.shape
         pattern.parities["band"] = (band_plan(pattern.rows, pattern.cols, n) if m == n
@@ -154,7 +184,7 @@ def sparse_lu(values: np.ndarray, pattern: Pattern):
     band = band_of(pattern)
     if band is None:
         return TransposedLU(values, pattern)
-    from .compiled.band import BandLU
+    from .band import BandLU
 
     lu = BandLU(band, values)
     if not lu.ok:

@@ -6,9 +6,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from . import equations as eq
-from .errors import listing
-from .system import System
+from ..compiled import equations as eq
+from ..compiled.system import System
+from ..errors import listing
 
 
 #: A condition number above which a state next to a failure is called near-singular.
@@ -106,7 +106,7 @@ def _sparse_singularity(one: System, q: np.ndarray) -> tuple[float, str]:
     """:func:`singularity` for a large mechanism, without a dense SVD: the condition estimate
     of the sparse LU, and the left singular direction by two steps of inverse iteration,
     u = (A A^T)^-1 r (the smallest singular value's direction dominates)."""
-    from .sparse import TransposedLU, inverse_norm1
+    from ..compiled.sparse import TransposedLU, inverse_norm1
 
     vals = eq.jacobian_values(one, q.reshape(1, 1, -1)).values[0, 0]
     p = one.pattern
@@ -315,3 +315,39 @@ def _plugin_of(system: System, type_name: str) -> str:
         if g.ctype.name == type_name:
             return type(g.ctype).__module__
     return "?"
+
+
+def too_coarse_message(system: System, v: int, t_now: float, k: int, budget: int) -> str:
+    """Substeps ran out between t_now and instant ``k``: the output step is too coarse."""
+    return (f"the time step is too coarse for the motion: going on from t = {t_now:.10g} to "
+            f"the next instant t = {system.times[k]:.10g} ({instant_text(system, k)})"
+            f"{variant_label(system, v)} took more than {budget} "
+            "substeps (the mechanism moves far, or to and fro, between instants); take a "
+            "smaller step")
+
+
+def passages_warning(times_passed: list[float], grid: np.ndarray) -> str:
+    """One warning for the singular positions passed, one time per output step."""
+    h = float(np.min(np.diff(grid))) if len(grid) > 1 else 1.0
+    marks: list[float] = []
+    for t in sorted(times_passed):
+        # name the output instant the passage belongs to, not an internal substep
+        t = float(grid[min(np.searchsorted(grid, t), len(grid) - 1)])
+        if not marks or t - marks[-1] > h / 2:
+            marks.append(t)
+    shown = ", ".join(f"{t:.6g}" for t in marks)
+    return (f"the mechanism passes singular positions near t = {shown} and continues on the "
+            "branch it was moving on; velocities and accelerations exactly there are completed "
+            "from their predicted values (accurate to about one step)")
+
+
+def undefined_drive_message(system: System, v: int, target: float, k: int) -> str:
+    """The drives whose function is not a number at ``target`` (instant ``k``)."""
+    values = eq.drive_values(system, np.full((system.n_variants, 1), target), "f",
+                             (system.n_variants, 1))[v, 0]
+    drives = [c for c in system.constraints if c.kind == "drive"]
+    bad = [drives[i] for i in np.flatnonzero(~np.isfinite(values))] or drives
+    names = ", ".join(f"drive {c.name} (line {c.span.line})" for c in bad)
+    return (f"the function of {names} is not defined at t = {target:.10g} "
+            f"({instant_text(system, k)}){variant_label(system, v)}: outside its table's range, "
+            "or a domain error such as sqrt of a negative number")

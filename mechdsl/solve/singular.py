@@ -16,10 +16,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from . import equations as eq
+from ..compiled import equations as eq
+from ..compiled.system import System
 from .assembly import gauss_newton
 from .options import SolverOptions
-from .system import System
 
 #: Directions whose singular value is below this fraction of the largest count as the null
 #: space near a singular position: there the velocity and acceleration equations fix them

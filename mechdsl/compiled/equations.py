@@ -16,10 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import MechError
+from .sparse import LU_BATCH, LUJac, SparseJac
 from .system import ExprOutput, System
-from .errors import MechError
-from .linalg import LU_BATCH, LUJac
-from .sparse import SparseJac
 
 
 class PluginError(MechError):
@@ -119,7 +118,7 @@ def output_values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
 
     A point P with body coordinates s' (Haug eqs. 2.6.4 and their derivatives):
     r^P = r + A s', rd^P = rd + B s' phid, rdd^P = rdd + B s' phidd - A s' phid^2.
-    A named output (:class:`~mechdsl.system.ExprOutput`) is its expression evaluated on the
+    A named output (:class:`~mechdsl.compiled.system.ExprOutput`) is its expression evaluated on the
     params, t and the quantities it reads.
     """
     if isinstance(spec, ExprOutput):

@@ -22,10 +22,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import MechError
+from ..compiled.system import Sketch, System
+from ..errors import MechError
+from ..results import Results
 from .plot import literal, save_figure
-from .results import Results
-from .system import Sketch, System
 
 #: Frames of an animation at most (instants are sampled evenly when there are more).
 MAX_FRAMES = 100
@@ -436,7 +436,7 @@ def _write_gif(fig, moving: list, frame, ks, path: str, fps: int) -> None:
     leaves no part of it."""
     import zlib
 
-    from .writing import atomic_path
+    from ..writing import atomic_path
 
     with atomic_path(path) as tmp:
         blit = _Blit(fig, moving)
@@ -472,7 +472,7 @@ def _write_frames(fig, writer, frame, ks, path: str) -> None:
     temporary file removed."""
     import matplotlib
 
-    from .writing import atomic_path
+    from ..writing import atomic_path
 
     with atomic_path(path) as tmp, matplotlib.rc_context({"savefig.bbox": None}):
         writer.setup(fig, tmp, dpi=fig.dpi)

@@ -1,7 +1,8 @@
-"""Text -> :class:`~mechdsl.model.Model`.
+"""Text -> :class:`~mechdsl.grammar.model.Model`.
 
-The lark grammar (``grammar/mech.lark``) gives a parse tree; a Transformer turns it into the
-model's dataclasses, and :mod:`.checks` checks what can be checked without plugins. lark's
+The lark grammar (``mech.lark``, beside this module) gives a parse tree; a Transformer turns
+it into the model's dataclasses, and :mod:`.checks` checks what can be checked without
+plugins. A table or mesh file is named, never read here (:mod:`.tables`). lark's
 exceptions are translated here and nowhere else: every error leaves this module as a
 :class:`~mechdsl.errors.MechError` with a span.
 
@@ -26,15 +27,14 @@ from lark.grammar import Rule
 from lark.lexer import TerminalDef
 from lark.tree import SlottedTree
 
+from ..errors import MechError, Source, Span, cut
 from . import expr as E
+from .cache import cached_tables
 from .checks import TIME, build_model, check_expr
-from .errors import MechError, Source, Span, cut
-from .grammar_cache import cached_tables
 from .model import (
-    Arg, Drive, Joint, Model, NamedOutput, OutputRef, Param, Point, Polygon, Simulate, Sweep,
-    Vector,
+    Arg, Drive, Joint, MeshFile, Model, NamedOutput, OutputRef, Param, Point, Polygon, Simulate,
+    Sweep, Vector,
 )
-from .shapes import read_mesh
 from .tables import PointList, make_table
 
 __all__ = ["parse", "parse_expr", "parse_expr_list", "check_expr", "TIME", "MAX_DEPTH"]
@@ -84,7 +84,7 @@ def _first_span(children) -> Span | None:
 
 def _grammar() -> str:
     # read beside this module (importlib.resources would add 13 ms to every start-up)
-    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "grammar", "mech.lark")
+    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "mech.lark")
     with open(path, encoding="utf-8") as f:
         return f.read()
 
@@ -96,7 +96,7 @@ def _tables(grammar: str) -> dict:
 
 
 def _build_parser() -> Lark:
-    """The parser, from the per-user cache of its tables (see :mod:`.grammar_cache`; never
+    """The parser, from the per-user cache of its tables (see :mod:`.cache`; never
     lark's own cache, a pickle in the shared temporary folder) or built in memory."""
     grammar = _grammar()
     key = "\n".join([lark_version, repr(sorted(_OPTIONS.items())), grammar])
@@ -121,14 +121,11 @@ def _tspan(tok: Token) -> Span:
     return Span(tok.line, tok.column, tok.end_line, tok.end_column)
 
 
-def _join(a: Span, b: Span) -> Span:
-    return Span(a.line, a.column, b.end_line, b.end_column)
-
-
 @v_args(meta=True)
 class _ToModel(Transformer_NonRecursive):
     """Parse tree -> model nodes (statements are returned as a flat list). ``files`` collects
-    the real paths of the tables and meshes read, in the order of the text."""
+    the real paths of the tables and meshes named, in the order of the text; they are read
+    when the model is compiled (:mod:`mechdsl.compiled.files`)."""
 
     def start(self, meta, items):
         return [i for i in items if not isinstance(i, Token)]
@@ -152,7 +149,7 @@ class _ToModel(Transformer_NonRecursive):
         self.base_dir = base_dir
         self.files: list[str] = []
 
-    def _read(self, name: str, span: Span) -> None:
+    def _name_file(self, name: str, span: Span) -> None:
         if "\0" in name:  # no file can have it; os would raise ValueError
             raise MechError(f"cannot read {cut(name)!r}: a file name has no NUL character",
                             span)
@@ -179,7 +176,7 @@ class _ToModel(Transformer_NonRecursive):
         data = args[0]
         if isinstance(data, Token) and data.type == "STRING":
             data, data_span = str(data)[1:-1], _tspan(data)
-            self._read(data, data_span)
+            self._name_file(data, data_span)
         elif isinstance(data, PointList):
             data_span = data.span
         else:
@@ -256,9 +253,9 @@ class _ToModel(Transformer_NonRecursive):
 
     def shape(self, meta, items):
         (value,) = items
-        if isinstance(value, Token):  # a mesh file, read now: its errors point at the file name
-            self._read(str(value)[1:-1], _tspan(value))
-            return ("shape", read_mesh(str(value)[1:-1], self.base_dir, _tspan(value)),
+        if isinstance(value, Token):  # a mesh file: its errors will point at the file name
+            self._name_file(str(value)[1:-1], _tspan(value))
+            return ("shape", MeshFile(str(value)[1:-1], self.base_dir, _tspan(value)),
                     _span(meta))
         return ("shape", value, _span(meta))
 
@@ -394,8 +391,8 @@ def normalise(text: str) -> str:
 
 def _lark_parse(source: Source, start: str):
     """Parse ``source.text`` from the rule ``start`` and transform it; returns the result and
-    the real paths of the files read."""
-    # tables are read relative to the .mech file (the working folder for text without a file)
+    the real paths of the files it names."""
+    # files are named relative to the .mech file (the working folder for text without a file)
     base_dir = os.getcwd() if source.name.startswith("<") else os.path.dirname(
         os.path.abspath(source.name))
     to_model = _ToModel(base_dir)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .errors import Source, Span
+from ..errors import Source, Span
 from .expr import Expr
 
 GROUND = "ground"
@@ -53,10 +53,21 @@ class Polygon:
 
 
 @dataclass(frozen=True)
+class MeshFile:
+    """``shape = "plate.msh"``: a mesh file as the model names it (``name``, relative to
+    ``folder``, the folder of the ``.mech`` file); read when the model is compiled
+    (:func:`mechdsl.compiled.files.read_files`), its errors located at ``span``."""
+
+    name: str
+    folder: str
+    span: Span
+
+
+@dataclass(frozen=True)
 class Body:
     """A rigid body with q = (x, y, phi) of its frame; the ground is a body with ``is_ground``.
-    ``shape`` is a Polygon or a mesh read from a file (shapes.MeshShape); ``density`` its mass
-    per unit area."""
+    ``shape`` is a Polygon, a MeshFile, or, once read, the mesh of that file
+    (:class:`mechdsl.compiled.shapes.MeshShape`); ``density`` its mass per unit area."""
 
     name: str
     points: tuple[Point, ...]
@@ -162,6 +173,6 @@ class Model:
     #: ``units length = "m", time = "s"``: the names of the units, for labels only, as
     #: (dimension, name) pairs.
     units: tuple[tuple[str, str], ...] = ()
-    #: The files the model read (tables, meshes), as ``os.path.realpath`` gives them, each
+    #: The files the model reads (tables, meshes), as ``os.path.realpath`` gives them, each
     #: once, in the order of the text: outputs must never overwrite them.
     files: tuple[str, ...] = ()

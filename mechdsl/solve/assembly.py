@@ -6,15 +6,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import equations as eq
-from .system import System
+from ..compiled import equations as eq
+from ..compiled.sparse import SparseJac
+from ..compiled.system import System
 from .diagnose import (
     col_scale, constraint_names, jacobian_defects, one_variant, variant_label,
 )
 from .linalg import factor
 from .mobility import Mobility, analyse, count_check, square
 from .newton import correction_ratio, newton, use_sparse
-from .sparse import SparseJac
 from .options import SolverOptions
 
 

@@ -1,0 +1,784 @@
+"""The kinematic run: assembly at t0, then Newton-Raphson at every instant, with velocities
+and accelerations from the same factorised Jacobian (Haug 1989, ch. 4); the registry of
+solver methods and :func:`simulate`, which builds a run and calls it.
+
+Position: Newton-Raphson on Phi(q, t) = 0, Phi_q dq = -Phi, started from the Taylor predictor
+q + tau qd + tau^2/2 qdd of the last solved instant. Velocity: Phi_q qd = nu. Acceleration:
+Phi_q qdd = gamma. The Jacobian used for qd and qdd is the one at the converged q.
+
+Speed comes from batching: several instants (a *block*) and every sweep variant are solved as
+one batched array problem. The block grows while Newton converges in few iterations and
+shrinks when it does not. When even one instant fails, the interval before it is bisected
+(intermediate states are solved but not recorded) before the failure is declared, so a coarse
+output step does not cause a failure on its own. Before that careful march, each window of
+instants is tried parallel in time (:meth:`KinematicRun.parallel`).
+
+No silent branch switching. A solved state is refused when
+
+* its Jacobian is singular (reciprocal condition below ``singular_rcond``): a dead point,
+  change point or lock-up, where velocities are undetermined;
+* det(Phi_q) has changed sign since the previous state: the path crossed a singular position;
+* Newton's correction to the predictor is large against the motion since the last state
+  (ratio above ``branch_ratio``) and, once the interval is bisected to its finest, the
+  position is still discontinuous: a jump to another assembly branch. (A drive whose
+  velocity jumps passes this test: its positions stay continuous.)
+
+Refused states are bisected towards, then reported with the instant and the joints involved.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..compiled import equations as eq
+from ..compiled import native
+from ..compiled.lu import THRESHOLD
+from ..compiled.system import ExprOutput, System
+from ..errors import MechError
+from ..memory import plan
+from ..results import Results
+from .assembly import Assembly, assemble
+from .base import Progress, Run
+from .diagnose import (
+    constraint_names, failure, jacobian_defects, nonfinite_message, passages_warning,
+    too_coarse_message, undefined_drive_message, variant_label,
+)
+from .hermite import quintic_hermite
+from .levels import coarse_march, polish
+from .linalg import Factor, factor
+from .mobility import count_check, redundancy_warning
+from .newton import correction_ratio, newton, use_sparse
+from .options import SolverOptions
+from .singular import singular_step
+
+__all__ = ["KinematicRun", "METHODS", "SolverOptions", "simulate"]
+
+
+@dataclass
+class _Regular:
+    """The last state of each variant whose Jacobian was well conditioned (rcond >=
+    warn_rcond): time (V,), velocity and acceleration (V, n). Near a singular position,
+    predictions start from it."""
+
+    t: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+
+
+class KinematicRun(Run):
+    """The kinematic march of a fully driven mechanism: positions from the constraints alone,
+    then velocities and accelerations from the factorised Jacobian, at every instant of the
+    system's grid, for every variant.
+
+    The state it advances (the run's only mutable data) is the last solved state of each
+    variant: time ``t`` (V,), coordinates ``q``, velocities ``qd``, accelerations ``qdd``
+    (V, n), the sign of det(Phi_q) there ``sign`` (V,), and ``active`` (V,), the variants
+    still running. ``rows`` are the equations solved (all of them, or an independent subset
+    when constraints are redundant; the others, ``watched``, must still hold).
+    """
+
+    name = "kinematic"
+
+    def __init__(self, system: System, options: SolverOptions | None = None, *,
+                 poses: bool = False, rates: bool = False, progress: Progress | None = None,
+                 extra_memory: int = 0) -> None:
+        super().__init__(system, options, progress=progress)
+        opts = self.opts
+        count_check(system)  # before anything the size of the model is allocated
+        sparse = use_sparse(system, opts, np.arange(system.m))
+        compiled = _wants_native(system, opts)
+        try:
+            budget = plan(system, opts.max_memory, opts.max_batch_elements, sparse=sparse,
+                          poses=poses or rates, rates=rates, extra=extra_memory,
+                          compiled=compiled)
+        except MechError:
+            if not compiled or opts.backend != "auto":
+                raise
+            compiled = False  # "auto": the numpy path fits where numba would not
+            budget = plan(system, opts.max_memory, opts.max_batch_elements, sparse=sparse,
+                          poses=poses or rates, rates=rates, extra=extra_memory)
+        if not compiled:
+            opts = replace(opts, backend="numpy")
+        self.opts = replace(opts, max_batch_elements=budget.batch_elements)
+        self.keep_poses, self.keep_rates = poses or rates, rates
+        #: sqrt(newton_tol): the smallest motion the branch check measures corrections by
+        self.floor = np.sqrt(self.opts.newton_tol)
+
+    # -- the run ---------------------------------------------------------------------------------
+    def run(self) -> Results:
+        """Assemble at t0, then solve every instant (:meth:`advance`); the results, also
+        after a numerical failure, a plugin's error or an interrupt."""
+        system, opts, times = self.system, self.opts, self.times
+        V, K = system.n_variants, len(times)
+        start = time.perf_counter()
+        self.data = {o.label: np.full((V, K), np.nan) for o in system.outputs}
+        try:
+            asm = assemble(system, float(times[0]), opts)
+        except (KeyboardInterrupt, eq.PluginError) as err:
+            return self._nothing_solved(err, time.perf_counter() - start)
+        self._start(asm)
+        status, error = "ok", None
+        try:
+            if self.active.any():
+                self._first_instant(asm)
+                self.advance()
+        except KeyboardInterrupt:
+            status = "interrupted"
+        except eq.PluginError as err:  # a defect of a plugin: keep what was solved before it
+            status, error = "error", err
+            self.failures.insert(0, err.message)
+        elapsed = time.perf_counter() - start
+        if status == "ok" and self.failures:
+            status = "failed"
+        if self.passages:
+            self.warnings.append(passages_warning(self.passages, times))
+        for v in np.flatnonzero(self.min_rcond < opts.warn_rcond):
+            self.warnings.append(
+                f"near a singular position{variant_label(system, int(v))}: the Jacobian's "
+                f"condition number reaches {1 / self.min_rcond[v]:.3g} at "
+                f"t = {self.min_rcond_t[v]:.10g}; results there are sensitive to the data")
+        return self.results(
+            status, elapsed, residual=self.residual, condition=1.0 / self.min_rcond,
+            poses=None if self.poses is None else self.poses.reshape(V, K, -1, 3),
+            rates=None if self.pose_rates is None else self.pose_rates.reshape(V, K, 2, -1, 3),
+            error=error)
+
+    def _nothing_solved(self, err: BaseException, elapsed: float) -> Results:
+        """The results of a run stopped before its first instant: by an interrupt or a
+        plugin."""
+        error = err if isinstance(err, eq.PluginError) else None
+        self.failures = [error.message] if error else []
+        return self.results("interrupted" if error is None else "error", elapsed, error=error)
+
+    def _start(self, asm: Assembly) -> None:
+        """The state at t0 from the assembly: the equations to solve, the ones to watch,
+        and the arrays of the instants to keep."""
+        system, times = self.system, self.times
+        V, n, K = system.n_variants, system.n, len(times)
+        mob = asm.mobility
+        rows = mob.rows if mob is not None else np.arange(system.m)
+        redundant = mob is not None and mob.dropped.size > 0
+        self.rows = rows
+        self.watched = rows if redundant else np.zeros(0, np.intp)
+        self.watch_weights = mob.dropped_weights if redundant else np.zeros(0)
+        self.t = np.full(V, times[0])
+        self.q, self.qd, self.qdd = asm.q.copy(), np.zeros((V, n)), np.zeros((V, n))
+        self.sign, self.active = np.ones(V), asm.ok.copy()
+        #: per variant, the smallest reciprocal condition number met, and when
+        self.min_rcond, self.min_rcond_t = np.ones(V), np.full(V, times[0])
+        self.failures = list(asm.messages)
+        #: times of the singular positions passed (at_singular = "continue")
+        self.passages: list[float] = []
+        #: the largest constraint residual of the states accepted
+        self.residual = 0.0
+        self.regular: _Regular | None = None
+        #: sparse systems: the factorised Jacobian of the last state, for simplified Newton
+        self.fac: Factor | None = None
+        #: (V, K, n): every recorded instant's coordinates, when drawings or exports need
+        #: them; (V, K, 2, n) their velocities and accelerations, when exports need them
+        self.poses = np.full((V, K, n), np.nan) if self.keep_poses else None
+        self.pose_rates = np.full((V, K, 2, n), np.nan) if self.keep_rates else None
+        #: instants per block of the march, grown while Newton converges fast
+        self.block = self.opts.initial_block
+        #: named outputs already warned about for values that are not finite
+        self.undefined_outputs: set[str] = set()
+        if mob is not None:
+            note = redundancy_warning(system, mob)
+            if note:
+                self.warnings.append(note)
+
+    def _first_instant(self, asm: Assembly) -> None:
+        """Accept the assembled configuration as instant 0, unless it is singular."""
+        system, opts, times = self.system, self.opts, self.times
+        V, rows = system.n_variants, self.rows
+        q0, t0 = asm.q[:, None], np.full((V, 1), times[0])
+        fac = factor(eq.solver_jacobian(system, q0, rows, use_sparse(system, opts, rows)),
+                     self.D)
+        singular = self.active & ~(fac.rcond[:, 0] >= opts.singular_rcond)
+        for v in np.flatnonzero(singular):
+            self.failures.append(failure(system, self.q[v], float(times[0]), int(v),
+                                         float(times[0]), 0, "singular"))
+        self.active &= ~singular
+        self.sign = fac.sign[:, 0]
+        self.accept(q0, t0, np.array([0]), fac, self.active.copy())
+
+    def advance(self) -> None:
+        """March from the state at instant 0 to the last instant, window by window.
+
+        The compiled march (:meth:`native_march`) goes first where it applies. Each window is
+        then tried parallel in time (:meth:`parallel`); what that does not settle is marched
+        instant by instant (:meth:`march`), which reports any failure exactly."""
+        system, opts, progress = self.system, self.opts, self.progress
+        K = len(self.times)
+        stride = opts.coarse_stride
+        parallel = stride > 1 and not use_sparse(system, opts, self.rows)
+        k = 1
+        march = self._native()
+        if march is not None:
+            k = self.native_march(march)
+        while k < K and self.active.any():
+            end = min(K, k + max(opts.window, 2 * stride))
+            if parallel and end - k >= 2 * stride:
+                try:
+                    k = self.parallel(k, end)
+                except eq.PluginError:  # the march below finds the instant it fails at
+                    k = max(k, int(self.n_solved.max()))
+                if progress is not None:
+                    progress(k, K)
+            if k < end and self.active.any():
+                self.march(np.arange(k, end))
+            k = end
+
+    # -- accepting solved states ---------------------------------------------------------------
+    def accept(self, q: np.ndarray, t: np.ndarray, rec: np.ndarray, fac: Factor,
+               mask: np.ndarray, rates: tuple[np.ndarray, np.ndarray] | None = None,
+               residual_known: bool = False) -> None:
+        """Take the solved positions ``q`` (V, c, n) at ``t`` (V, c), with their factorised
+        Jacobians, as the new state of the variants in ``mask``; solve velocities and
+        accelerations, Phi_q qd = nu and Phi_q qdd = gamma (at every column when an output
+        needs them, else at the last column only, for the predictor), unless ``rates`` =
+        (qd, qdd) gives them; record the columns whose ``rec`` index (into ``system.times``)
+        is not negative. Redundant equations left out of the solve must still hold (unless
+        ``residual_known``: the compiled march measures the residual as it goes)."""
+        system, opts, rows = self.system, self.opts, self.rows
+        order = 2 if self.pose_rates is not None else system.order
+        c = q.shape[1]
+        if rates is not None:
+            qd, qdd = rates
+        else:
+            cols = slice(None) if order >= 1 else slice(c - 1, c)
+            qs, ts = q[:, cols], t[:, cols]
+            inv = fac.columns(cols)
+            with np.errstate(all="ignore"):
+                qd = inv.solve(eq.velocity_rhs(system, ts, qs.shape[:-1])[..., rows])
+                qdd = inv.solve(eq.acceleration_rhs(system, qs, qd, ts)[..., rows])
+        if opts.nonfinite == "stop":
+            need = 2 if self.pose_rates is not None else system.order
+            bad = _nonfinite(q, qd, qdd, need) & mask[:, None]
+            if bad.any():
+                self._split_at_nonfinite(q, t, rec, fac, mask, (qd, qdd), bad)
+                return
+        if not residual_known:
+            with np.errstate(all="ignore"):
+                phi = eq.constraint_values(system, q, t)
+            self.residual = max(self.residual, float(np.abs(phi[mask]).max(initial=0.0)))
+            self._watch_redundant(phi, t, mask)
+        worst = np.argmin(fac.rcond, axis=1)
+        lowest = fac.rcond[np.arange(len(worst)), worst]
+        lower = mask & (lowest < self.min_rcond)
+        self.min_rcond[lower] = lowest[lower]
+        self.min_rcond_t[lower] = t[lower, worst[lower]]
+        self.q[mask], self.t[mask] = q[mask, -1], t[mask, -1]
+        self.qd[mask], self.qdd[mask] = qd[mask, -1], qdd[mask, -1]
+        self.sign[mask] = fac.sign[mask, -1]
+        # per variant: the variants that stopped are skipped by Newton, whatever their entry
+        if fac.lus is not None and mask.any() and (fac.rcond[mask, -1] > 0).all():
+            self.fac = fac.columns(slice(c - 1, c))
+        well = mask & (fac.rcond[:, -1] >= opts.warn_rcond) & (qd.shape[1] == c)
+        if self.regular is None:
+            self.regular = _Regular(self.t.copy(), self.qd.copy(), self.qdd.copy())
+        g = self.regular
+        g.t[well], g.qd[well], g.qdd[well] = t[well, -1], qd[well, -1], qdd[well, -1]
+        keep = rec >= 0
+        if not keep.any():
+            return
+        k = rec[keep]
+        if self.poses is not None:
+            self.poses[np.ix_(mask, k)] = q[mask][:, keep]
+        if self.pose_rates is not None:
+            self.pose_rates[np.ix_(mask, k, [0])] = qd[mask][:, keep][:, :, None]
+            self.pose_rates[np.ix_(mask, k, [1])] = qdd[mask][:, keep][:, :, None]
+        full_qd = qd if order >= 1 else None
+        full_qdd = qdd if order >= 2 else None
+        for spec in system.outputs:
+            values = eq.output_values(system, spec, q, full_qd, full_qdd, t)
+            self.data[spec.label][np.ix_(mask, k)] = values[mask][:, keep]
+            if isinstance(spec, ExprOutput) and spec.label not in self.undefined_outputs:
+                self._watch_named(spec.label, values[:, keep], t[:, keep], mask)
+        self.n_solved[mask] = k[-1] + 1
+
+    def _watch_named(self, label: str, values: np.ndarray, t: np.ndarray,
+                     mask: np.ndarray) -> None:
+        """Warn, once per named output, where its expression is not a finite number (the rate
+        of a distance between coinciding points, log of a negative number): a result the
+        user defined, written as it is, but never silently."""
+        bad = ~np.isfinite(values) & mask[:, None]
+        if bad.any():
+            v, j = np.argwhere(bad)[0]
+            self.undefined_outputs.add(label)
+            self.warnings.append(
+                f"output {label} is {float(values[v, j])!r} from t = {t[v, j]:.10g}"
+                f"{variant_label(self.system, int(v))} on: its expression is not defined there "
+                "(such as the rate of the distance between two points that coincide); those "
+                "values are written as they are")
+
+    def _split_at_nonfinite(self, q: np.ndarray, t: np.ndarray, rec: np.ndarray, fac: Factor,
+                            mask: np.ndarray, rates: tuple[np.ndarray, np.ndarray],
+                            bad: np.ndarray) -> None:
+        """Accept the columns before the first one with a non-finite result, stop the
+        variants that have one there (a numerical failure naming the quantity and the
+        instant), and go on with the others from that column."""
+        c = q.shape[1]
+        j = int(np.argmax(bad.any(axis=0)))
+        full = rates[0].shape[1] == c
+
+        def part(cols: slice) -> tuple[np.ndarray, np.ndarray] | None:
+            return (rates[0][:, cols], rates[1][:, cols]) if full else None
+
+        if j:
+            self.accept(q[:, :j], t[:, :j], rec[:j], fac.columns(slice(0, j)), mask,
+                        part(slice(0, j)))
+        qd, qdd = rates if full else (np.full(q.shape, np.nan), np.full(q.shape, np.nan))
+        for v in np.flatnonzero(bad[:, j] & mask):
+            self.failures.append(nonfinite_message(self.system, int(v), q[v, j], qd[v, j],
+                                                   qdd[v, j], float(t[v, j]), int(rec[j])))
+            self.active[v] = False
+            mask[v] = False
+        if mask.any():
+            self.accept(q[:, j:], t[:, j:], rec[j:], fac.columns(slice(j, c)), mask,
+                        part(slice(j, c)))
+
+    def _watch_redundant(self, phi: np.ndarray, t: np.ndarray, mask: np.ndarray) -> None:
+        """Stop the variants of a redundant model whose equations no longer all hold: least
+        squares converges to a compromise where redundant constraints are inconsistent."""
+        if not self.watched.size:
+            return
+        limit = self.opts.assembly_residual
+        resid = np.abs(phi[..., self.watched]) * self.watch_weights
+        bad = mask & ~(resid <= limit).all(axis=(1, 2))
+        for v in np.flatnonzero(bad):
+            col = int(np.argmax((resid[v] > limit).any(axis=-1)))
+            worst = self.watched[np.argsort(-resid[v, col])[:3]]
+            self.failures.append(
+                f"the redundant constraints no longer hold together at t = {t[v, col]:.10g}"
+                f"{variant_label(self.system, int(v))}: equations of "
+                f"{constraint_names(self.system, worst)} are violated (scaled residual "
+                f"{resid[v, col].max():.3g}); the constraints are inconsistent, "
+                "over-constraining the mechanism as it moves")
+            self.active[v] = False
+            mask[v] = False
+
+    # -- parallel in time ------------------------------------------------------------------------
+    def parallel(self, k: int, end: int) -> int:
+        """Solve the instants k .. end-1 in levels, parallel in time; return the first instant
+        not solved.
+
+        1. Coarse: march every ``coarse_stride``-th instant (and end-1) from the state with a
+           loose Newton tolerance (:func:`mechdsl.solve.levels.coarse_march`); then correct
+           those states all at once to the full tolerance and solve their velocities and
+           accelerations (:meth:`level`): the first nodes.
+        2. Levels: split every gap between nodes by ``level_split``; the new instants,
+           predicted by the quintic Hermite interpolation of the nodes
+           (:mod:`mechdsl.solve.hermite`), are corrected all at once and become nodes, until
+           the gaps are at most ``level_split`` instants.
+        3. Settle: every instant of the window, predicted from the nodes, is solved by batched
+           Newton, factorised, checked against its predecessor and recorded.
+
+        At every level each state is checked as the march checks it: converged, regular
+        (condition above ``singular_rcond``), det(Phi_q) of the same sign as at the start of
+        the window (no singular position crossed), and Newton's correction small against the
+        motion from the node before (``branch_ratio``: no jump to another branch). Any failure
+        stops here, and the ordinary march takes the window over: it finds and reports the
+        failure at its exact instant. The number of sequential batched steps grows like
+        log(instants).
+        """
+        system, opts, times, D, rows = self.system, self.opts, self.times, self.D, self.rows
+        act = self.active[:, None]
+        first = int(np.flatnonzero(self.active)[0])
+        if len(rows) != system.n:
+            return k  # not as many independent equations as coordinates: the careful march
+        split = opts.level_split
+        coarse = coarse_march(system, (self.t, self.q, self.qd, self.qdd), self.sign,
+                              times[k - 1 : end], opts.coarse_stride, D, opts, rows,
+                              min_gap=split, active=self.active)
+        if coarse is None:
+            return k
+        # the coarse states, corrected to the full tolerance: the first nodes
+        idx, (qc, _, _) = coarse[0] + k - 1, coarse[1]
+        Tc = np.where(act, times[idx][None, :], self.t[:, None])
+        start = (self.t[:, None], self.q[:, None], self.qd[:, None], self.qdd[:, None])
+        level = self.level(qc, Tc)
+        if level is None:
+            return k
+        node = np.concatenate(([k - 1], idx))
+        tn, qn, qdn, qddn = (np.concatenate((a, b), axis=1) for a, b in zip(start, level))
+        while (np.diff(node) > split).any():
+            # split every gap longer than level_split into level_split parts, or into as few
+            # as leave none longer (sets, not np.unique: that imports numpy.ma, 10 ms of
+            # every start-up)
+            have = set(node.tolist())
+            pairs = zip(node[:-1].tolist(), node[1:].tolist())
+            new = np.array(sorted({a + (i * (b - a)) // parts for a, b in pairs if b - a > split
+                                   for parts in (min(split, -(-(b - a) // split)),)
+                                   for i in range(1, parts)} - have), np.intp)
+            T = np.where(act, times[new][None, :], self.t[:, None])
+            with np.errstate(all="ignore"):
+                pred = quintic_hermite(tn[first], qn, qdn, qddn, times[new])
+            left = np.searchsorted(node, new) - 1
+            level = self.level(pred, T, base=qn[:, left])
+            if level is None:
+                return k
+            order = np.argsort(np.concatenate((node, new)), kind="stable")
+            node = np.concatenate((node, new))[order]
+            tn, qn, qdn, qddn = (np.concatenate((a, b), axis=1)[:, order]
+                                 for a, b in zip((tn, qn, qdn, qddn), level))
+        tn = tn[first]
+        cap = self._batch_cap()
+        for j0 in range(k, end, cap):
+            idx = np.arange(j0, min(j0 + cap, end))
+            T = np.where(act, times[idx][None, :], self.t[:, None])
+            if (_undefined_drives(system, T) & act).any():
+                return j0
+            with np.errstate(all="ignore"):
+                pred = quintic_hermite(tn, qn, qdn, qddn, times[idx])
+            q, ok, _ = newton(system, pred, T, D, self.active, opts, rows)
+            fac = factor(eq.solver_jacobian(system, q, rows, False), D)
+            previous = np.concatenate((self.q[:, None], q[:, :-1]), axis=1)
+            ratio = correction_ratio(q, pred, previous, D, self.floor)
+            good = (ok & (fac.rcond >= opts.singular_rcond) & (fac.sign == self._signs_before(fac))
+                    & (ratio <= opts.branch_ratio)) | ~act
+            nacc = _good_prefix(good)
+            if nacc:
+                self.accept(q[:, :nacc], T[:, :nacc], idx[:nacc], fac.columns(slice(0, nacc)),
+                            self.active.copy())
+            if nacc < len(idx) or not self.active.any():
+                return j0 + nacc
+        return end
+
+    def level(self, pred: np.ndarray, T: np.ndarray, base: np.ndarray | None = None
+              ) -> tuple[np.ndarray, ...] | None:
+        """Correct the predicted states ``pred`` (V, c, n) at ``T`` (V, c) all at once
+        (:func:`mechdsl.solve.levels.polish`) and solve their rates: the new nodes
+        (t, q, qd, qdd), or None if a state fails a check. Newton's correction is measured
+        against the motion from ``base`` (V, c, n), the node before each state; without it
+        (the loosely solved states of the coarse march, already checked), it is not."""
+        system, opts, D, rows = self.system, self.opts, self.D, self.rows
+        act = self.active[:, None]
+        if (_undefined_drives(system, T) & act).any():
+            return None
+        q, ok = polish(system, pred, T, D, opts, rows, self.active)
+        fac = factor(eq.solver_jacobian(system, q, rows, False), D)
+        ratio = (correction_ratio(q, pred, base, D, self.floor) if base is not None
+                 else np.zeros(q.shape[:-1]))
+        good = (ok & (fac.rcond >= opts.singular_rcond) & (fac.sign == self.sign[:, None])
+                & (ratio <= opts.branch_ratio)) | ~act
+        if not good.all():
+            return None
+        with np.errstate(all="ignore"):
+            qd = fac.solve(eq.velocity_rhs(system, T, q.shape[:-1])[..., rows])
+            qdd = fac.solve(eq.acceleration_rhs(system, q, qd, T)[..., rows])
+        return T, q, qd, qdd
+
+    # -- the compiled march ----------------------------------------------------------------------
+    def _native(self):
+        """The compiled march of the model, where the options ask for it and it applies (a
+        square system without redundant equations, the member layout, no function
+        arguments, numba installed); else None."""
+        if not _wants_native(self.system, self.opts) or len(self.rows) != self.system.n:
+            return None
+        return self.system.native
+
+    def native_march(self, march) -> int:
+        """The instants by the compiled march (:mod:`mechdsl.compiled.native`), a chunk of
+        ``native.chunk_instants`` at a time from the last state (so that progress is shown
+        and an interrupt is taken between chunks); each chunk's instants up to the first
+        where some variant stops are accepted (with their rates, condition numbers and
+        signs), and the numpy march goes on from there. Returns the first instant not
+        solved."""
+        system, opts, times, progress = self.system, self.opts, self.times, self.progress
+        K, V, n = len(times), system.n_variants, system.n
+        live = np.flatnonzero(self.active)
+        params = system.fused.params
+        P = (np.stack([np.broadcast_to(p, (V, 1))[:, 0] for p in params]) if params
+             else np.zeros((0, V)))
+        c = np.ascontiguousarray
+        P, D = c(P[:, live]), c(self.D[live, 0])
+        step = native.chunk_instants(len(live))
+        k = 1
+        while k < K:
+            end = min(K, k + step)
+            T = np.broadcast_to(times[k - 1 : end], (V, end - k + 1))
+            if (_undefined_drives(system, T) & self.active[:, None]).any():
+                return k
+            fd = np.zeros((len(live), end - k + 1, 3, len(system.drive_rows)))
+            for i, which in enumerate(("f", "fd", "fdd")):
+                if system.drive_functions:
+                    fd[:, :, i] = eq.drive_values(system, T, which, T.shape)[live]
+            L, C = len(live), end - k + 1
+            out = ([np.full((L, C, n), np.nan) for _ in range(3)]
+                   + [np.ones((L, C)), np.zeros((L, C))])
+            status, residual = np.zeros(L, np.int64), np.zeros(L)
+            march(c(self.q[live]), c(self.qd[live]), c(self.qdd[live]),
+                  c(self.sign[live], dtype=float), c(times[k - 1 : end]), fd, P, D,
+                  opts.newton_tol, opts.newton_error, opts.max_iterations, THRESHOLD,
+                  opts.branch_ratio, opts.singular_rcond, *out, status, residual)
+            if L == V:  # the usual case: no copies of the results
+                Q, QD, QDD, RC, SG = out
+            else:
+                Q, QD, QDD = (np.full((V, C, n), np.nan) for _ in range(3))
+                RC, SG = np.ones((V, C)), np.zeros((V, C))
+                for full, part in zip((Q, QD, QDD, RC, SG), out):
+                    full[live] = part
+            reached = int(status.min())  # the first column of the chunk not solved
+            if reached > 1:
+                cols = slice(1, reached)
+                self.residual = max(self.residual, float(residual.max(initial=0.0)))
+                self.accept(Q[:, cols], T[:, cols], np.arange(k, k + reached - 1),
+                            Factor(None, RC[:, cols], SG[:, cols]), self.active.copy(),
+                            (QD[:, cols], QDD[:, cols]), residual_known=True)
+            k += reached - 1
+            if progress is not None:
+                progress(k, K)
+            if reached < C:
+                break
+        return k
+
+    # -- instant by instant ----------------------------------------------------------------------
+    def march(self, grid: np.ndarray) -> None:
+        """Solve the instants ``grid`` (indices into ``system.times``, increasing, after the
+        state's time) one block after another, each block predicted from the last state
+        (:meth:`predict`) and solved by Newton-Raphson, Phi_q dq = -Phi; a failing instant
+        is approached by bisection, then passed (:meth:`through`, at_singular = "continue")
+        or reported."""
+        system, opts, D, rows, progress = self.system, self.opts, self.D, self.rows, self.progress
+        # position 0 is the state's own time; position j >= 1 is instant grid[j - 1]
+        times = np.concatenate(([float(self.t[self.active][0])], system.times[grid]))
+        instant = np.concatenate(([-1], np.asarray(grid)))
+        K, K_all = len(times), len(system.times)
+        stop_at_singular = opts.at_singular == "stop"
+        sparse = use_sparse(system, opts, rows)
+        cap = self._batch_cap()
+        b = max(1, min(self.block, cap))
+        k = 1  # the next position of ``times`` to solve
+        # between output instants that cannot be reached in one step the interval is crossed
+        # in substeps of adaptive size hsub (halved on failure, doubled on success)
+        hsub: float | None = None
+        attempts = 0
+        floor = self.floor
+        while k < K and self.active.any():
+            if progress is not None:
+                progress(int(instant[k]), K_all)
+            t_now = float(self.t[self.active][0])  # the active variants move in lockstep
+            h_out = times[k] - times[k - 1]
+            if hsub is None:
+                bb = min(b, K - k, cap)
+                targets, rec = times[k : k + bb], np.arange(k, k + bb)
+            elif t_now + hsub < times[k] - 1e-9 * h_out:
+                targets, rec = np.array([t_now + hsub]), np.array([-1])
+            else:
+                targets, rec = times[k : k + 1], np.array([k])
+            bb = len(targets)
+            act = self.active[:, None]
+            T = np.where(act, targets[None, :], self.t[:, None])
+            undefined = _undefined_drives(system, T) & act
+            pred = self.predict(T, opts.predictor_order)
+            try:
+                qn, ok, iters = newton(system, pred, T, D, self.active, opts, rows,
+                                       reuse=self.fac if sparse else None)
+                fac = factor(eq.solver_jacobian(system, qn, rows, sparse), D)
+            except eq.PluginError:
+                if bb == 1:
+                    raise
+                b = 1  # a plugin failing in a block: find the instant it fails at, one by one
+                continue
+            ratio = correction_ratio(qn, pred, self.q[:, None], D, floor)
+            singular = ok & ~(fac.rcond >= opts.singular_rcond)
+            crossing = (ok & ~singular & (fac.sign != self._signs_before(fac))
+                        & stop_at_singular)
+            jump = ok & ~singular & ~crossing & ~(ratio <= opts.branch_ratio)
+            good = (ok & ~singular & ~crossing & ~jump & ~undefined) | ~act
+            nacc = _good_prefix(good)
+            if hsub is not None:
+                attempts += 1
+            if nacc:
+                try:
+                    self.accept(qn[:, :nacc], T[:, :nacc], _recorded(instant, rec[:nacc]),
+                                fac.columns(slice(0, nacc)), self.active.copy())
+                except eq.PluginError:
+                    if nacc == 1:
+                        raise
+                    b = 1
+                    continue
+                if hsub is None:
+                    k += nacc
+                elif rec[0] >= 0:
+                    hsub, attempts, k = None, 0, k + 1
+                else:
+                    hsub = 2 * hsub
+            if nacc == bb:
+                if hsub is None:  # the block grows while Newton converges fast
+                    if iters <= 3:
+                        b = min(2 * b, opts.max_block, cap)
+                    elif iters >= 6:
+                        b = max(1, b // 2)
+                    self.block = b
+                continue
+            if bb > 1:
+                b = max(1, min(nacc, bb // 2))
+                continue
+            # a single step fails: shorten it, then decide
+            target = float(targets[0])
+            gap = target - t_now
+            if attempts > opts.max_substeps:
+                for v in np.flatnonzero(self.active):
+                    defects = (jacobian_defects(system, pred[v, 0], target, int(v))
+                               or jacobian_defects(system, self.q[v], float(self.t[v]), int(v)))
+                    self.failures.append(
+                        f"Newton-Raphson does not converge after t = {t_now:.10g}: {defects}"
+                        if defects else too_coarse_message(system, int(v), t_now,
+                                                           int(instant[k]), opts.max_substeps))
+                self.active[:] = False
+                break
+            if gap > h_out / 2**opts.max_bisections and not undefined.any():
+                hsub = gap / 2
+                b = 1
+                continue
+            # at the finest interval a large correction with a continuous position is a kink
+            # in a drive's velocity, not a branch jump
+            jump &= ~self._continuous(qn[:, 0], T[:, 0], fac, gap)
+            good = (ok & ~singular & ~crossing & ~jump & ~undefined) | ~act
+            rates = None
+            if not stop_at_singular and (self.active & ~good[:, 0]).any():
+                qn, rates, passed = self.through(pred, T)
+                good |= passed[:, None] & ~undefined
+            bad = self.active & ~good[:, 0]
+            for v in np.flatnonzero(bad):
+                if undefined[v, 0]:
+                    self.failures.append(undefined_drive_message(system, int(v), target,
+                                                                 int(instant[k])))
+                    continue
+                why = ("singular" if singular[v, 0] else "crossing" if crossing[v, 0]
+                       else "jump" if jump[v, 0] else "diverged")
+                self.failures.append(failure(system, self.q[v], float(self.t[v]), int(v),
+                                             target, int(instant[k]), why, pred[v, 0]))
+            self.active &= ~bad
+            if self.active.any():
+                fac = factor(eq.solver_jacobian(system, qn, rows, sparse), D)
+                self.accept(qn, T, _recorded(instant, rec), fac, self.active.copy(), rates)
+                if rec[0] >= 0:
+                    hsub, attempts, k = None, 0, k + 1
+                else:
+                    hsub = gap
+
+    def predict(self, T: np.ndarray, order: int = 2) -> np.ndarray:
+        """The Taylor predictor from the state to the times ``T`` (V, b):
+        q + tau qd + tau^2/2 qdd (to ``order``), falling back to lower orders where that is
+        not finite (an infinite acceleration at t0, as for f = t^1.5)."""
+        tau = (T - self.t[:, None])[..., None]
+        q, qd, qdd = self.q[:, None], self.qd[:, None], self.qdd[:, None]
+        with np.errstate(all="ignore"):
+            first = q + tau * qd
+            second = first + 0.5 * tau**2 * qdd if order >= 2 else first
+        first = np.where(np.isfinite(first), first, q)
+        return np.where(np.isfinite(second), second, first)
+
+    def through(self, pred: np.ndarray, T: np.ndarray
+                ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray], np.ndarray]:
+        """One instant on a singular position, for the option at_singular = "continue"
+        (:func:`mechdsl.solve.singular.singular_step`, started from the rates of the last
+        regular state): the positions, their rates (qd, qdd) and the variants that passed."""
+        g = self.regular
+        tau = (T[:, 0] - g.t)[:, None]
+        q, qd, qdd, ok = singular_step(self.system, pred, T, g.qd + tau * g.qdd, g.qdd, self.D,
+                                       self.rows, self.opts)
+        ratio = correction_ratio(q, pred, self.q[:, None], self.D, self.floor)[:, 0]
+        passed = ok & (ratio <= self.opts.branch_ratio) & self.active
+        if passed.any():
+            self.passages.append(float(T[passed][0, 0]))
+        return q, (qd, qdd), passed
+
+    def _continuous(self, q: np.ndarray, t: np.ndarray, fac: Factor, gap: float) -> np.ndarray:
+        """(V, 1): whether the step from the state to ``q`` (V, n) over ``gap`` is no larger
+        than the velocities at both ends allow (twice their mean times the gap)."""
+        D = self.D
+        with np.errstate(all="ignore"):
+            qd = fac.solve(eq.velocity_rhs(self.system, t[:, None], (len(q), 1))
+                           [..., self.rows])[:, 0]
+            speed = (np.abs(self.qd / D[:, 0]) + np.abs(qd / D[:, 0])).max(axis=-1)
+            moved = np.abs((q - self.q) / D[:, 0]).max(axis=-1)
+        return (moved <= speed * gap + self.floor * 1e-3)[:, None]
+
+    def _batch_cap(self) -> int:
+        """Instants solved together at most: V * b * m * n within ``max_batch_elements``."""
+        system = self.system
+        per_instant = system.n_variants * system.m * system.n
+        return max(1, self.opts.max_batch_elements // max(1, per_instant))
+
+    def _signs_before(self, fac: Factor) -> np.ndarray:
+        """(V, b): the sign of det Phi_q at the state before each column of a block."""
+        return np.concatenate((self.sign[:, None], fac.sign[:, :-1]), axis=1)
+
+
+#: The solver methods by name: a compiled system is solved by one of them
+#: (:mod:`mechdsl.solve.base` is the contract a method fulfils).
+METHODS: dict[str, type[Run]] = {KinematicRun.name: KinematicRun}
+
+
+def simulate(system: System, options: SolverOptions | None = None, *,
+             poses: bool = False, rates: bool = False, progress: Progress | None = None,
+             extra_memory: int = 0) -> Results:
+    """Solve positions (and, where outputs need them, velocities and accelerations) at every
+    instant of ``system.times``, for every variant; with ``poses``, also keep every body's
+    (x, y, phi) at every instant (``Results.poses``), for drawings and exports, and with
+    ``rates`` their first and second time derivatives too (``Results.rates``). ``progress``
+    is called as progress(instants_done, instants) as the run goes on. A run whose memory,
+    with ``extra_memory`` bytes that the caller will add for its outputs, would exceed
+    ``options.max_memory`` is refused before it starts (:func:`mechdsl.memory.plan`).
+
+    Raises MechError if the model is not fully driven. Numerical failures do not raise: the
+    failing variant stops, the instants solved before are kept, and ``Results.status`` is
+    ``"failed"`` with the reasons in ``Results.messages``. Neither does a plugin that raises
+    (status ``"error"``, ``Results.error`` the located error) nor an interrupt (status
+    ``"interrupted"``): the instants solved before are kept.
+    """
+    run = METHODS["kinematic"](system, options, poses=poses, rates=rates, progress=progress,
+                               extra_memory=extra_memory)
+    return run.run()
+
+
+# -- helpers without state -------------------------------------------------------------------------
+def _nonfinite(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, need: int) -> np.ndarray:
+    """(V, c): the columns of a block whose position, or the rates the outputs need (``need``
+    is their highest time derivative), are not all finite. Rates solved at the last column
+    only (for the predictor) are not results and are not checked."""
+    c = q.shape[1]
+    bad = ~np.isfinite(q).all(axis=-1)
+    for order, a in ((1, qd), (2, qdd)):
+        if need >= order and a.shape[1] == c:
+            bad |= ~np.isfinite(a).all(axis=-1)
+    return bad
+
+
+def _good_prefix(good: np.ndarray) -> int:
+    """How many leading columns of a block (V, b) are good in every variant."""
+    col_ok = good.all(axis=0)
+    return len(col_ok) if col_ok.all() else int(np.argmin(col_ok))
+
+
+def _recorded(instant: np.ndarray, rec: np.ndarray) -> np.ndarray:
+    """The instants (indices into system.times) that the march's positions ``rec`` record;
+    -1 for substeps."""
+    return np.where(rec >= 0, instant[np.maximum(rec, 0)], -1)
+
+
+def _wants_native(system: System, opts: SolverOptions) -> bool:
+    """Whether the options ask for the compiled backend for this run: "compiled", or "auto"
+    for a run of at least ``compiled_from`` states with numba installed (a square system;
+    whether the model compiles is known only when it is loaded)."""
+    if opts.backend == "numpy" or system.m != system.n or system.times is None:
+        return False
+    return opts.backend == "compiled" or (
+        system.n_variants * len(system.times) >= opts.compiled_from and native.available())
+
+
+def _undefined_drives(system: System, T: np.ndarray) -> np.ndarray:
+    """(V, b): where some drive's function, or its derivatives, is not a finite number."""
+    if not system.drive_functions:
+        return np.zeros(T.shape, bool)
+    ok = np.ones(T.shape, bool)
+    for which in ("f", "fd", "fdd"):
+        ok &= np.isfinite(eq.drive_values(system, T, which, T.shape)).all(axis=-1)
+    return ~ok
