@@ -6,7 +6,7 @@ import pytest
 
 import mechdsl
 from closed_forms import four_bar
-from mechdsl.assembly import assemble
+from mechdsl.solve import assemble
 
 FOURBAR = """
 param a = 1  param b = 3.5  param c = 3  param d = 4

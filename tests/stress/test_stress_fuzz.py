@@ -60,7 +60,7 @@ def test_the_hostile_generator_is_deterministic_and_covers_its_classes():
 def test_the_fuzzer_sees_a_planted_defect(monkeypatch):
     """The harness itself: an internal error in the pipeline is caught and reported."""
     fuzz = load_fuzzer()
-    import mechdsl.compile as compile_module
+    import mechdsl.compiled.compile as compile_module
 
     def broken(*args, **kwargs):
         raise ZeroDivisionError("planted")
@@ -79,9 +79,9 @@ def test_the_fuzzer_sees_a_planted_defect(monkeypatch):
 
 def _wrap_write_csv(monkeypatch, before=None, after=None):
     """write_csv as it is, with something done before or after it."""
-    import mechdsl.results
+    import mechdsl.outputs.csv
 
-    real = mechdsl.results.write_csv
+    real = mechdsl.outputs.csv.write_csv
 
     def planted(results, target):
         if before:
@@ -90,7 +90,7 @@ def _wrap_write_csv(monkeypatch, before=None, after=None):
         if after:
             after(target)
 
-    monkeypatch.setattr(mechdsl.results, "write_csv", planted)
+    monkeypatch.setattr(mechdsl.outputs.csv, "write_csv", planted)
 
 
 def plant_imported(fuzz, monkeypatch):
@@ -124,9 +124,9 @@ def plant_clobbered(fuzz, monkeypatch):
 
 def plant_echoed(fuzz, monkeypatch):
     """A table's bad field is shown whole."""
-    import mechdsl.tables
+    import mechdsl.compiled.files
 
-    monkeypatch.setattr(mechdsl.tables, "excerpt", lambda text, width=12: repr(text))
+    monkeypatch.setattr(mechdsl.compiled.files, "excerpt", lambda text, width=12: repr(text))
     secret = b"0,1\n" + b"s3cr3t" * 10 + b",2\n"
     data = SLIDER.replace(b"pi/4 + omega*t", b'pi/4 + omega*t + 0*table("t.csv", t)')
     return fuzz.Case(data, STEP, setup=[("t.csv", ("file", secret, None))],

@@ -7,10 +7,10 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 import mechdsl
-from mechdsl.assembly import assemble
-from mechdsl.diagnose import col_scale
-from mechdsl import equations as eq
-from mechdsl.linalg import factor
+from mechdsl.solve import assemble
+from mechdsl.solve.diagnose import col_scale
+from mechdsl.compiled import equations as eq
+from mechdsl.solve.linalg import factor
 
 coord = st.floats(-2, 2, allow_nan=False)
 angle = st.floats(-np.pi, np.pi, allow_nan=False)

@@ -64,7 +64,7 @@ def test_a_parallelogram_stops_at_its_change_point_by_default(load_example):
 
 
 def test_a_parallelogram_continues_as_a_parallelogram_if_asked(load_example):
-    from mechdsl.options import SolverOptions
+    from mechdsl.solve import SolverOptions
 
     res = load_example("fourbar.mech").simulate(
         b=4.0, c=1.0, options=SolverOptions(at_singular="continue"))
@@ -84,9 +84,9 @@ def test_a_parallelogram_continues_as_a_parallelogram_if_asked(load_example):
 
 def test_three_crank_coupling_rods_have_mobility_one(load_example):
     """Redundant bar: Grubler counts 0 degrees of freedom, the rank says 1."""
-    from mechdsl.assembly import assemble
-    from mechdsl.diagnose import col_scale, one_variant
-    from mechdsl.mobility import report
+    from mechdsl.solve import assemble
+    from mechdsl.solve.diagnose import col_scale, one_variant
+    from mechdsl.solve.mobility import report
 
     mech = load_example("parallelogram.mech")
     system = mech.compile()
@@ -97,7 +97,7 @@ def test_three_crank_coupling_rods_have_mobility_one(load_example):
 
 
 def test_three_crank_coupling_rods_follow_the_closed_form(load_example):
-    from mechdsl.options import SolverOptions
+    from mechdsl.solve import SolverOptions
 
     res = load_example("parallelogram.mech").simulate(options=SolverOptions(at_singular="continue"))
     assert res.ok
