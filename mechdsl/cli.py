@@ -89,6 +89,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--keep-nonfinite", action="store_true",
                      help="keep positions, velocities or accelerations that are not finite "
                           "numbers (inf, nan) in the results and go on, instead of stopping")
+    run.add_argument("--backend", metavar="NAME",
+                     help="auto (default: the compiled backend for runs of 100,000 states or "
+                          "more when numba is installed), numpy, or compiled")
     run.add_argument("--max-memory", metavar="SIZE",
                      help="refuse runs whose results would take more memory than this "
                           "(e.g. 16G; default 4G)")

@@ -63,13 +63,16 @@ def _options(args):
         given["at_singular"] = "continue"
     if getattr(args, "keep_nonfinite", False):
         given["nonfinite"] = "keep"
+    if getattr(args, "backend", None) is not None:
+        given["backend"] = args.backend
     limit = _max_memory(args)
     if limit is not None:
         given["max_memory"] = limit
     try:
         return SolverOptions(**given)
     except ValueError as err:
-        raise MechError(f"--newton-tol: {err}") from None
+        option = "--backend" if str(err).startswith("backend") else "--newton-tol"
+        raise MechError(f"{option}: {err}") from None
 
 
 def _outputs(args) -> list[tuple[str, str]]:

@@ -109,3 +109,27 @@ def test_the_compiled_model_is_cached_on_disk_and_checked_before_use(tmp_path):
 def test_the_backend_option_is_checked(value):
     with pytest.raises(ValueError, match="backend must be 'auto', 'numpy' or 'compiled'"):
         SolverOptions(backend=value)
+
+
+def test_the_command_line_takes_the_backend_as_the_api_does(tmp_path):
+    from mechdsl.cli import main
+
+    out = tmp_path / "out.csv"
+    assert main(["run", str(EXAMPLES / "slider_crank.mech"), "-q", "-o", str(out),
+                 "--backend", "compiled"]) == 0
+    data = np.loadtxt(out.read_text().splitlines()[2:], delimiter=",")
+    x, v, a = slider_crank(2.0, 3.5, np.pi / 4 + OMEGA * data[:, 0], OMEGA, 0.0)
+    np.testing.assert_allclose(data[:, 1], x, atol=1e-12 * np.abs(x).max())
+    np.testing.assert_allclose(data[:, 3], a, atol=1e-12 * np.abs(a).max())
+    r = subprocess.run([sys.executable, "-m", "mechdsl", "run", str(EXAMPLES / "slider_crank.mech"),
+                        "-o", str(out), "--backend", "gpu"], capture_output=True, text=True,
+                       cwd=tmp_path, timeout=120)
+    assert r.returncode == 1
+    assert "--backend: backend must be 'auto', 'numpy' or 'compiled', not 'gpu'" in r.stderr
+
+
+def test_asking_for_the_compiled_backend_where_it_does_not_apply_says_so():
+    res = mechdsl.load(EXAMPLES / "cam_flat.mech").simulate(options=COMPILED)
+    assert res.ok
+    assert any("backend 'compiled' asked for" in w and "solved on numpy" in w
+               for w in res.warnings)

@@ -179,10 +179,14 @@ def _fuse_members(graph: Graph, params: _Params, groups, n_bodies: int, m: int) 
             slots = [int(b) for b in g.slots[j]]
             tr = _trace(g, j, graph, [bodies[b] for b in slots],
                         _member_args(graph, params, g, j))
+            # a derived Jacobian is the total derivative in each body's coordinates: a body
+            # attached twice has it in both of its slots, to be counted once; supplied terms
+            # are per slot, and add up
+            supplied = g.ctype.supplies("jacobian_terms")
             for i, r in enumerate(int(r) for r in g.rows[j]):
                 phi[r], gamma[r] = tr.phi[i], tr.gamma[i]
                 for k, b in enumerate(slots):
-                    if b == n_bodies:
+                    if b == n_bodies or (not supplied and b in slots[:k]):
                         continue
                     for c in range(3):
                         d = tr.jacobian[i][3 * k + c]

@@ -48,7 +48,7 @@ class LUPlan:
 
     ``factor(values)`` takes the entries (..., nnz) in the pattern's order and returns the
     factors (..., slots) and a (...,) mask of states whose pivots stayed acceptable;
-    ``solve(factors, b)`` solves A x = b for b of shape (..., n) or (..., n, k);
+    ``solve(factors, b)`` solves A x = b for b of shape (..., n);
     ``sign(factors)`` is the sign of det A."""
 
     n: int

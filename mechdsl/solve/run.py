@@ -479,7 +479,13 @@ class KinematicRun(Run):
         arguments, numba installed); else None."""
         if not _wants_native(self.system, self.opts) or len(self.rows) != self.system.n:
             return None
-        return self.system.native
+        march = self.system.native
+        if march is None and self.opts.backend == "compiled":
+            why = ("numba is not installed (pip install mechdsl[fast])" if not native.available()
+                   else "the compiled backend does not compile this model (a function "
+                   "argument, or more than a small mechanism's constraints)")
+            self.warnings.append(f"backend 'compiled' asked for, but {why}: solved on numpy")
+        return march
 
     def native_march(self, march) -> int:
         """The instants by the compiled march (:mod:`mechdsl.compiled.native`), a chunk of

@@ -8,8 +8,8 @@ column of one result array. Variables are read as columns of the inputs: ``("q",
 parameter, broadcasting against the batch), ``("t",)`` from ``T``. Functions of one variable
 are called as ``F[i][order](x)``.
 
-The same source, written as a loop over a flat batch of scalars, is what the optional numba
-backend compiles (:func:`loop_source`).
+The optional compiled backend writes the same graphs as scalar code of its own
+(:mod:`mechdsl.compiled.native`).
 """
 
 from __future__ import annotations
@@ -38,22 +38,21 @@ def _const(v) -> str:
     return f"({text})" if text.startswith("-") else text
 
 
-def _read(key: tuple, loop: bool, major: bool = False) -> str:
+def _read(key: tuple, major: bool) -> str:
     kind = key[0]
-    if kind == "q":
-        return f"Q[i, {key[1]}]" if loop else f"Qt[{key[1]}]"
-    if kind == "qd":
-        return f"QD[i, {key[1]}]" if loop else f"QDt[{key[1]}]"
+    if kind in ("q", "qd"):
+        src = "Q" if kind == "q" else "QD"
+        return f"{src}t[{key[1]}]" if major else f"{src}[..., {key[1]}]"
     if kind in ("gq", "gqd"):  # a gather of columns, with a zero column for the ground
         return f"{'Q' if kind == 'gq' else 'QD'}x[..., {key[1]}]"
     if kind == "p":  # in the entry-major layout, with its axes reversed like Q's
-        return f"P[{key[1]}, i]" if loop else f"P[{key[1]}]{'.T' if major else ''}"
+        return f"P[{key[1]}]{'.T' if major else ''}"
     if kind == "t":
-        return "T[i]" if loop else f"T{'.T' if major else ''}"
+        return f"T{'.T' if major else ''}"
     raise ValueError(f"unknown variable {key!r}")
 
 
-def _lines(graph: Graph, outputs: Sequence[Node], loop: bool, major: bool = False
+def _lines(graph: Graph, outputs: Sequence[Node], major: bool
            ) -> tuple[list[str], dict[int, str]]:
     """Assignments for every operation node the outputs need; the name of each node."""
     names: dict[int, str] = {}
@@ -64,7 +63,7 @@ def _lines(graph: Graph, outputs: Sequence[Node], loop: bool, major: bool = Fals
             continue
         if n.op == "var":
             name = "v_" + "_".join(map(str, n.value))
-            lines.append(f"{name} = {_read(n.value, loop, major)}")
+            lines.append(f"{name} = {_read(n.value, major)}")
         else:
             a = [names[x.id] for x in n.args]
             if n.op in _INFIX:
@@ -110,11 +109,11 @@ def kernel(graph: Graph, outputs: Sequence[Node], name: str = "kernel",
     (a group of constraints evaluated as one array), and the result has ``width`` columns.
     Gather variables ``("gq", NAME)`` read ``Q[..., NAME]`` with a zero column appended
     (index n: the ground's coordinates)."""
-    lines, names = _lines(graph, outputs, loop=False, major=positions is None)
+    lines, names = _lines(graph, outputs, major=positions is None)
     used = {n.value[0] for n in graph.subgraph(outputs) if n.op == "var"}
     body = [f"def {name}(Q, QD, T, P, F):"]
     for kind, src in (("q", "Q"), ("qd", "QD")):
-        if kind in used:  # coordinate k is row k: entry-major views (all axes reversed)
+        if kind in used and positions is None:  # row k: entry-major views (axes reversed)
             body.append(f"    {src}t = {src}.T")
     for kind, src in (("gq", "Q"), ("gqd", "QD")):
         if kind in used:
@@ -148,15 +147,3 @@ def kernel(graph: Graph, outputs: Sequence[Node], name: str = "kernel",
     exec(code, namespace)  # noqa: S102 - our own generated source, from the model's graph
     return Kernel(namespace[name], source, width,
                   hashlib.sha256(source.encode()).hexdigest()[:16])
-
-
-def loop_source(graph: Graph, outputs: Sequence[Node], name: str = "kernel") -> str:
-    """The same evaluation as a loop over a flat batch (for numba): ``name(Q, QD, T, P,
-    out)`` with Q, QD of shape (B, n), T (B,), P (np, B) and out (B, len(outputs))."""
-    lines, names = _lines(graph, outputs, loop=True)
-    body = [f"def {name}(Q, QD, T, P, out):", "    for i in range(Q.shape[0]):"]
-    body += [f"        {ln}" for ln in lines]
-    for k, n in enumerate(outputs):
-        body.append(f"        out[i, {k}] = {names[n.id]}")
-    body.append("    return out")
-    return "\n".join(body) + "\n"
