@@ -312,12 +312,7 @@ def _report(args, results, written: list[str], stop: KeyboardInterrupt | None,
     if not args.quiet:
         for w in results.warnings:
             print(f"{args.file}: warning: {w}", file=sys.stderr)
-    if results.status == "error":
-        print(format_error(results.error), file=sys.stderr)
-        if in_file:
-            print(f"  note: {_solved_text(results)} solved before the error are in "
-                  f"{args.output}", file=sys.stderr)
-    elif results.status == "failed":
+    if results.status == "failed":
         source = Source(args.file, "")
         for message in results.messages:
             print(format_error(NumericalError(message, source=source)), file=sys.stderr)
@@ -338,7 +333,7 @@ def _report(args, results, written: list[str], stop: KeyboardInterrupt | None,
             for line in _written_lines(args, results, written):
                 print(line, file=sys.stderr)
         return 0
-    return 1 if results.status == "error" else 2
+    return 2
 
 
 def _written_lines(args, results, written: list[str]) -> list[str]:

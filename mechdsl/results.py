@@ -15,8 +15,7 @@ class Results:
 
     ``data[label]`` has shape ``(V, K)`` (variants, instants); values after a variant's
     ``n_solved[v]`` instants are NaN. ``status`` is ``"ok"``, ``"failed"`` (a numerical
-    failure; ``messages`` says where and why), ``"error"`` (a plugin raised while solving;
-    ``error`` is the located error naming it) or ``"interrupted"``.
+    failure; ``messages`` says where and why) or ``"interrupted"``.
     """
 
     times: np.ndarray
@@ -41,8 +40,6 @@ class Results:
     #: the unit of each output quantity and of time, where the model gives them (labels)
     units: Mapping[str, str] = field(default_factory=dict)
     time_unit: str = ""
-    #: With status "error": the located error (a MechError naming the plugin and the joint)
-    error: Exception | None = None
 
     @property
     def ok(self) -> bool:

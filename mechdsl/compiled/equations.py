@@ -16,14 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import MechError
 from .sparse import LU_BATCH, LUJac, SparseJac
 from .system import ExprOutput, System
-
-
-class PluginError(MechError):
-    """A plugin's code failed while the system was evaluated (a function argument's
-    evaluation; the types' own code runs only when the model is compiled)."""
 
 
 def drive_values(system: System, t: np.ndarray, which: str, shape) -> np.ndarray:

@@ -15,10 +15,10 @@ the factorisations of :mod:`mechdsl.solve.linalg`). To add one:
    the run is allocated. Nothing is solved yet.
 3. ``run()`` solves every instant of ``system.times`` for every variant and returns
    :meth:`results`. It raises nothing for what can happen while solving: a numerical failure
-   stops its variant (a message in :attr:`failures`, status "failed"), a plugin's error
-   (:class:`mechdsl.compiled.equations.PluginError`) stops the run with status "error", an
-   interrupt (KeyboardInterrupt) with status "interrupted"; the instants solved before are
-   kept in every case.
+   stops its variant (a message in :attr:`failures`, status "failed"), an interrupt
+   (KeyboardInterrupt) the run (status "interrupted"); the instants solved before are kept
+   in every case. (No plugin code runs while solving: a type's equations are traced when
+   the model is compiled.)
 4. The run is the only mutable state of a solve: the last solved state of each variant, the
    output arrays :attr:`data` (V, K) it fills, the instants each variant has solved
    (:attr:`n_solved`), and what the user should be told (:attr:`failures`,
@@ -74,7 +74,7 @@ class Run:
 
     def results(self, status: str, solve_time: float, *, residual: float = 0.0,
                 condition: np.ndarray | None = None, poses: np.ndarray | None = None,
-                rates: np.ndarray | None = None, error: Exception | None = None) -> Results:
+                rates: np.ndarray | None = None) -> Results:
         """What the run solved, as :class:`~mechdsl.results.Results`: the output arrays, how
         the run ended and what the user should know."""
         system = self.system
@@ -84,4 +84,4 @@ class Run:
             residual=residual, source_name=system.source.name,
             warnings=tuple(self.warnings), condition=condition, poses=poses, rates=rates,
             units={o.label: o.unit for o in system.outputs if o.unit},
-            time_unit=system.time_unit, error=error)
+            time_unit=system.time_unit)

@@ -110,26 +110,23 @@ class KinematicRun(Run):
     # -- the run ---------------------------------------------------------------------------------
     def run(self) -> Results:
         """Assemble at t0, then solve every instant (:meth:`advance`); the results, also
-        after a numerical failure, a plugin's error or an interrupt."""
+        after a numerical failure or an interrupt."""
         system, opts, times = self.system, self.opts, self.times
         V, K = system.n_variants, len(times)
         start = time.perf_counter()
         self.data = {o.label: np.full((V, K), np.nan) for o in system.outputs}
         try:
             asm = assemble(system, float(times[0]), opts)
-        except (KeyboardInterrupt, eq.PluginError) as err:
-            return self._nothing_solved(err, time.perf_counter() - start)
+        except KeyboardInterrupt:
+            return self.results("interrupted", time.perf_counter() - start)
         self._start(asm)
-        status, error = "ok", None
+        status = "ok"
         try:
             if self.active.any():
                 self._first_instant(asm)
                 self.advance()
         except KeyboardInterrupt:
             status = "interrupted"
-        except eq.PluginError as err:  # a defect of a plugin: keep what was solved before it
-            status, error = "error", err
-            self.failures.insert(0, err.message)
         elapsed = time.perf_counter() - start
         if status == "ok" and self.failures:
             status = "failed"
@@ -143,15 +140,7 @@ class KinematicRun(Run):
         return self.results(
             status, elapsed, residual=self.residual, condition=1.0 / self.min_rcond,
             poses=None if self.poses is None else self.poses.reshape(V, K, -1, 3),
-            rates=None if self.pose_rates is None else self.pose_rates.reshape(V, K, 2, -1, 3),
-            error=error)
-
-    def _nothing_solved(self, err: BaseException, elapsed: float) -> Results:
-        """The results of a run stopped before its first instant: by an interrupt or a
-        plugin."""
-        error = err if isinstance(err, eq.PluginError) else None
-        self.failures = [error.message] if error else []
-        return self.results("interrupted" if error is None else "error", elapsed, error=error)
+            rates=None if self.pose_rates is None else self.pose_rates.reshape(V, K, 2, -1, 3))
 
     def _start(self, asm: Assembly) -> None:
         """The state at t0 from the assembly: the equations to solve, the ones to watch,
@@ -222,10 +211,7 @@ class KinematicRun(Run):
         while k < K and self.active.any():
             end = min(K, k + max(opts.window, 2 * stride))
             if parallel and end - k >= 2 * stride:
-                try:
-                    k = self.parallel(k, end)
-                except eq.PluginError:  # the march below finds the instant it fails at
-                    k = max(k, int(self.n_solved.max()))
+                k = self.parallel(k, end)
                 if progress is not None:
                     progress(k, K)
             if k < end and self.active.any():
@@ -581,15 +567,9 @@ class KinematicRun(Run):
             T = np.where(act, targets[None, :], self.t[:, None])
             undefined = _undefined_drives(system, T) & act
             pred = self.predict(T, opts.predictor_order)
-            try:
-                qn, ok, iters = newton(system, pred, T, D, self.active, opts, rows,
-                                       reuse=self.fac if sparse else None)
-                fac = factor(eq.solver_jacobian(system, qn, rows, sparse), D)
-            except eq.PluginError:
-                if bb == 1:
-                    raise
-                b = 1  # a plugin failing in a block: find the instant it fails at, one by one
-                continue
+            qn, ok, iters = newton(system, pred, T, D, self.active, opts, rows,
+                                   reuse=self.fac if sparse else None)
+            fac = factor(eq.solver_jacobian(system, qn, rows, sparse), D)
             ratio = correction_ratio(qn, pred, self.q[:, None], D, floor)
             singular = ok & ~(fac.rcond >= opts.singular_rcond)
             crossing = (ok & ~singular & (fac.sign != self._signs_before(fac))
@@ -600,14 +580,8 @@ class KinematicRun(Run):
             if hsub is not None:
                 attempts += 1
             if nacc:
-                try:
-                    self.accept(qn[:, :nacc], T[:, :nacc], _recorded(instant, rec[:nacc]),
-                                fac.columns(slice(0, nacc)), self.active.copy())
-                except eq.PluginError:
-                    if nacc == 1:
-                        raise
-                    b = 1
-                    continue
+                self.accept(qn[:, :nacc], T[:, :nacc], _recorded(instant, rec[:nacc]),
+                            fac.columns(slice(0, nacc)), self.active.copy())
                 if hsub is None:
                     k += nacc
                 elif rec[0] >= 0:
@@ -736,8 +710,7 @@ def simulate(system: System, options: SolverOptions | None = None, *,
 
     Raises MechError if the model is not fully driven. Numerical failures do not raise: the
     failing variant stops, the instants solved before are kept, and ``Results.status`` is
-    ``"failed"`` with the reasons in ``Results.messages``. Neither does a plugin that raises
-    (status ``"error"``, ``Results.error`` the located error) nor an interrupt (status
+    ``"failed"`` with the reasons in ``Results.messages``. Neither does an interrupt (status
     ``"interrupted"``): the instants solved before are kept.
     """
     run = METHODS["kinematic"](system, options, poses=poses, rates=rates, progress=progress,
