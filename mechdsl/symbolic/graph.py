@@ -23,7 +23,7 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
-#: unary functions: name -> (numpy function, derivative as a function of (graph, x, node))
+#: the operations of a node besides "const", "var", "call" and "select": one operand, two
 UNARY = ("neg", "sin", "cos", "tan", "sqrt", "exp", "log", "arctan", "abs", "sign")
 BINARY = ("add", "sub", "mul", "div", "pow", "arctan2", "mod")
 
