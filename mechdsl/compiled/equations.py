@@ -31,12 +31,14 @@ def drive_values(system: System, t: np.ndarray, which: str, shape) -> np.ndarray
     return np.stack(cols, axis=-1)
 
 
-def constraint_values(system: System, q: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Phi(q, t), shape ``(V, b, m)``."""
+def constraint_values(system: System, q: np.ndarray, t: np.ndarray,
+                      f: np.ndarray | None = None) -> np.ndarray:
+    """Phi(q, t), shape ``(V, b, m)``; ``f``: the drives' f(t) where the caller has them."""
     with np.errstate(all="ignore"):
         phi = system.fused.evaluate_phi(q)
     if system.drive_functions:
-        phi[..., system.drive_rows] -= drive_values(system, t, "f", q.shape[:-1])
+        phi[..., system.drive_rows] -= (drive_values(system, t, "f", q.shape[:-1]) if f is None
+                                        else f)
     return phi
 
 
@@ -75,14 +77,16 @@ def jacobian_for(system: System, values: np.ndarray, rows: np.ndarray):
 
 
 def residual_and_jacobian(system: System, q: np.ndarray, t: np.ndarray, rows: np.ndarray,
-                          sparse: bool):
+                          sparse: bool, f: np.ndarray | None = None):
     """Phi(q, t) ``(V, b, m)`` and Phi_q as :func:`solver_jacobian` gives it, from one
-    evaluation (Newton needs both at the same q: each body's cos and sin computed once)."""
+    evaluation (Newton needs both at the same q: each body's cos and sin computed once);
+    ``f``: the drives' f(t) where the caller has them."""
     with np.errstate(all="ignore"):
         phi, vals = system.fused.evaluate_phi_jac(q)
     if system.drive_functions:
         phi = phi.copy()
-        phi[..., system.drive_rows] -= drive_values(system, t, "f", q.shape[:-1])
+        phi[..., system.drive_rows] -= (drive_values(system, t, "f", q.shape[:-1]) if f is None
+                                        else f)
     if sparse:
         return phi, SparseJac(vals, system.pattern)
     return phi, jacobian_for(system, vals, rows)

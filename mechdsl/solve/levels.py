@@ -28,8 +28,8 @@ def polish(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
            tol: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Newton-Raphson on Phi(q, t) = 0 for a batch of states ``q`` (V, b, n) at ``t``
     (V, b), all iterated together until every state's scaled step max|dq / D| is at most
-    ``tol`` (``opts.newton_tol`` by default) or its error left, estimated from the quadratic contraction
-    |dq_k|^3 / |dq_(k-1)|^2, at most ``opts.newton_error``. Returns the states and a (V, b)
+    ``tol`` (``opts.newton_tol`` by default) or its error left, estimated from the quadratic
+    contraction |dq_k|^3 / |dq_(k-1)|^2, at most ``opts.newton_error``. Returns the states and a (V, b)
     mask of the converged ones (a state whose step stopped contracting is not). Variants
     not ``active`` (V,) are left as they are, and count as converged."""
     q = np.array(q, dtype=float)
@@ -39,26 +39,25 @@ def polish(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
     done = np.zeros(q.shape[:-1], bool)
     if active is not None:
         done |= ~active[:, None]
-    for it in range(1, opts.max_iterations + 1):
-        with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"):  # once for the loop: each entry costs a few us
+        for it in range(1, opts.max_iterations + 1):
             phi, vals = system.fused.evaluate_phi_jac(q)
             if f is not None:
                 phi = phi.copy()
                 phi[..., system.drive_rows] -= f
-        jac = eq.jacobian_for(system, vals, rows)
-        rhs = -phi if len(rows) == system.m else -phi[..., rows]
-        dq, solved = solve(jac, rhs)
-        with np.errstate(all="ignore"):
+            jac = eq.jacobian_for(system, vals, rows)
+            dq, solved = solve(jac, -phi if len(rows) == system.m else -phi[..., rows])
             step = np.abs(dq / D).max(axis=-1)
             left = np.where((step < 0.25 * prev) & (prev < np.inf), step**3 / prev**2, np.inf)
-        live = ~done & solved
-        q += np.where(live[..., None], np.nan_to_num(dq), 0.0)
-        done |= live & ((step <= tol) | (left <= opts.newton_error))
-        if done.all():
-            break
-        if it >= 3 and not (step[~done] <= 0.5 * prev[~done]).all():
-            break  # not contracting somewhere: the caller falls back to the careful march
-        prev = np.where(live, step, prev)
+            live = ~done & solved
+            # a live state's step is finite (solved); where() keeps the others' NaN out
+            q += np.where(live[..., None], dq, 0.0)
+            done |= live & ((step <= tol) | (left <= opts.newton_error))
+            if done.all():
+                break
+            if it >= 3 and not (step[~done] <= 0.5 * prev[~done]).all():
+                break  # not contracting somewhere: the caller falls back to the careful march
+            prev = np.where(live, step, prev)
     return q, done
 
 
@@ -117,7 +116,8 @@ def coarse_march(system: System, start: tuple[np.ndarray, ...], sign: np.ndarray
         if not (np.isfinite(qd_new[active]).all() and np.isfinite(qdd_new[active]).all()):
             return None
         with np.errstate(all="ignore"):
-            jerk = np.nan_to_num((qdd_new[:, 0] - qdd) / tau)
+            jerk = (qdd_new[:, 0] - qdd) / tau
+            jerk = np.where(np.isfinite(jerk), jerk, 0.0)
         q, qd, qdd = qn[:, 0], qd_new[:, 0], qdd_new[:, 0]
         t = np.where(active, target, t)
         out.append((qn, qd_new, qdd_new))

@@ -41,18 +41,22 @@ def newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray, active: 
     prev = np.full(done.shape, np.inf)
     it = 0
     b = q.shape[1]
+    # the drives' f(t): the same at every iteration
+    f_all = (eq.drive_values(system, t, "f", q.shape[:-1]) if system.drive_functions
+             else None)
     for it in range(1, opts.max_iterations + 1):
         # instants that converged (in every variant) drop out of the next iterations
         cols = np.flatnonzero((~done & ~failed).any(axis=0))
         part = cols.size < b
         qc = q[:, cols] if part else q
         tc = t[:, cols] if part and np.shape(t)[1] == b else t
+        fc = f_all[:, cols] if part and f_all is not None else f_all
         stale = reuse is not None and sparse
         with np.errstate(all="ignore"):
             if stale:
-                phi = eq.constraint_values(system, qc, tc)
+                phi = eq.constraint_values(system, qc, tc, fc)
             else:
-                phi, jac = eq.residual_and_jacobian(system, qc, tc, rows, sparse)
+                phi, jac = eq.residual_and_jacobian(system, qc, tc, rows, sparse, fc)
             if shift is not None:
                 phi = phi + (shift[:, cols] if part and shift.shape[1] == b else shift)
         rhs = -phi if len(rows) == system.m else -phi[..., rows]
@@ -72,7 +76,7 @@ def newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray, active: 
             step = np.abs(dq / D).max(axis=-1)
         failed |= ~solved & ~done
         live = ~done & ~failed
-        q += np.where(live[..., None], np.nan_to_num(dq), 0.0)
+        q += np.where(live[..., None], dq, 0.0)  # a live state's step is finite (solved)
         # Newton contracts quadratically, e_{k+1} ~ C e_k^2 with C ~ |dq_k| / |dq_{k-1}|^2:
         # the error left after this step is about |dq_k|^3 / |dq_{k-1}|^2, so the step that
         # would only confirm convergence is saved (Deuflhard 2004, sec. 2.1)
