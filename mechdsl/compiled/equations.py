@@ -69,8 +69,9 @@ def solver_jacobian(system: System, q: np.ndarray, rows: np.ndarray, sparse: boo
 def jacobian_for(system: System, values: np.ndarray, rows: np.ndarray):
     """The entries as the factorisation wants them: for the generated LU (a square system,
     a batch large enough to pay for it), else dense."""
-    if (len(rows) == system.m == system.n and system.lu is not None
-            and values[..., 0].size >= LU_BATCH):
+    # (the batch size first: a small batch never pays for planning the LU)
+    if (values[..., 0].size >= LU_BATCH and len(rows) == system.m == system.n
+            and system.lu is not None):
         return LUJac(values, system.pattern, system.lu)
     jac = system.fused.dense(values)
     return jac if len(rows) == system.m else jac[..., rows, :]

@@ -24,6 +24,9 @@ import numpy as np
 
 #: Threshold pivoting: a pivot is at least this fraction of its column's largest entry.
 THRESHOLD = 0.1
+#: Up to this many coordinates a model gets a generated LU (its pivot search grows like n^2
+#: and its code with the fill; a larger mechanism is solved by the band or sparse LU).
+MAX_N = 300
 
 
 def _parity(perm: list[int]) -> float:
@@ -146,7 +149,7 @@ def plan(rows: np.ndarray, cols: np.ndarray, n: int, sample: np.ndarray) -> LUPl
     free_rows, free_cols = set(range(n)), set(range(n))
     order_rows: list[int] = []
     order_cols: list[int] = []
-    steps: list[tuple[int, int, list[tuple[int, int]], list[int]]] = []
+    steps: list[tuple] = []  # (pivot row, pivot column, below, right, pivot slot)
     next_slot = nnz
     pivot_slots: list[int] = []
     for _ in range(n):
@@ -183,14 +186,11 @@ def plan(rows: np.ndarray, cols: np.ndarray, n: int, sample: np.ndarray) -> LUPl
             l_val = val[(i, pc)] / val[(pr, pc)] if val[(pr, pc)] != 0 else 0.0
             val[(i, pc)] = l_val
             for c in right:
-                u_slot = slot[(pr, c)]
                 if (i, c) in slot:
-                    t = slot[(i, c)]
                     val[(i, c)] -= l_val * val[(pr, c)]
                 else:  # fill
-                    t = next_slot
+                    slot[(i, c)] = next_slot
                     next_slot += 1
-                    slot[(i, c)] = t
                     by_row[i].add(c)
                     by_col[c].add(i)
                     val[(i, c)] = -l_val * val[(pr, c)]

@@ -19,7 +19,7 @@ from ..errors import Source, Span
 from ..grammar import expr as E
 from ..plugins.contract import ConstraintType
 from .fused import Fused
-from .lu import LUPlan, plan
+from .lu import MAX_N, LUPlan, plan
 from .sparse import Pattern
 
 
@@ -135,7 +135,7 @@ class System:
         """The generated sparse LU of Phi_q (square systems), its pivot order chosen on the
         Jacobian at the first variant's guess (:mod:`mechdsl.compiled.lu`); None where that
         Jacobian is singular in its pattern."""
-        if self.fused is None or self.m != self.n or self.n == 0:
+        if self.fused is None or self.m != self.n or not 0 < self.n <= MAX_N:
             return None
         sample = self.fused.evaluate_jac(self.guess[:, None, :])[0, 0]
         return plan(self.fused.rows, self.fused.cols, self.n, sample)
