@@ -36,6 +36,7 @@ import numpy as np
 from ..compiled import equations as eq
 from ..compiled import native
 from ..compiled.lu import THRESHOLD
+from ..compiled.sparse import LU_BATCH_STATES
 from ..compiled.system import ExprOutput, System
 from ..errors import MechError
 from ..memory import plan
@@ -682,10 +683,14 @@ class KinematicRun(Run):
         return (moved <= speed * gap + self.floor * 1e-3)[:, None]
 
     def _batch_cap(self) -> int:
-        """Instants solved together at most: V * b * m * n within ``max_batch_elements``."""
+        """Instants solved together at most: V * b * m * n within ``max_batch_elements``,
+        and V * b within ``LU_BATCH_STATES`` where the generated LU factorises them."""
         system = self.system
         per_instant = system.n_variants * system.m * system.n
-        return max(1, self.opts.max_batch_elements // max(1, per_instant))
+        cap = max(1, self.opts.max_batch_elements // max(1, per_instant))
+        if system.m == system.n and system.lu is not None:
+            cap = min(cap, max(1, LU_BATCH_STATES // system.n_variants))
+        return cap
 
     def _signs_before(self, fac: Factor) -> np.ndarray:
         """(V, b): the sign of det Phi_q at the state before each column of a block."""
