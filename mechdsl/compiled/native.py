@@ -8,7 +8,8 @@ with the model's own sparse LU, and solves the velocities and accelerations from
 factorisation, all in machine code. Drive functions are evaluated beforehand by numpy at
 every instant (they depend on t alone), so that nothing but arithmetic is compiled.
 
-The march checks what the numpy march checks (convergence, a pivot of the fixed order that
+The variants are marched in parallel, one thread each on every core (numba's prange): they
+are independent. The march checks what the numpy march checks (convergence, a pivot of the fixed order that
 became small, det(Phi_q)'s sign, Newton's correction against the motion, the condition
 number against ``singular_rcond``) and stops a variant at its first instant that fails one;
 the numpy solver takes over from there and reports it exactly. The condition number is
@@ -94,7 +95,7 @@ def source(system) -> str | None:
         return None
     graph: Graph = f.graph
     m, n, nnz, slots = f.m, f.n, len(f.rows), lu.slots
-    code = ["import numpy as np", "from numba import njit", ""]
+    code = ["import numpy as np", "from numba import njit, prange", ""]
     code += ["@njit(cache=True)", "def phi_jac(q, p, phi, a):"]
     code += _scalar_code(graph, [(f"phi[{i}]", x) for i, x in enumerate(f.phi_nodes)]
                          + [(f"a[{k}]", x) for k, x in enumerate(f.jac_nodes)], "    ")
@@ -141,24 +142,24 @@ def source(system) -> str | None:
 
 
 MARCH = '''
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, maxit, threshold, branch_ratio,
           singular_rcond, Q, QD, QDD, RC, SG, status, RES):
     """Instants 1.. of every variant from instant 0 (see the module documentation);
     status[v] = the first instant not solved (len(TT) when all are); RES[v] the largest
     |Phi| of the solved states."""
     V, K = Q0.shape[0], TT.shape[0]
-    phi = np.empty({m})
-    a = np.empty({slots})
-    g = np.empty({m})
-    rhs = np.empty({n})
-    dx = np.empty({n})
-    r = np.empty({m})
-    col = np.empty({n})
-    e = np.empty({n})
-    z = np.empty({n})
     floor = np.sqrt(tol)
-    for v in range(V):
+    for v in prange(V):  # the variants are independent: one thread each, on every core
+        phi = np.empty({m})
+        a = np.empty({slots})
+        g = np.empty({m})
+        rhs = np.empty({n})
+        dx = np.empty({n})
+        r = np.empty({m})
+        col = np.empty({n})
+        e = np.empty({n})
+        z = np.empty({n})
         p = P[:, v]
         q = Q0[v].copy()
         qd = QD0[v].copy()
