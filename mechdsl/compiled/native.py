@@ -8,12 +8,12 @@ with the model's own sparse LU, and solves the velocities and accelerations from
 factorisation, all in machine code. Drive functions are evaluated beforehand by numpy at
 every instant (they depend on t alone), so that nothing but arithmetic is compiled.
 
-The variants are marched in parallel, one thread each on every core (numba's prange): they
-are independent. The march checks what the numpy march checks (convergence, a pivot of the fixed order that
-became small, det(Phi_q)'s sign, Newton's correction against the motion, the condition
-number against ``singular_rcond``) and stops a variant at its first instant that fails one;
-the numpy solver takes over from there and reports it exactly. The condition number is
-exact: A^-1's columns from n solves, cheap in compiled code.
+The variants are independent and marched in parallel, a thread each on every core (numba's
+prange). The march checks what the numpy march checks (convergence, a pivot of the fixed
+order that became small, det(Phi_q)'s sign, Newton's correction against the motion, the
+condition number, by the same Hager and Higham estimate, against ``singular_rcond``) and
+stops a variant at its first instant that fails one; the numpy solver takes over from there
+and reports it exactly.
 
 The module source is keyed by the hash of the generated code and written, with numba's
 cache, under the user's cache folder (only if it is the user's own and private, as for the
