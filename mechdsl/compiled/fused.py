@@ -116,36 +116,24 @@ class _Params:
         return self.graph.var("p", len(self.arrays) - 1)
 
 
-def _member_args(graph: Graph, params: _Params, group, j: int) -> dict:
+def _args(graph: Graph, params: _Params, group, j: int | None = None) -> dict:
+    """The arguments of member ``j`` of a group as graph leaves, or (``j`` None) of the whole
+    group, one column per member."""
+    at = slice(None) if j is None else j
     args: dict[str, object] = {}
     for a in group.ctype.signature:
         if a.kind == "body":
             continue
         value = group.params[a.name]
         if a.kind == "function":
-            f = ExprFunction([value.exprs[j]], value.var, value.env, elementwise=True)
+            f = (value if j is None else
+                 ExprFunction([value.exprs[j]], value.var, value.env, elementwise=True))
             args[a.name] = _TracedFunction(graph, graph.function(f, f.d1, f.d2))
         elif a.kind in ("point", "vector"):
-            xy = value[:, 0, j]
-            args[a.name] = Vec(params.leaf(xy[:, 0]), params.leaf(xy[:, 1]))
-        else:
-            args[a.name] = params.leaf(value[:, 0, j])
-    return args
-
-
-def _group_args(graph: Graph, params: _Params, group) -> dict:
-    args: dict[str, object] = {}
-    for a in group.ctype.signature:
-        if a.kind == "body":
-            continue
-        value = group.params[a.name]
-        if a.kind == "function":
-            args[a.name] = _TracedFunction(graph, graph.function(value, value.d1, value.d2))
-        elif a.kind in ("point", "vector"):
-            xy = value[:, 0]
+            xy = value[:, 0, at]
             args[a.name] = Vec(params.leaf(xy[..., 0]), params.leaf(xy[..., 1]))
         else:
-            args[a.name] = params.leaf(value[:, 0])
+            args[a.name] = params.leaf(value[:, 0, at])
     return args
 
 
@@ -178,7 +166,7 @@ def _fuse_members(graph: Graph, params: _Params, groups, n_bodies: int, m: int) 
         for j in range(len(g.members)):
             slots = [int(b) for b in g.slots[j]]
             tr = _trace(g, j, graph, [bodies[b] for b in slots],
-                        _member_args(graph, params, g, j))
+                        _args(graph, params, g, j))
             # a derived Jacobian is the total derivative in each body's coordinates: a body
             # attached twice has it in both of its slots, to be counted once; supplied terms
             # are per slot, and add up
@@ -230,7 +218,7 @@ def _fuse_groups(graph: Graph, params: _Params, groups, n_bodies: int, m: int) -
             phi_k = graph.var("gq", idx[2])
             bodies.append(Body(graph.var("gq", idx[0]), graph.var("gq", idx[1]), phi_k,
                                np.cos(phi_k), np.sin(phi_k)))
-        tr = _trace(g, 0, graph, bodies, _group_args(graph, params, g))
+        tr = _trace(g, 0, graph, bodies, _args(graph, params, g))
         rows = np.asarray(g.rows, dtype=np.intp)  # (J, n_eq)
         for i in range(g.ctype.n_eq):
             at = name(rows[:, i], "R")

@@ -31,13 +31,8 @@ from typing import Callable
 
 import numpy as np
 
+from ..symbolic.codegen import CALLED, assignments
 from ..symbolic.graph import Graph, Node
-
-_INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/", "pow": "**"}
-_CALLS = {"sin": "np.sin", "cos": "np.cos", "tan": "np.tan", "sqrt": "np.sqrt",
-          "exp": "np.exp", "log": "np.log", "arctan": "np.arctan", "abs": "np.abs",
-          "sign": "np.sign", "arctan2": "np.arctan2", "mod": "np.remainder"}
-
 
 #: States (variants times instants) per call of the compiled march: about 0.1 s of work, so
 #: that progress is shown and an interrupt is taken between calls.
@@ -54,35 +49,17 @@ def available() -> bool:
     return importlib.util.find_spec("numba") is not None
 
 
+def _read(key: tuple) -> str:
+    kind = key[0]
+    if kind not in ("q", "qd", "p"):
+        raise ValueError(f"the compiled backend cannot read {kind}")
+    return f"{kind}[{key[1]}]"
+
+
 def _scalar_code(graph: Graph, outputs: list[tuple[str, Node]], indent: str) -> list[str]:
     """Straight-line scalar code assigning each output ``target = node``; variables read
-    ``q[k]``, ``qd[k]`` and ``p[j]``."""
-    names: dict[int, str] = {}
-    lines: list[str] = []
-    for n in graph.subgraph([node for _, node in outputs]):
-        if n.op == "const":
-            v = n.value
-            names[n.id] = "np.nan" if v == "nan" else f"({float(v)!r})"
-            continue
-        if n.op == "var":
-            kind, *rest = n.value
-            if kind not in ("q", "qd", "p"):
-                raise ValueError(f"the compiled backend cannot read {kind}")
-            name = f"v_{kind}_{rest[0]}"
-            lines.append(f"{name} = {kind}[{rest[0]}]")
-        else:
-            a = [names[x.id] for x in n.args]
-            if n.op in _INFIX:
-                expr = f"{a[0]} {_INFIX[n.op]} {a[1]}"
-            elif n.op == "neg":
-                expr = f"-{a[0]}"
-            elif n.op in _CALLS:
-                expr = f"{_CALLS[n.op]}({', '.join(a)})"
-            else:
-                raise ValueError(f"the compiled backend cannot compile {n.op}")
-            name = f"n{n.id}"
-            lines.append(f"{name} = {expr}")
-        names[n.id] = name
+    ``q[k]``, ``qd[k]`` and ``p[j]`` (the numpy kernels' code generator, on scalars)."""
+    lines, names = assignments(graph, [node for _, node in outputs], _read)
     lines += [f"{target} = {names[node.id]}" for target, node in outputs]
     return [indent + ln for ln in lines]
 
@@ -95,7 +72,8 @@ def source(system) -> str | None:
         return None
     graph: Graph = f.graph
     m, n, nnz, slots = f.m, f.n, len(f.rows), lu.slots
-    code = ["import numpy as np", "from numba import njit, prange", ""]
+    code = ["import numpy as np", f"from numpy import {', '.join(CALLED)}, inf, nan",
+            "from numba import njit, prange", ""]
     code += ["@njit(cache=True)", "def phi_jac(q, p, phi, a):"]
     code += _scalar_code(graph, [(f"phi[{i}]", x) for i, x in enumerate(f.phi_nodes)]
                          + [(f"a[{k}]", x) for k, x in enumerate(f.jac_nodes)], "    ")

@@ -52,9 +52,16 @@ def _read(key: tuple, major: bool) -> str:
     raise ValueError(f"unknown variable {key!r}")
 
 
-def _lines(graph: Graph, outputs: Sequence[Node], major: bool
-           ) -> tuple[list[str], dict[int, str]]:
-    """Assignments for every operation node the outputs need; the name of each node."""
+#: the numpy functions the generated code calls, by the names it calls them
+CALLED = sorted(set(_CALLS.values()))
+
+
+def assignments(graph: Graph, outputs: Sequence[Node], read: Callable[[tuple], str],
+                major: bool = False) -> tuple[list[str], dict[int, str]]:
+    """Assignments for every operation node the outputs need, in topological order, and the
+    name of each node; ``read(key)`` is the expression that reads a variable. Numpy's
+    functions are called by their names in :data:`CALLED` (and constants may be ``nan``,
+    ``inf``): the namespace the code runs in provides them. (Also the compiled backend's.)"""
     names: dict[int, str] = {}
     lines: list[str] = []
     for n in graph.subgraph(outputs):
@@ -63,7 +70,7 @@ def _lines(graph: Graph, outputs: Sequence[Node], major: bool
             continue
         if n.op == "var":
             name = "v_" + "_".join(map(str, n.value))
-            lines.append(f"{name} = {_read(n.value, major)}")
+            lines.append(f"{name} = {read(n.value)}")
         else:
             a = [names[x.id] for x in n.args]
             if n.op in _INFIX:
@@ -109,7 +116,8 @@ def kernel(graph: Graph, outputs: Sequence[Node], name: str = "kernel",
     (a group of constraints evaluated as one array), and the result has ``width`` columns.
     Gather variables ``("gq", NAME)`` read ``Q[..., NAME]`` with a zero column appended
     (index n: the ground's coordinates)."""
-    lines, names = _lines(graph, outputs, major=positions is None)
+    major = positions is None
+    lines, names = assignments(graph, outputs, lambda key: _read(key, major), major)
     used = {n.value[0] for n in graph.subgraph(outputs) if n.op == "var"}
     body = [f"def {name}(Q, QD, T, P, F):"]
     for kind, src in (("q", "Q"), ("qd", "QD")):
