@@ -8,8 +8,8 @@ column of one result array. Variables are read as columns of the inputs: ``("q",
 parameter, broadcasting against the batch), ``("t",)`` from ``T``. Functions of one variable
 are called as ``F[i][order](x)``.
 
-The optional compiled backend writes the same graphs as scalar code of its own
-(:mod:`mechdsl.compiled.native`).
+The optional compiled backend (:mod:`mechdsl.compiled.native`) writes the same graphs
+through :func:`assignments`, as scalar code inside its loop.
 """
 
 from __future__ import annotations
