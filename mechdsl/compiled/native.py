@@ -11,8 +11,8 @@ every instant (they depend on t alone), so that nothing but arithmetic is compil
 The variants are independent and marched in parallel, a thread each on every core (numba's
 prange). The march checks what the numpy march checks (convergence, a pivot of the fixed
 order that became small, det(Phi_q)'s sign, Newton's correction against the motion, the
-condition number, by the same Hager and Higham estimate, against ``singular_rcond``) and
-stops a variant at its first instant that fails one; the numpy solver takes over from there
+condition number, by the same Hager and Higham estimate, against ``singular_rcond``, rates
+that are finite numbers) and stops a variant at its first instant that fails one; the numpy solver takes over from there
 and reports it exactly.
 
 The module source is keyed by the hash of the generated code and written, with numba's
@@ -49,6 +49,11 @@ def available() -> bool:
     return importlib.util.find_spec("numba") is not None
 
 
+#: numpy's error model: a division by zero gives inf or nan (which the checks catch) instead
+#: of a test and a branch before every division
+JIT = '@njit(cache=True, error_model="numpy")'
+
+
 def _read(key: tuple) -> str:
     kind = key[0]
     if kind not in ("q", "qd", "p"):
@@ -74,12 +79,12 @@ def source(system) -> str | None:
     m, n, nnz, slots = f.m, f.n, len(f.rows), lu.slots
     code = ["import numpy as np", f"from numpy import {', '.join(CALLED)}, inf, nan",
             "from numba import njit, prange", ""]
-    code += ["@njit(cache=True)", "def phi_jac(q, p, phi, a):"]
+    code += [JIT, "def phi_jac(q, p, phi, a):"]
     code += _scalar_code(graph, [(f"phi[{i}]", x) for i, x in enumerate(f.phi_nodes)]
                          + [(f"a[{k}]", x) for k, x in enumerate(f.jac_nodes)], "    ")
-    code += ["", "@njit(cache=True)", "def gamma(q, qd, p, g):"]
+    code += ["", JIT, "def gamma(q, qd, p, g):"]
     code += _scalar_code(graph, [(f"g[{i}]", x) for i, x in enumerate(f.gamma_nodes)], "    ")
-    code += ["", "@njit(cache=True)", "def factor(a, threshold):",
+    code += ["", JIT, "def factor(a, threshold):",
              f"    a[{nnz}:] = 0.0" if slots > nnz else "    pass"]
     for pr, pc, below, right, p_slot in lu.steps:
         if below:
@@ -94,14 +99,15 @@ def source(system) -> str | None:
             for u, t in right[i]:
                 code.append(f"    a[{t}] = a[{t}] - a[{l}] * a[{u}]")
     code.append("    return True")
-    code += ["", "@njit(cache=True)", "def solve(a, b, x):", f"    y = b.copy()"]
+    # the solves overwrite their right-hand side (no allocation inside the march)
+    code += ["", JIT, "def solve(a, y, x):", "    pass"]
     for pr, pc, below, right, p_slot in lu.steps:
         for i, l in below:
             code.append(f"    y[{i}] -= a[{l}] * y[{pr}]")
     for pr, pc, terms, p_slot in reversed(lu.back):
         rest = "".join(f" - a[{u}] * x[{c}]" for u, c in terms)
         code.append(f"    x[{pc}] = (y[{pr}]{rest}) / a[{p_slot}]")
-    code += ["", "@njit(cache=True)", "def solve_t(a, c, w):", "    c = c.copy()"]
+    code += ["", JIT, "def solve_t(a, c, w):", "    pass"]
     for k, (pr, pc, terms, p_slot) in enumerate(lu.back):
         code.append(f"    w[{pr}] = c[{pc}] / a[{p_slot}]")
         for u, col in terms:
@@ -120,9 +126,38 @@ def source(system) -> str | None:
 
 
 MARCH = '''
-@njit(cache=True, parallel=True)
-def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, maxit, threshold, branch_ratio,
-          singular_rcond, Q, QD, QDD, RC, SG, status, RES):
+@njit(cache=True, error_model="numpy", inline="always")
+def evaluate(x, p, f, d, threshold, phi, a, r, col):
+    """Phi(x) - f at the drive rows, and the scaled Jacobian A = R Phi_q D (R: the
+    reciprocal row norms of Phi_q D) factorised in place; returns ||A||_1, or -1 where a
+    pivot of the fixed order became small."""
+    phi_jac(x, p, phi, a)
+    for j in range(DRIVES.shape[0]):
+        phi[DRIVES[j]] -= f[j]
+    for i in range({m}):
+        r[i] = 0.0
+    for k in range({nnz}):
+        a[k] *= d[COLS[k]]
+        r[ROWS[k]] += a[k] * a[k]
+    for i in range({m}):
+        r[i] = 1.0 / np.sqrt(r[i]) if r[i] > 0 else 1.0
+    for i in range({n}):
+        col[i] = 0.0
+    for k in range({nnz}):
+        a[k] *= r[ROWS[k]]
+        col[COLS[k]] += abs(a[k])
+    norm_a = 0.0
+    for i in range({n}):
+        if col[i] > norm_a:
+            norm_a = col[i]
+    if not factor(a, threshold):
+        return -1.0
+    return norm_a
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, threshold,
+          branch_ratio, singular_rcond, Q, QD, QDD, RC, SG, status, RES):
     """Instants 1.. of every variant from instant 0 (see the module documentation);
     status[v] = the first instant not solved (len(TT) when all are); RES[v] the largest
     |Phi| of the solved states."""
@@ -138,7 +173,11 @@ def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, maxit, threshold, br
         col = np.empty({n})
         e = np.empty({n})
         z = np.empty({n})
-        p = P[:, v]
+        pred = np.empty({n})
+        x = np.empty({n})
+        jerk = np.zeros({n})
+        p = P[:, v].copy()
+        d = D[v].copy()
         q = Q0[v].copy()
         qd = QD0[v].copy()
         qdd = QDD0[v].copy()
@@ -146,25 +185,31 @@ def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, maxit, threshold, br
         status[v] = K
         for k in range(1, K):
             tau = TT[k] - TT[k - 1]
-            pred = q + tau * qd + 0.5 * tau * tau * qdd
-            x = pred.copy()
+            # Taylor to the third order, d3q/dt3 from the last two accelerations: Newton's
+            # first step then lands at round-off, and its second confirms it (settled)
+            for i in range({n}):
+                pred[i] = q[i] + tau * (qd[i] + tau / 2 * (qdd[i] + tau / 3 * jerk[i]))
+                x[i] = pred[i]
             conv = False
+            final = False
             prev = np.inf
             for it in range(maxit):
-                phi_jac(x, p, phi, a)
-                for j in range(DRIVES.shape[0]):
-                    phi[DRIVES[j]] -= FD[v, k, 0, j]
-                if not factor(a, threshold):
+                norm_a = evaluate(x, p, FD[v, k, 0], d, threshold, phi, a, r, col)
+                if norm_a < 0:
                     break
-                for i in range({n}):
-                    rhs[i] = -phi[i]
-                solve(a, rhs, dx)
+                for i in range({m}):
+                    rhs[i] = -phi[i] * r[i]
+                solve(a, rhs, dx)  # A (dq / D) = -R Phi
                 step = 0.0
                 for i in range({n}):
-                    x[i] += dx[i]
-                    s = abs(dx[i] / D[v, i])
+                    s = abs(dx[i])
                     if not s <= step:
                         step = s
+                if step <= settled:
+                    conv = final = True
+                    break
+                for i in range({n}):
+                    x[i] += d[i] * dx[i]
                 if step <= tol or (prev < np.inf and step < 0.25 * prev
                                    and step ** 3 / prev ** 2 <= err_tol):
                     conv = True
@@ -175,32 +220,14 @@ def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, maxit, threshold, br
             if not conv:
                 status[v] = k
                 break
-            # the factorisation at the converged position, scaled: A = R Phi_q D
-            phi_jac(x, p, phi, a)
-            for j in range(DRIVES.shape[0]):
-                phi[DRIVES[j]] -= FD[v, k, 0, j]
+            if not final:  # the factorisation at the converged position
+                norm_a = evaluate(x, p, FD[v, k, 0], d, threshold, phi, a, r, col)
+                if norm_a < 0:
+                    status[v] = k
+                    break
             for i in range({m}):
                 if not abs(phi[i]) <= RES[v]:
                     RES[v] = abs(phi[i])
-            for i in range({m}):
-                r[i] = 0.0
-            for k2 in range({nnz}):
-                a[k2] *= D[v, COLS[k2]]
-                r[ROWS[k2]] += a[k2] * a[k2]
-            for i in range({m}):
-                r[i] = 1.0 / np.sqrt(r[i]) if r[i] > 0 else 1.0
-            norm_a = 0.0
-            for i in range({n}):
-                col[i] = 0.0
-            for k2 in range({nnz}):
-                a[k2] *= r[ROWS[k2]]
-                col[COLS[k2]] += abs(a[k2])
-            for i in range({n}):
-                if col[i] > norm_a:
-                    norm_a = col[i]
-            if not factor(a, threshold):
-                status[v] = k
-                break
             det = {parity}
             for j in range(PIVOTS.shape[0]):
                 det *= np.sign(a[PIVOTS[j]])
@@ -238,8 +265,8 @@ def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, maxit, threshold, br
             moved = 0.0
             corr = 0.0
             for i in range({n}):
-                moved = max(moved, abs(x[i] - q[i]) / D[v, i], abs(pred[i] - q[i]) / D[v, i])
-                corr = max(corr, abs(x[i] - pred[i]) / D[v, i])
+                moved = max(moved, abs(x[i] - q[i]) / d[i], abs(pred[i] - q[i]) / d[i])
+                corr = max(corr, abs(x[i] - pred[i]) / d[i])
             ratio = corr / max(moved, floor)
             if not (det == sign and rcond >= singular_rcond and ratio <= branch_ratio):
                 status[v] = k
@@ -253,19 +280,27 @@ def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, maxit, threshold, br
                 rhs[i] *= r[i]
             solve(a, rhs, dx)
             for i in range({n}):
-                qd[i] = D[v, i] * dx[i]
+                qd[i] = d[i] * dx[i]
             gamma(x, qd, p, g)
             for j in range(DRIVES.shape[0]):
                 g[DRIVES[j]] += FD[v, k, 2, j]
             for i in range({m}):
                 rhs[i] = g[i] * r[i]
             solve(a, rhs, dx)
+            finite = True
             for i in range({n}):
-                qdd[i] = D[v, i] * dx[i]
-            q = x
-            Q[v, k] = x
-            QD[v, k] = qd
-            QDD[v, k] = qdd
+                qdd_i = d[i] * dx[i]
+                jerk[i] = (qdd_i - qdd[i]) / tau
+                qdd[i] = qdd_i
+                finite = finite and np.isfinite(qd[i]) and np.isfinite(qdd[i])
+            if not finite:  # the numpy march reports it, or keeps it, as asked
+                status[v] = k
+                break
+            for i in range({n}):
+                q[i] = x[i]
+                Q[v, k, i] = x[i]
+                QD[v, k, i] = qd[i]
+                QDD[v, k, i] = qdd[i]
             RC[v, k] = rcond
             SG[v, k] = det
     return status

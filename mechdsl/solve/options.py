@@ -17,6 +17,11 @@ class SolverOptions:
     #: quadratic contraction of its last two steps as |dq_k|^3 / |dq_(k-1)|^2 (scaled as
     #: newton_tol), is at most this: the step that would only confirm convergence is saved.
     newton_error: float = 1e-18
+    #: A Newton step at most this (scaled as newton_tol) shows that the position it starts
+    #: from is solved to round-off: the compiled march then keeps that position and the
+    #: factorisation the step was computed with as the final ones (the rates solved with it
+    #: are exact) instead of evaluating and factorising the Jacobian once more.
+    settled_step: float = 1e-15
     #: Newton iterations allowed per attempt at an instant.
     max_iterations: int = 12
     #: Assembly stops when its step is at most this (scaled as newton_tol).
@@ -113,6 +118,8 @@ class SolverOptions:
     def __post_init__(self) -> None:
         if not 0 < self.newton_tol <= 1e-4:
             raise ValueError(f"newton_tol must be in (0, 1e-4], not {self.newton_tol!r}")
+        if not 0 <= self.settled_step <= 1e-13:
+            raise ValueError(f"settled_step must be in [0, 1e-13], not {self.settled_step!r}")
         if not 0 < self.coarse_newton_tol <= 1e-1:
             raise ValueError("coarse_newton_tol must be in (0, 0.1], not "
                              f"{self.coarse_newton_tol!r}")

@@ -222,14 +222,15 @@ class KinematicRun(Run):
     # -- accepting solved states ---------------------------------------------------------------
     def accept(self, q: np.ndarray, t: np.ndarray, rec: np.ndarray, fac: Factor,
                mask: np.ndarray, rates: tuple[np.ndarray, np.ndarray] | None = None,
-               residual_known: bool = False) -> None:
+               checked: bool = False) -> None:
         """Take the solved positions ``q`` (V, c, n) at ``t`` (V, c), with their factorised
         Jacobians, as the new state of the variants in ``mask``; solve velocities and
         accelerations, Phi_q qd = nu and Phi_q qdd = gamma (at every column when an output
         needs them, else at the last column only, for the predictor), unless ``rates`` =
         (qd, qdd) gives them; record the columns whose ``rec`` index (into ``system.times``)
-        is not negative. Redundant equations left out of the solve must still hold (unless
-        ``residual_known``: the compiled march measures the residual as it goes)."""
+        is not negative. Redundant equations left out of the solve must still hold. With
+        ``checked``, the compiled march has measured the residual and stopped at the first
+        value that is not finite, as it went."""
         system, opts, rows = self.system, self.opts, self.rows
         order = 2 if self.pose_rates is not None else system.order
         c = q.shape[1]
@@ -242,13 +243,13 @@ class KinematicRun(Run):
             with np.errstate(all="ignore"):
                 qd = inv.solve(eq.velocity_rhs(system, ts, qs.shape[:-1])[..., rows])
                 qdd = inv.solve(eq.acceleration_rhs(system, qs, qd, ts)[..., rows])
-        if opts.nonfinite == "stop":
+        if opts.nonfinite == "stop" and not checked:
             need = 2 if self.pose_rates is not None else system.order
             bad = _nonfinite(q, qd, qdd, need) & mask[:, None]
             if bad.any():
                 self._split_at_nonfinite(q, t, rec, fac, mask, (qd, qdd), bad)
                 return
-        if not residual_known:
+        if not checked:
             with np.errstate(all="ignore"):
                 phi = eq.constraint_values(system, q, t)
             self.residual = max(self.residual, float(np.abs(phi[mask]).max(initial=0.0)))
@@ -280,9 +281,14 @@ class KinematicRun(Run):
             self.pose_rates[np.ix_(mask, k, [1])] = qdd[mask][:, keep][:, :, None]
         full_qd = qd if order >= 1 else None
         full_qdd = qdd if order >= 2 else None
+        # the usual case, every variant and a run of instants, by slices rather than copies
+        whole = (mask.all() and keep.all() and k[-1] - k[0] == len(k) - 1)
         for spec in system.outputs:
             values = eq.output_values(system, spec, q, full_qd, full_qdd, t)
-            self.data[spec.label][np.ix_(mask, k)] = values[mask][:, keep]
+            if whole:
+                self.data[spec.label][:, k[0] : k[-1] + 1] = values
+            else:
+                self.data[spec.label][np.ix_(mask, k)] = values[mask][:, keep]
             if isinstance(spec, ExprOutput) and spec.label not in self.undefined_outputs:
                 self._watch_named(spec.label, values[:, keep], t[:, keep], mask)
         self.n_solved[mask] = k[-1] + 1
@@ -501,12 +507,14 @@ class KinematicRun(Run):
                 if system.drive_functions:
                     fd[:, :, i] = eq.drive_values(system, T, which, T.shape)[live]
             L, C = len(live), end - k + 1
-            out = ([np.full((L, C, n), np.nan) for _ in range(3)]
-                   + [np.ones((L, C)), np.zeros((L, C))])
+            # every column before a variant's status is written by the march; only those
+            # are read
+            out = [np.empty((L, C, n)) for _ in range(3)] + [np.empty((L, C)) for _ in range(2)]
             status, residual = np.zeros(L, np.int64), np.zeros(L)
             march(c(self.q[live]), c(self.qd[live]), c(self.qdd[live]),
                   c(self.sign[live], dtype=float), c(times[k - 1 : end]), fd, P, D,
-                  opts.newton_tol, opts.newton_error, opts.max_iterations, THRESHOLD,
+                  opts.newton_tol, opts.newton_error, opts.settled_step,
+                  opts.max_iterations, THRESHOLD,
                   opts.branch_ratio, opts.singular_rcond, *out, status, residual)
             if L == V:  # the usual case: no copies of the results
                 Q, QD, QDD, RC, SG = out
@@ -521,7 +529,7 @@ class KinematicRun(Run):
                 self.residual = max(self.residual, float(residual.max(initial=0.0)))
                 self.accept(Q[:, cols], T[:, cols], np.arange(k, k + reached - 1),
                             Factor(None, RC[:, cols], SG[:, cols]), self.active.copy(),
-                            (QD[:, cols], QDD[:, cols]), residual_known=True)
+                            (QD[:, cols], QDD[:, cols]), checked=True)
             k += reached - 1
             if progress is not None:
                 progress(k, K)
