@@ -235,7 +235,7 @@ simulate t = 0 .. 1 step 0.1
     (("0 .. 1", "1 .. 0"), "ends (0) before it starts (1)", (5, 1)),
     (("= t\n", "= t\noutput c.vz\n"), "'vz' is neither a quantity of body 'c' nor one of its points", (5, 8)),
     (("= t\n", "= t\noutput c.A.phi\n"), "'phi' is not a point quantity", (5, 8)),
-    (("= t\n", "= t\noutput d.x\n"), "unknown body 'd'", (5, 8)),
+    (("= t\n", "= t\noutput d.x\n"), "'d.x' is not an output of drive 'd'", (5, 8)),
     (("= t\n", "= t\noutput c.x, c.x\n"), "output 'c.x' is requested twice", (5, 13)),
 ])
 def test_compile_errors_are_located(registry, change, message, at):

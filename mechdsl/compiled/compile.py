@@ -19,8 +19,8 @@ from ..grammar import expr as E
 from ..grammar.checks import TIME, check_expr
 from ..grammar.derive import derivative, total_derivative
 from ..grammar.model import (
-    BODY_QUANTITIES, GROUND, ORIGIN, POINT_QUANTITIES, Body, Drive, Joint, Model, NamedOutput,
-    Vector,
+    BODY_QUANTITIES, DRIVE_QUANTITIES, GROUND, JOINT_QUANTITIES, ORIGIN, POINT_QUANTITIES, Body,
+    Drive, Force, Joint, Model, NamedOutput, Vector,
 )
 from ..memory import check_compile
 from ..plugins.contract import REQUIRED, ArgError, ConstraintType
@@ -31,7 +31,10 @@ from .files import read_files, read_tables
 from .fused import Fused, TraceFailure, fuse
 from .shapes import mass_properties, shape_edges
 from .sparse import Pattern
-from .system import Constraint, DriveFunction, ExprOutput, Group, OutputSpec, Sketch, System
+from . import dynamics as dyn
+from .system import (
+    Constraint, DriveFunction, ExprOutput, Group, OutputSpec, ReactionOutput, Sketch, System,
+)
 from .variants import Overrides, evaluate, time_grid
 
 __all__ = ["compile_model", "Overrides", "System"]
@@ -118,7 +121,8 @@ class _Compiler:
         """What :func:`check_structure` checks: the names, through the same code as run()."""
         self.var, self.V, self.evaluated = _Unevaluated(self.param_names), 1, False
         self._bodies()
-        _, groups, _, _ = self._constraints()
+        self.constraints, groups, _, _ = self._constraints()
+        self._forces()
         self._outputs()
         self._sketch(groups)
 
@@ -133,6 +137,8 @@ class _Compiler:
             check_compile(self.V, values, self.ov.max_memory)
         self._bodies()
         constraints, groups, drive_rows, drive_fns = self._constraints()
+        self.constraints, self.groups = constraints, groups
+        force_groups, elements = self._forces()
         fused = _fused(groups, constraints, len(self.bodies), self.model.source)
         pattern = Pattern.from_entries(fused.rows, fused.cols, (fused.m, fused.n))
         outputs = self._outputs()
@@ -162,7 +168,77 @@ class _Compiler:
             sketch=self._sketch(groups),
             mass=tuple(mass_properties(b, self.var) for b in self.bodies),
             time_unit=dict(self.model.units).get("time", ""),
+            dynamics=self._dynamics(force_groups, elements, outputs),
+            tolerances=self._tolerances(),
         )
+
+    # -- dynamics ------------------------------------------------------------------------------
+    def _forces(self):
+        """The force elements, packed by type like the constraints (rows unused)."""
+        packed: dict[str, list] = {}
+        elements = []
+        for f in self.model.forces:
+            ftype = self._type("force", f.type_name, f.type_span)
+            slots, params = self._bind(f, ftype)
+            elements.append(dyn.ForceElement(f.name, f.type_name, f.span,
+                                             tuple(self._name_of(s) for s in slots)))
+            packed.setdefault(f.type_name, [ftype, []])[1].append(
+                (len(elements) - 1, slots, params, (0, 0)))
+        return [self._group(ftype, members) for ftype, members in packed.values()], elements
+
+    def _dynamics(self, force_groups, elements, outputs) -> "dyn.Dynamics | None":
+        """The masses and loads, where the model has any (or an output asks for reactions)."""
+        model = self.model
+        wanted = (model.forces or model.gravity is not None
+                  or any(b.mass is not None or b.density is not None or b.v0 is not None
+                         for b in self.bodies)
+                  or any(isinstance(o, ReactionOutput) for o in outputs))
+        if not wanted:
+            return None
+        V, nb = self.V, len(self.bodies)
+        mass, inertia = np.zeros((V, nb)), np.zeros((V, nb))
+        centroid = np.zeros((V, nb, 2))
+        v0, given = np.zeros((V, 3 * nb)), np.zeros(3 * nb, bool)
+        for i, b in enumerate(self.bodies):
+            if b.mass is not None:
+                mass[:, i] = self.var.values(b.mass, f"the mass of {b.name}", b.mass.span)
+                if b.inertia is not None:
+                    inertia[:, i] = self.var.values(b.inertia, f"the inertia of {b.name}",
+                                                    b.inertia.span)
+                if b.centroid is not None:
+                    centroid[:, i] = self.var.vector(b.centroid, f"the centroid of {b.name}")
+                for what, value, span in (("mass", mass[:, i], b.mass.span),
+                                          ("inertia", inertia[:, i],
+                                           b.inertia.span if b.inertia else b.span)):
+                    if not np.all(value >= 0):
+                        raise MechError(f"the {what} of {b.name} must not be negative", span)
+            elif b.density is not None:
+                props = mass_properties(b, self.var)
+                mass[:, i], inertia[:, i], centroid[:, i] = (props.mass, props.inertia,
+                                                             props.centroid)
+            if b.v0 is not None:
+                v0[:, 3 * i : 3 * i + 3] = self.var.vector(b.v0, f"the v0 of {b.name}")
+                given[3 * i : 3 * i + 3] = True
+        gravity = (self.var.vector(model.gravity, "gravity") if model.gravity is not None
+                   else np.zeros((V, 2)))
+        try:
+            return dyn.build(nb, mass, inertia, centroid, gravity, force_groups,
+                             tuple(elements), _readonly(v0), _readonly(given))
+        except dyn.ForceError as err:
+            raise MechError(str(err), self.model.forces[0].span if self.model.forces
+                            else None) from None
+
+    def _tolerances(self) -> dict[str, float]:
+        """The simulate statement's options (rtol, atol), evaluated (one value for all
+        variants)."""
+        sim = self.model.simulate
+        out: dict[str, float] = {}
+        for name, e, span in (sim.options if sim is not None else ()):
+            values = self.var.values(e, f"option {name}", span)
+            if not (np.all(values == values[0]) and 0 < values[0] < 1):
+                raise MechError(f"{name} must be one number in (0, 1)", span)
+            out[name] = float(values[0])
+        return out
 
     # -- params and sweeps ---------------------------------------------------------------------
     # -- bodies --------------------------------------------------------------------------------
@@ -250,7 +326,7 @@ class _Compiler:
             raise MechError(self.registry.conflicts[key], span)
         ctype = self.registry.get(kind, name)
         if ctype is None:
-            other = "joint" if kind == "drive" else "drive"
+            other = {"drive": "joint", "joint": "drive", "force": "joint"}[kind]
             if self.registry.get(other, name) is not None:
                 raise MechError(f"'{name}' is a {other} type, not a {kind} type", span)
             names = self.registry.names(kind)
@@ -262,7 +338,7 @@ class _Compiler:
                             notes=notes)
         return ctype
 
-    def _bind(self, c: Joint | Drive, ctype: ConstraintType):
+    def _bind(self, c: Joint | Drive | Force, ctype):
         sig = ctype.signature
         by_name = {a.name: a for a in sig}
         given: dict[str, object] = {}
@@ -499,6 +575,10 @@ class _Compiler:
 
     def _output(self, parts: tuple[str, ...], span: Span) -> list[OutputSpec]:
         body = parts[0]
+        if body not in self.body_index:
+            for k, c in enumerate(self.constraints):
+                if c.name == body:
+                    return self._reaction(k, c, parts, span)
         self._body_ref(body, span)
         pts = self.points[body]
         if len(parts) == 1:
@@ -523,6 +603,29 @@ class _Compiler:
             return self._point_quantities(body, second, (q,))
         raise MechError(f"'{'.'.join(parts)}' is not an output: write body.quantity or "
                         "body.point.quantity", span)
+
+    def _reaction(self, k: int, c: Constraint, parts: tuple[str, ...], span: Span
+                  ) -> list[ReactionOutput]:
+        """``J.fx``, ``J.fy``, ``J.torque`` of a joint: the load it exerts on its last attached
+        moving body (torque about that body's point of the joint, or its origin); ``D.torque``,
+        ``D.force``, ``D.power`` of a drive: the actuator's effort and its power."""
+        names = JOINT_QUANTITIES if c.kind == "joint" else DRIVE_QUANTITIES
+        quantities = names if len(parts) == 1 else parts[1:]
+        if len(quantities) != len(names) and (len(parts) != 2 or parts[1] not in names):
+            raise MechError(f"'{'.'.join(parts)}' is not an output of {c.kind} '{c.name}'"
+                            + (suggest(parts[1], names) if len(parts) == 2 else ""), span,
+                            notes=[f"{c.kind} quantities: " + " ".join(names)])
+        moving = [i for i, b in enumerate(c.bodies) if b != GROUND]
+        slot = moving[-1]
+        body = self.body_index[c.bodies[slot]]
+        point = None
+        group = next(g for g in self.groups if k in g.members) if self.evaluated else None
+        if group is not None:
+            refs = [a for a in group.ctype.signature if a.is_reference]
+            if refs[slot].kind == "point":
+                j = group.members.index(k)
+                point = _readonly(group.params[refs[slot].name][:, 0, j][:, None])
+        return [ReactionOutput(f"{c.name}.{q}", k, q, body, point) for q in quantities]
 
     # -- time ----------------------------------------------------------------------------------
 

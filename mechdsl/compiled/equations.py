@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from .sparse import LU_BATCH, LUJac, SparseJac
-from .system import ExprOutput, System
+from .system import ExprOutput, ReactionOutput, System
 
 
 def drive_values(system: System, t: np.ndarray, which: str, shape) -> np.ndarray:
@@ -111,8 +111,68 @@ def acceleration_rhs(system: System, q: np.ndarray, qd: np.ndarray,
     return gamma
 
 
+def multipliers(system: System, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                t: np.ndarray) -> np.ndarray:
+    """The Lagrange multipliers of states (q, qd, qdd) that satisfy the constraints, from the
+    equations of motion M qdd + Phi_q^T lambda = Q (Haug 1989, eq. 6.3.18): Phi_q^T lambda =
+    Q - M qdd, shape (V, b, m). A square Phi_q (fully driven) is solved as it is; with free
+    coordinates (m < n) the system is consistent and solved by QR in the least-squares
+    sense, which is then exact. Redundant equations (m > n) leave lambda undetermined: NaN."""
+    d = system.dynamics
+    shape = q.shape[:-1]
+    t = np.broadcast_to(t, shape)
+    if system.m > system.n:
+        return np.full(shape + (system.m,), np.nan)
+    with np.errstate(all="ignore"):
+        rhs = d.generalised_forces(q, qd, t) - np.einsum("...ij,...j->...i", d.mass_matrix(q),
+                                                          qdd)
+        jt = np.swapaxes(np.nan_to_num(jacobian(system, q)), -1, -2)  # (..., n, m)
+        if system.m == system.n:
+            try:
+                return np.linalg.solve(jt, rhs[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                return np.full(shape + (system.m,), np.nan)
+        qm, r = np.linalg.qr(jt)
+        y = np.einsum("...ji,...j->...i", qm, rhs)
+        return np.linalg.solve(r, y[..., None])[..., 0]
+
+
+def reaction_values(system: System, spec: ReactionOutput, q: np.ndarray, lam: np.ndarray,
+                    t: np.ndarray | None) -> np.ndarray:
+    """A joint's reaction on its body, or a drive's effort or power, from the multipliers
+    ``lam`` (V, b, m). The load of constraint k on body b is -Phi_q[rows_k, q_b]^T lambda_k
+    = (F_x, F_y, n_O), n_O its moment about b's origin; about the joint's point s' of b it is
+    n_O - (A s') x F. A drive's effort is -lambda (the generalised force along its measure
+    g: a torque for an angle, a force for a length), its power -lambda f'(t)."""
+    c = system.constraints[spec.constraint]
+    r0, r1 = c.rows
+    if c.kind == "drive":
+        effort = -lam[..., r0]
+        if spec.quantity != "power":
+            return effort
+        j = int(np.flatnonzero(system.drive_rows == r0)[0])
+        fd = drive_values(system, np.broadcast_to(t, q.shape[:-1]), "fd", q.shape[:-1])
+        return effort * fd[..., j]
+    k = 3 * spec.body
+    jac = jacobian(system, q)[..., r0:r1, k : k + 3]  # (..., rows, 3)
+    load = -np.einsum("...ri,...r->...i", jac, lam[..., r0:r1])
+    if spec.quantity == "fx":
+        return load[..., 0]
+    if spec.quantity == "fy":
+        return load[..., 1]
+    torque = load[..., 2]
+    if spec.point is not None:
+        phi = q[..., k + 2]
+        c_, s_ = np.cos(phi), np.sin(phi)
+        sx, sy = spec.point[..., 0], spec.point[..., 1]
+        ax, ay = c_ * sx - s_ * sy, s_ * sx + c_ * sy
+        torque = torque - (ax * load[..., 1] - ay * load[..., 0])
+    return torque
+
+
 def output_values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
-                  qdd: np.ndarray | None, t: np.ndarray | None = None) -> np.ndarray:
+                  qdd: np.ndarray | None, t: np.ndarray | None = None,
+                  cache: dict | None = None) -> np.ndarray:
     """One output quantity for states ``(V, b, n)`` at times ``t`` (V, b): shape ``(V, b)``.
 
     A point P with body coordinates s' (Haug eqs. 2.6.4 and their derivatives):
@@ -120,6 +180,11 @@ def output_values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
     A named output (:class:`~mechdsl.compiled.system.ExprOutput`) is its expression evaluated on the
     params, t and the quantities it reads.
     """
+    if isinstance(spec, ReactionOutput):
+        cache = {} if cache is None else cache
+        if "lambda" not in cache:
+            cache["lambda"] = multipliers(system, q, qd, qdd, t)
+        return reaction_values(system, spec, q, cache["lambda"], t)
     if isinstance(spec, ExprOutput):
         env = dict(system.env)
         env["t"] = np.zeros(q.shape[:-1]) if t is None else t

@@ -85,6 +85,22 @@ class ExprOutput:
 
 
 @dataclass(frozen=True)
+class ReactionOutput:
+    """A load of constraint ``constraint`` from its Lagrange multipliers: a joint's reaction
+    (``fx``, ``fy``, ``torque``) on moving body ``body`` (the torque about ``point`` (V, 1,
+    2) of that body, or its origin when None); a drive's effort (``torque`` or ``force``,
+    -lambda) or its ``power``."""
+
+    label: str
+    constraint: int
+    quantity: str
+    body: int
+    point: np.ndarray | None = None
+    order: int = 2
+    unit: str = ""
+
+
+@dataclass(frozen=True)
 class Sketch:
     """What a drawing of the mechanism needs, in body frames; body index ``n_bodies`` is the
     ground. ``outlines[i]`` (V, P, 2): the points of body i in declaration order (its origin
@@ -129,6 +145,10 @@ class System:
     mass: tuple = ()
     #: the unit of time, from the model's ``units`` statement ("" where none is given)
     time_unit: str = ""
+    #: masses and loads (:mod:`mechdsl.compiled.dynamics`), where the model has any
+    dynamics: object | None = None
+    #: the simulate statement's options (rtol, atol)
+    tolerances: Mapping[str, float] = field(default_factory=dict)
 
     @functools.cached_property
     def lu(self) -> LUPlan | None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 from ..errors import MechError, Source, Span, cut, suggest
 from . import expr as E
 from .model import (
-    BODY_QUANTITIES, GROUND, ORIGIN, Body, Drive, Joint, Model, NamedOutput, OutputRef, Param,
+    BODY_QUANTITIES, GROUND, ORIGIN, Body, Drive, Force, Joint, Model, NamedOutput, OutputRef, Param,
     Point, Polygon, Simulate, Sweep, Vector,
 )
 
@@ -114,6 +114,7 @@ def _build_body(name: str, name_span: Span, items: list, span: Span, is_ground: 
     points: list[Point] = []
     names = _Names(f"point of {cut(name)}")
     guess = shape = density = None
+    dyn: dict[str, object] = {}
     for item in items:
         kind = item[0] if isinstance(item, tuple) and item else None
         if kind == "shape":
@@ -127,6 +128,18 @@ def _build_body(name: str, name_span: Span, items: list, span: Span, is_ground: 
             density = _once(density, item, "densities", name,
                             "the ground does not move: it takes no density" if is_ground else None)
             check_expr(density, params, f"the density of {cut(name)}")
+        elif kind in ("mass", "inertia", "centroid", "v0"):
+            what = {"mass": "masses", "inertia": "inertias", "centroid": "centroids",
+                    "v0": "initial velocities"}[kind]
+            value = _once(dyn.get(kind), item, what, name,
+                          f"the ground does not move: it takes no {kind}" if is_ground else None)
+            if kind == "centroid":
+                _check_vector(value, 2, "a centroid (x, y)", params)
+            elif kind == "v0":
+                _check_vector(value, 3, "an initial velocity (vx, vy, omega)", params)
+            else:
+                check_expr(value, params, f"the {kind} of {cut(name)}")
+            dyn[kind] = value
         elif kind == "guess":
             guess = _once(guess, item, "guesses", name,
                           "the ground is fixed at (0, 0, 0); it takes no guess" if is_ground
@@ -147,7 +160,15 @@ def _build_body(name: str, name_span: Span, items: list, span: Span, is_ground: 
     if density is not None and shape is None:
         raise MechError(f"body '{cut(name)}' has a density but no shape: give it "
                         "shape = polygon(...) or shape = \"file.msh\"", span)
-    return Body(name, tuple(points), guess, span, is_ground, shape, density)
+    if density is not None and "mass" in dyn:
+        raise MechError(f"body '{cut(name)}' has both a mass and a density: give the mass "
+                        "(with inertia and centroid), or the shape's density", span)
+    for kind in ("inertia", "centroid"):
+        if kind in dyn and "mass" not in dyn:
+            raise MechError(f"body '{cut(name)}' has an {kind} but no mass: give mass = m",
+                            span)
+    return Body(name, tuple(points), guess, span, is_ground, shape, density,
+                dyn.get("mass"), dyn.get("inertia"), dyn.get("centroid"), dyn.get("v0"))
 
 
 def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -> Model:
@@ -158,7 +179,7 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
     bodies: list[Body] = []
     body_names = _Names("body")
     body_names.add(GROUND, Span(1, 1, 1, 1))
-    constraint_names = _Names("joint or drive")
+    constraint_names = _Names("joint, drive or force")
     joints: list[Joint] = []
     drives: list[Drive] = []
     outputs: list[OutputRef] = []
@@ -171,6 +192,8 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
     defined: set[str] = set()
     pending_sweeps: list[tuple[Sweep, Span]] = []
     plugins: list[tuple[str, Span]] = []
+    forces: list[Force] = []
+    gravity: Vector | None = None
 
     for st in statements:
         if isinstance(st, tuple) and isinstance(st[0], Param):
@@ -211,12 +234,29 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
                 drives.append(c)
             else:
                 joints.append(c)
+        elif isinstance(st, tuple) and isinstance(st[0], Force):
+            f, nspan = st
+            constraint_names.add(f.name, nspan)
+            kw = _Names(f"argument of {cut(f.name)}")
+            for a in f.args:
+                if a.name is not None:
+                    kw.add(a.name, a.span)
+            forces.append(f)
+        elif isinstance(st, tuple) and st[0] == "gravity":
+            _, vec, span = st
+            if gravity is not None:
+                raise MechError("gravity is given twice", span,
+                                notes=[f"first given at line {gravity.span.line}"])
+            _check_vector(vec, 2, "gravity (gx, gy)", defined)
+            gravity = vec
         elif isinstance(st, Simulate):
             if simulate is not None:
                 raise MechError("a second 'simulate' statement", st.span,
                                 notes=[f"the first is at line {simulate.span.line}"])
             for e in (st.t0, st.t1, st.step):
                 check_expr(e, defined, "the simulated span")
+            for name, e, _ in st.options:
+                check_expr(e, defined, f"the option {name} of simulate")
             simulate = st
         elif isinstance(st, tuple) and st[0] == "plugin":
             _, module, span = st
@@ -253,7 +293,7 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
         ground = Body(GROUND, (), None, Span(1, 1, 1, 1), True)
     return Model(source, tuple(params), ground, tuple(bodies), tuple(joints), tuple(drives),
                  simulate, tuple(outputs), tuple(sweeps), tuple(plugins), tuple(traces),
-                 tuple(units.items()), tuple(files))
+                 tuple(units.items()), tuple(files), tuple(forces), gravity)
 
 
 def _named_output(out: NamedOutput, params: set[str]) -> NamedOutput:

@@ -18,6 +18,12 @@ ORIGIN = "origin"
 #: Output quantities of a body ``B.q`` and of a point ``B.P.q``; angles in radians.
 BODY_QUANTITIES = ("x", "y", "phi", "vx", "vy", "omega", "ax", "ay", "alpha")
 POINT_QUANTITIES = ("x", "y", "vx", "vy", "ax", "ay")
+#: Output quantities of a joint ``J.q`` (its reaction on its last attached body) and of a
+#: drive ``D.q`` (the actuator's effort, a torque or a force, and its power)
+JOINT_QUANTITIES = ("fx", "fy", "torque")
+DRIVE_QUANTITIES = ("torque", "force", "power")
+#: The options of the simulate statement: the forward dynamics' tolerances
+SIMULATE_OPTIONS = ("rtol", "atol")
 
 
 @dataclass(frozen=True)
@@ -76,6 +82,12 @@ class Body:
     is_ground: bool = False
     shape: object | None = None
     density: Expr | None = None
+    #: ``mass = m``, ``inertia = J`` (about the centre of mass), ``centroid = (x, y)``
+    mass: Expr | None = None
+    inertia: Expr | None = None
+    centroid: Vector | None = None
+    #: ``v0 = (vx, vy, omega)``: the initial velocity the forward dynamics starts nearest
+    v0: Vector | None = None
 
 
 @dataclass(frozen=True)
@@ -109,13 +121,27 @@ class Drive:
 
 
 @dataclass(frozen=True)
+class Force:
+    """``force NAME: TYPE(args)``: a force element (spring, damper, applied load)."""
+
+    name: str
+    type_name: str
+    args: tuple[Arg, ...]
+    span: Span
+    type_span: Span
+
+
+@dataclass(frozen=True)
 class Simulate:
-    """``simulate t = t0 .. t1 step h``: the instants t0 + k h, both ends included."""
+    """``simulate t = t0 .. t1 step h``: the instants t0 + k h, both ends included;
+    ``options``: the integrator's tolerances (``rtol = 1e-8, atol = 1e-10``) as (name,
+    expression, span)."""
 
     t0: Expr
     t1: Expr
     step: Expr
     span: Span
+    options: tuple[tuple[str, Expr, Span], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -176,3 +202,7 @@ class Model:
     #: The files the model reads (tables, meshes), as ``os.path.realpath`` gives them, each
     #: once, in the order of the text: outputs must never overwrite them.
     files: tuple[str, ...] = ()
+    #: ``force NAME: TYPE(args)`` statements, in order
+    forces: tuple[Force, ...] = ()
+    #: ``gravity = (gx, gy)``
+    gravity: Vector | None = None

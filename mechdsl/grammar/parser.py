@@ -31,8 +31,9 @@ from ..errors import MechError, Source, Span, cut
 from . import expr as E
 from .cache import cached_tables
 from .checks import TIME, build_model, check_expr
+from .model import SIMULATE_OPTIONS
 from .model import (
-    Arg, Drive, Joint, MeshFile, Model, NamedOutput, OutputRef, Param, Point, Polygon, Simulate,
+    Arg, Drive, Force, Joint, MeshFile, Model, NamedOutput, OutputRef, Param, Point, Polygon, Simulate,
     Sweep, Vector,
 )
 from .tables import PointList, make_table
@@ -265,6 +266,21 @@ class _ToModel(Transformer_NonRecursive):
     def density(self, meta, items):
         return ("density", items[0], _span(meta))
 
+    def mass(self, meta, items):
+        return ("mass", items[0], _span(meta))
+
+    def inertia(self, meta, items):
+        return ("inertia", items[0], _span(meta))
+
+    def centroid(self, meta, items):
+        return ("centroid", items[0], _span(meta))
+
+    def v0(self, meta, items):
+        return ("v0", items[0], _span(meta))
+
+    def gravity(self, meta, items):
+        return ("gravity", items[0], _span(meta))
+
     def ground(self, meta, items):
         return ("ground", items, _span(meta))
 
@@ -289,12 +305,29 @@ class _ToModel(Transformer_NonRecursive):
         return (Drive(str(name), str(type_name), tuple(args), function, _span(meta),
                       _tspan(type_name)), _tspan(name))
 
+    def force(self, meta, items):
+        name, type_name, *args = items
+        return (Force(str(name), str(type_name), tuple(args), _span(meta), _tspan(type_name)),
+                _tspan(name))
+
+    def sim_option(self, meta, items):
+        name, value = items
+        if str(name) not in SIMULATE_OPTIONS:
+            raise MechError(f"simulate takes the options {', '.join(SIMULATE_OPTIONS)}, not "
+                            f"'{cut(name)}'", _tspan(name))
+        return str(name), value, _tspan(name)
+
     def simulate(self, meta, items):
-        var, t0, t1, step = items
+        var, t0, t1, step, *options = items
         if str(var) != TIME:
             raise MechError(f"the simulated variable is time 't', not '{cut(var)}'",
                             _tspan(var))
-        return Simulate(t0, t1, step, _span(meta))
+        seen = set()
+        for name, _, span in options:
+            if name in seen:
+                raise MechError(f"option '{name}' is given twice", span)
+            seen.add(name)
+        return Simulate(t0, t1, step, _span(meta), tuple(options))
 
     def ref_or_name(self, meta, items):
         return OutputRef(tuple(str(t) for t in items), _span(meta))

@@ -1,4 +1,4 @@
-"""The plugin API: everything a joint or drive plugin imports from mechdsl.
+"""The plugin API: everything a joint, drive or force plugin imports from mechdsl.
 
 >>> from mechdsl.plugins import ConstraintType, Arg, hookimpl, geometry
 
@@ -7,11 +7,12 @@ See ``docs/plugins.md`` for the contract and a worked example.
 
 from . import geometry
 from .contract import REQUIRED, Arg, ArgError, ConstraintType
+from .force import ForceType
 from .hookspecs import hookimpl
 from .manager import ENTRY_POINT_GROUP, build_registry
 from .registry import BrokenPlugin, Provider, Registry
 
 __all__ = [
-    "REQUIRED", "Arg", "ArgError", "ConstraintType", "hookimpl", "geometry",
+    "REQUIRED", "Arg", "ArgError", "ConstraintType", "ForceType", "hookimpl", "geometry",
     "ENTRY_POINT_GROUP", "build_registry", "BrokenPlugin", "Provider", "Registry",
 ]

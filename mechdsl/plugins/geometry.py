@@ -105,6 +105,14 @@ class Body:
         a = self.rotate(s)
         return Vec(self.x + a.x, self.y + a.y)
 
+    def wrench(self, force: Vec, at: Vec | None = None, torque=0.0) -> tuple:
+        """The generalised force (F_x, F_y, n) on the body of a force F at its point s'
+        (``at``; the frame origin if None) and a torque: n = (A s') x F + torque, the moment
+        about the frame origin (Haug eq. 6.1.12)."""
+        if at is None:
+            return force.x, force.y, torque
+        return force.x, force.y, self.rotate(at).cross(force) + torque
+
 
 class Rate:
     """A body's velocity as scalars: (xd, yd, phid), named x, y, phi."""
@@ -113,6 +121,12 @@ class Rate:
 
     def __init__(self, x, y, phi) -> None:
         self.x, self.y, self.phi = x, y, phi
+
+    def point(self, body: Body, s: Vec) -> Vec:
+        """rd^P = rd + B s' phid (Haug eq. 2.6.5): the velocity of the point s' of ``body``
+        moving at this rate."""
+        a = body.rotate(s)
+        return Vec(self.x - a.y * self.phi, self.y + a.x * self.phi)
 
     @classmethod
     def of(cls, qd) -> "Rate":

@@ -12,6 +12,7 @@ from typing import Sequence
 import pluggy
 
 from .contract import ConstraintType
+from .force import ForceType
 
 PROJECT = "mechdsl"
 hookspec = pluggy.HookspecMarker(PROJECT)
@@ -26,4 +27,13 @@ def mechdsl_constraint_types() -> Sequence[ConstraintType]:
 
     Called once, when the registry is built, never during a solve. A type's name must be
     unique among the types of its kind (``joint`` or ``drive``) across all plugins.
+    """
+
+
+@hookspec
+def mechdsl_force_types() -> Sequence[ForceType]:
+    """Return the force types this plugin provides (instances of
+    :class:`~mechdsl.plugins.force.ForceType` subclasses): springs, dampers, applied forces
+    and torques, used as ``force NAME: TYPE(args)``. Called once, like
+    :func:`mechdsl_constraint_types`; a force type's name must be unique among force types.
     """

@@ -147,21 +147,27 @@ def _load_entry_points(pm, registry: Registry, eps: list, providers: dict[str, P
 
 def _collect(pm, registry: Registry, providers: dict[str, Provider]) -> None:
     """Ask each registered plugin, one by one, for its types (so each is attributed)."""
-    done = {p for (_c, p) in registry.types.values()}
-    for impl in pm.hook.mechdsl_constraint_types.get_hookimpls():
-        provider = providers.get(impl.plugin_name, Provider(impl.plugin_name))
-        if provider in done:
-            continue
-        try:
-            types = list(impl.function())
-        except PLUGIN_FAILURES as err:
-            registry.broken.append(BrokenPlugin(provider, _reason(err)))
-            continue
-        for ctype in types:
+    for hook, kinds in ((pm.hook.mechdsl_constraint_types, ("joint", "drive")),
+                        (pm.hook.mechdsl_force_types, ("force",))):
+        done = {p for (k, _n), (_c, p) in registry.types.items() if k in kinds}
+        for impl in hook.get_hookimpls():
+            provider = providers.get(impl.plugin_name, Provider(impl.plugin_name))
+            if provider in done:
+                continue
             try:
-                registry.add(ctype, provider)
-            except (ValueError, PluginConflict) as err:
-                registry.broken.append(BrokenPlugin(provider, str(err)))
-            except PLUGIN_FAILURES as err:  # a declaration whose attributes raise
+                types = list(impl.function())
+            except PLUGIN_FAILURES as err:
                 registry.broken.append(BrokenPlugin(provider, _reason(err)))
-        done.add(provider)
+                continue
+            for ctype in types:
+                try:
+                    if getattr(ctype, "kind", None) not in kinds:
+                        raise ValueError(f"type {getattr(ctype, 'name', ctype)!r}: a "
+                                         f"{hook.name} hook returned a type of kind "
+                                         f"{getattr(ctype, 'kind', None)!r}")
+                    registry.add(ctype, provider)
+                except (ValueError, PluginConflict) as err:
+                    registry.broken.append(BrokenPlugin(provider, str(err)))
+                except PLUGIN_FAILURES as err:  # a declaration whose attributes raise
+                    registry.broken.append(BrokenPlugin(provider, _reason(err)))
+            done.add(provider)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from .contract import ConstraintType, contract_problems
+from .force import ForceType, force_problems
 
 
 @dataclass(frozen=True)
@@ -38,14 +39,15 @@ class Registry:
     """Constraint types keyed by ``(kind, name)``. Filled once by the plugin manager, then only
     read; :meth:`add` rejects a second type of the same kind and name, naming both providers."""
 
-    types: dict[tuple[str, str], tuple[ConstraintType, Provider]] = field(default_factory=dict)
+    types: dict[tuple[str, str], tuple[ConstraintType | ForceType, Provider]] = field(default_factory=dict)
     broken: list[BrokenPlugin] = field(default_factory=list)
     #: (kind, name) -> message, for names that two plugins claim; using one is an error.
     conflicts: dict[tuple[str, str], str] = field(default_factory=dict)
 
-    def add(self, ctype: ConstraintType, provider: Provider) -> None:
+    def add(self, ctype: ConstraintType | ForceType, provider: Provider) -> None:
         """Register ``ctype``; raises ValueError (malformed) or PluginConflict (duplicate)."""
-        problems = contract_problems(ctype)
+        problems = (force_problems(ctype) if getattr(ctype, "kind", None) == "force"
+                    else contract_problems(ctype))
         if problems:
             raise ValueError(f"type {getattr(ctype, 'name', ctype)!r}: " + "; ".join(problems))
         key = (ctype.kind, ctype.name)
@@ -70,7 +72,7 @@ class Registry:
                 out.broken.append(BrokenPlugin(provider, str(err)))
         return out
 
-    def get(self, kind: str, name: str) -> ConstraintType | None:
+    def get(self, kind: str, name: str) -> ConstraintType | ForceType | None:
         """The type of that kind and name, or None."""
         entry = self.types.get((kind, name))
         return entry[0] if entry else None

@@ -283,8 +283,9 @@ class KinematicRun(Run):
         full_qdd = qdd if order >= 2 else None
         # the usual case, every variant and a run of instants, by slices rather than copies
         whole = (mask.all() and keep.all() and k[-1] - k[0] == len(k) - 1)
+        cache: dict = {}  # the multipliers, once for all the reactions asked for
         for spec in system.outputs:
-            values = eq.output_values(system, spec, q, full_qd, full_qdd, t)
+            values = eq.output_values(system, spec, q, full_qd, full_qdd, t, cache)
             if whole:
                 self.data[spec.label][:, k[0] : k[-1] + 1] = values
             else:

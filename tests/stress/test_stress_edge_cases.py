@@ -82,8 +82,8 @@ def test_a_body_with_no_joints(registry):
 @pytest.mark.parametrize("text, message, at", [
     ("param r = 1\nparam r = 2\n", "param 'r' is declared twice", (2, 7)),
     (OK + "body c { }\n", "body 'c' is declared twice", (6, 6)),
-    (OK + "joint j: revolute(ground.origin, c.origin)\n", "joint or drive 'j' is declared twice", (6, 7)),
-    (OK + "drive j: angle(c) = 1\n", "joint or drive 'j' is declared twice", (6, 7)),
+    (OK + "joint j: revolute(ground.origin, c.origin)\n", "joint, drive or force 'j' is declared twice", (6, 7)),
+    (OK + "drive j: angle(c) = 1\n", "joint, drive or force 'j' is declared twice", (6, 7)),
     ("body c { point A = (1, 0)  point A = (2, 0) }", "point of c 'A' is declared twice", (1, 34)),
 ])
 def test_duplicate_names(registry, text, message, at):

@@ -1,0 +1,172 @@
+"""Mass and loads of a compiled mechanism: what the equations of motion add to Phi.
+
+Haug's equations of motion in Cartesian coordinates (1989, ch. 6), with the body frame at an
+arbitrary point of the body and its centre of mass at s'_c in that frame:
+
+    M(q) qdd + Phi_q^T lambda = Q(q, qd, t)
+
+Per body, with a = A s'_c (the centre of mass from the frame origin, global axes), mass m and
+moment of inertia J about the centre of mass::
+
+    M_i = [[ m,     0,    -m a_y        ],
+           [ 0,     m,     m a_x        ],
+           [-m a_y, m a_x, J + m |s'_c|^2]]
+
+and Q_i the loads of the force elements (:mod:`mechdsl.plugins.force`), gravity m g at the
+centre of mass (moment a x m g), and the quadratic velocity force m a phid^2 on the
+translation (the centripetal term of a frame that is not at the centre of mass; it vanishes
+when s'_c = 0, where M_i = diag(m, m, J)).
+
+Everything is traced into one expression graph and compiled (:mod:`mechdsl.symbolic`) like
+the constraints: the kernels return Q (V, b, n), the entries of M (V, b, 5 per body) and
+the potential energy V(q) (gravity and the elements that write one).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..plugins.contract import Args
+from ..plugins.derived import body_of
+from ..plugins.geometry import Body, Rate, Vec
+from ..symbolic import Graph, GraphError, Kernel, kernel
+from .fused import _args, _Params
+
+
+class ForceError(ValueError):
+    """A force type's loads could not be traced (the message names the type and why)."""
+
+
+@dataclass(frozen=True)
+class ForceElement:
+    """One ``force`` statement: its name, type, where, and the bodies it attaches."""
+
+    name: str
+    type_name: str
+    span: object
+    bodies: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Dynamics:
+    """The mass and loads of a mechanism (see the module documentation)."""
+
+    #: (V, nb): mass, moment of inertia about the centre of mass; (V, nb, 2) the centre
+    #: of mass in the body frame; (V, 2) gravity
+    mass: np.ndarray
+    inertia: np.ndarray
+    centroid: np.ndarray
+    gravity: np.ndarray
+    loads: Kernel
+    mass_entries: Kernel
+    potential: Kernel
+    #: the non-zero entries of M: entry k is (rows[k], cols[k]) (both triangles)
+    rows: np.ndarray
+    cols: np.ndarray
+    params: tuple[np.ndarray, ...]
+    functions: tuple
+    forces: tuple[ForceElement, ...]
+    #: (V, n) the initial velocities given by ``v0`` statements; ``given`` (n,) where
+    v0: np.ndarray
+    v0_given: np.ndarray
+    n: int
+
+    def generalised_forces(self, q: np.ndarray, qd: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Q(q, qd, t), shape (V, b, n)."""
+        with np.errstate(all="ignore"):
+            return self.loads(q, qd, np.broadcast_to(t, q.shape[:-1]), self.params,
+                              self.functions)
+
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        """M(q), shape (V, b, n, n)."""
+        vals = self.mass_entries(q, None, None, self.params, self.functions)
+        out = np.zeros(q.shape[:-1] + (self.n * self.n,))
+        out[..., self.rows * self.n + self.cols] = vals
+        return out.reshape(q.shape[:-1] + (self.n, self.n))
+
+    def kinetic_energy(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """T = 1/2 qd^T M(q) qd, shape (V, b)."""
+        return 0.5 * np.einsum("...i,...ij,...j->...", qd, self.mass_matrix(q), qd)
+
+    def potential_energy(self, q: np.ndarray) -> np.ndarray:
+        """V(q): gravity's and the elements' that write one, shape (V, b)."""
+        with np.errstate(all="ignore"):
+            out = self.potential(q, None, None, self.params, self.functions)
+        return np.broadcast_to(out[..., 0], q.shape[:-1])
+
+
+def build(n_bodies: int, mass: np.ndarray, inertia: np.ndarray, centroid: np.ndarray,
+          gravity: np.ndarray, force_groups: list, elements: tuple[ForceElement, ...],
+          v0: np.ndarray, v0_given: np.ndarray) -> Dynamics:
+    """Trace the loads, the mass matrix and the potential of a mechanism of ``n_bodies``
+    moving bodies; ``force_groups``: :class:`~mechdsl.compiled.system.Group` per force
+    type (its ``ctype`` a :class:`~mechdsl.plugins.force.ForceType`)."""
+    n = 3 * n_bodies
+    graph = Graph()
+    params = _Params(graph)
+    t = graph.var("t")
+    zero = graph.zero
+    ground = Body(zero, zero, zero, graph.one, zero)
+    bodies = [body_of(graph, 3 * i) for i in range(n_bodies)] + [ground]
+    rates = [Rate(graph.var("qd", 3 * i), graph.var("qd", 3 * i + 1), graph.var("qd", 3 * i + 2))
+             for i in range(n_bodies)] + [Rate(zero, zero, zero)]
+    Q = [zero] * n
+    potential = zero
+
+    def add(k: int, value) -> None:
+        Q[k] = graph.lift(value) if Q[k] is zero else graph.lift(Q[k] + value)
+
+    for g in force_groups:
+        ftype = g.ctype
+        for j in range(len(g.members)):
+            slots = [int(b) for b in g.slots[j]]
+            args = Args(_args(graph, params, g, j))
+            try:
+                loads = list(ftype.loads(tuple(bodies[b] for b in slots),
+                                         tuple(rates[b] for b in slots), args, t))
+                if len(loads) != len(slots):
+                    raise ForceError(f"the force type '{ftype.name}': loads() gave "
+                                     f"{len(loads)} triples for {len(slots)} bodies")
+                for b, load in zip(slots, loads):
+                    load = list(load)
+                    if len(load) != 3:
+                        raise ForceError(f"the force type '{ftype.name}': a load has "
+                                         f"{len(load)} components, not 3 (F_x, F_y, n)")
+                    if b == n_bodies:
+                        continue  # a load on the ground moves nothing
+                    for c in range(3):
+                        add(3 * b + c, load[c])
+                if ftype.supplies("energy"):
+                    potential = graph.lift(potential + ftype.energy(
+                        tuple(bodies[b] for b in slots), args))
+            except GraphError as err:
+                raise ForceError(f"the force type '{ftype.name}': {err}") from None
+    entries: list = []
+    rows, cols = [], []
+    for i in range(n_bodies):
+        body, rate = bodies[i], rates[i]
+        m, J = params.leaf(mass[:, i]), params.leaf(inertia[:, i])
+        s = Vec(params.leaf(centroid[:, i, 0]), params.leaf(centroid[:, i, 1]))
+        a = body.rotate(s)
+        gx, gy = params.leaf(gravity[:, 0]), params.leaf(gravity[:, 1])
+        add(3 * i, m * gx + m * a.x * rate.phi * rate.phi)
+        add(3 * i + 1, m * gy + m * a.y * rate.phi * rate.phi)
+        add(3 * i + 2, a.cross(Vec(m * gx, m * gy)))
+        potential = graph.lift(potential - m * (gx * (body.x + a.x) + gy * (body.y + a.y)))
+        k = 3 * i
+        block = ((k, k, m), (k + 1, k + 1, m), (k, k + 2, -m * a.y), (k + 2, k, -m * a.y),
+                 (k + 1, k + 2, m * a.x), (k + 2, k + 1, m * a.x),
+                 (k + 2, k + 2, J + m * (s.x * s.x + s.y * s.y)))
+        for r, c, value in block:
+            rows.append(r)
+            cols.append(c)
+            entries.append(graph.lift(value))
+    return Dynamics(
+        mass=mass, inertia=inertia, centroid=centroid, gravity=gravity,
+        loads=kernel(graph, Q, "loads"), mass_entries=kernel(graph, entries, "mass"),
+        potential=kernel(graph, [potential], "potential"),
+        rows=np.array(rows, dtype=np.intp), cols=np.array(cols, dtype=np.intp),
+        params=tuple(params.arrays), functions=tuple(graph.functions), forces=elements,
+        v0=v0, v0_given=v0_given, n=n)
