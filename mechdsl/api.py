@@ -160,6 +160,8 @@ class Mechanism:
                                lines=tuple(lines), **found)
 
         opts = SolverOptions().for_size(system.n_bodies)
+        if system.m < system.n and system.dynamics is not None:
+            return self._check_dynamic(system, lines, done, opts)
         try:
             asm = assemble(system, t0, opts)
         except MechError as err:  # not fully driven, a plugin's defect
@@ -199,6 +201,39 @@ class Mechanism:
         return done(**found, condition=float(1 / rcond.min()),
                     verdict=f"ok: assembles at t = {t0:g}{variants}; scaled Jacobian "
                             f"condition number {1 / rcond.min():.3g}")
+
+    def _check_dynamic(self, system: System, lines: list[str], done, opts) -> "CheckReport":
+        """:meth:`check` of a mechanism with free degrees of freedom and masses: its
+        assembly, its mobility, and whether its equations of motion can be solved at t0."""
+        from .solve.dynamic import DynamicRun, _Evaluator
+
+        run = DynamicRun(system, opts)
+        q0 = run._initial_positions()
+        if q0[0] is None:
+            return done(error=NumericalError(run.failures[0], source=system.source))
+        t0 = float(system.times[0]) if system.times is not None else 0.0
+        lines.append(f"assembled at t = {t0:g}:")
+        width = max(len(b) for b in system.body_names)
+        for i, b in enumerate(system.body_names):
+            x, y, phi = q0[0][3 * i : 3 * i + 3]
+            lines.append(f"  {b:<{width}}  x = {x:< 12.6g} y = {y:< 12.6g} phi = {phi:.6g}")
+        D = col_scale(system)
+        mobility, rank, redundant = report(one_variant(system, 0), q0[0], D[0, 0])
+        drives = len(system.drive_rows)
+        lines.append(f"mobility {mobility} = {system.n} coordinates - {rank} independent "
+                     f"equations; {_count(drives, 'drive')}: {mobility} degree"
+                     f"{'s' if mobility != 1 else ''} of freedom left to the forward dynamics")
+        run.one = one_variant(system, 0)
+        run.ev = _Evaluator(run.one, D[0, 0])
+        try:
+            run._augmented(0, t0, q0[0], np.zeros(system.n))
+        except np.linalg.LinAlgError:
+            return done(mobility=mobility, rank=rank, redundant=redundant,
+                        error=NumericalError(run._singular_message(0, t0),
+                                             source=system.source))
+        return done(mobility=mobility, rank=rank, redundant=redundant,
+                    verdict=f"ok: assembles at t = {t0:g}; the equations of motion are "
+                            "regular there")
 
     def compile(self, overrides: Overrides | None = None, *, need_times: bool = True) -> System:
         """Resolve the model against the registry (see
@@ -330,6 +365,18 @@ def _structure(model: Model, system: System) -> list[str]:
             centroid = np.where(np.abs(mp.centroid[0]) < 1e-12 * size, 0.0, mp.centroid[0])
             lines.append(f"  {name:<12} area {mp.area[0]:.6g}  centroid {_fmt(centroid)}  "
                          f"J {mp.polar[0]:.6g}{mass}")
+    d = system.dynamics
+    if d is not None:
+        lines.append("masses (inertia about the centre of mass; centroid in the body frame):")
+        for i, name in enumerate(system.body_names):
+            lines.append(f"  {name:<12} mass {d.mass[0, i]:.6g}  inertia {d.inertia[0, i]:.6g}"
+                         f"  centroid {_fmt(d.centroid[0, i])}")
+        if d.forces:
+            lines.append("forces:")
+            for f in d.forces:
+                lines.append(f"  force {f.name:<14} {f.type_name:<10} {', '.join(f.bodies)}")
+        if np.any(d.gravity[0] != 0):
+            lines.append(f"gravity {_fmt(d.gravity[0])}")
     return lines
 
 

@@ -83,6 +83,12 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--newton-tol", type=float, metavar="TOL",
                      help="Newton-Raphson step tolerance, relative to the model's size "
                           "(default 1e-10)")
+    run.add_argument("--rtol", type=float, metavar="TOL",
+                     help="forward dynamics: the integrator's relative tolerance (overrides "
+                          "the simulate statement's; default 1e-8)")
+    run.add_argument("--atol", type=float, metavar="TOL",
+                     help="forward dynamics: the integrator's absolute tolerance, relative to "
+                          "the model's size (overrides the simulate statement's; default 1e-10)")
     run.add_argument("--through-singular", action="store_true",
                      help="at a singular position (dead point, change point) continue on the "
                           "branch the motion was on, instead of stopping")

@@ -65,13 +65,17 @@ def _options(args):
         given["nonfinite"] = "keep"
     if getattr(args, "backend", None) is not None:
         given["backend"] = args.backend
+    for name in ("rtol", "atol"):
+        if getattr(args, name, None) is not None:
+            given[name] = getattr(args, name)
     limit = _max_memory(args)
     if limit is not None:
         given["max_memory"] = limit
     try:
         return SolverOptions(**given)
     except ValueError as err:
-        option = "--backend" if str(err).startswith("backend") else "--newton-tol"
+        option = next((f"--{name.replace('_', '-')}" for name in ("backend", "rtol", "atol")
+                       if str(err).startswith(name)), "--newton-tol")
         raise MechError(f"{option}: {err}") from None
 
 

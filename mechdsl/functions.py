@@ -62,6 +62,21 @@ class ExprFunction:
     def d2(self, x: np.ndarray) -> np.ndarray:
         return self._eval(2, x)
 
+    def scalar(self, which: int):
+        """f (0), f' (1) or f'' (2) of one variant's only expression as a function of a
+        float (the one-state kernels of the forward dynamics); None where this function
+        has several members or variants."""
+        values = {k: np.asarray(a, dtype=float) for k, a in self.env.items()}
+        if len(self._fns) != 1 or any(a.size != 1 for a in values.values()):
+            return None
+        env = {k: float(a.reshape(-1)[0]) for k, a in values.items()}
+        fn, var = self._fns[0][which], self.var
+
+        def call(x: float) -> float:
+            return float(fn({**env, var: x}))
+
+        return call
+
     def variant(self, v: int) -> "ExprFunction":
         """The same functions with the params of sweep variant ``v`` only."""
         env = {k: (a[v : v + 1] if np.ndim(a) else a) for k, a in self.env.items()}

@@ -24,7 +24,7 @@ the potential energy V(q) (gravity and the elements that write one).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -72,6 +72,18 @@ class Dynamics:
     v0: np.ndarray
     v0_given: np.ndarray
     n: int
+    #: the graph and the nodes of Q and of M's entries, for one-state (scalar) kernels
+    graph: Graph | None = None
+    load_nodes: tuple = ()
+    mass_nodes: tuple = ()
+
+    def variant(self, v: int) -> "Dynamics":
+        """The same for sweep variant ``v`` alone."""
+        fns = tuple((g, g.d1, g.d2) for g in (f[0].variant(v) for f in self.functions))
+        return replace(self, params=tuple(p[v : v + 1] for p in self.params), functions=fns,
+                       mass=self.mass[v : v + 1], inertia=self.inertia[v : v + 1],
+                       centroid=self.centroid[v : v + 1], gravity=self.gravity[v : v + 1],
+                       v0=self.v0[v : v + 1])
 
     def generalised_forces(self, q: np.ndarray, qd: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Q(q, qd, t), shape (V, b, n)."""
@@ -169,4 +181,5 @@ def build(n_bodies: int, mass: np.ndarray, inertia: np.ndarray, centroid: np.nda
         potential=kernel(graph, [potential], "potential"),
         rows=np.array(rows, dtype=np.intp), cols=np.array(cols, dtype=np.intp),
         params=tuple(params.arrays), functions=tuple(graph.functions), forces=elements,
-        v0=v0, v0_given=v0_given, n=n)
+        v0=v0, v0_given=v0_given, n=n, graph=graph, load_nodes=tuple(Q),
+        mass_nodes=tuple(entries))

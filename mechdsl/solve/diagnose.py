@@ -136,7 +136,8 @@ def one_variant(system: System, v: int) -> System:
                    for g in system.groups)
     return replace(system, groups=groups, env={k: a[v : v + 1] for k, a in system.env.items()},
                    n_variants=1, scale=system.scale[v : v + 1], guess=system.guess[v : v + 1],
-                   fused=None if system.fused is None else system.fused.variant(v))
+                   fused=None if system.fused is None else system.fused.variant(v),
+                   dynamics=None if system.dynamics is None else system.dynamics.variant(v))
 
 
 def failure(system: System, q_last: np.ndarray, t_last: float, v: int, target: float,

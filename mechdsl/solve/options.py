@@ -22,6 +22,12 @@ class SolverOptions:
     #: factorisation the step was computed with as the final ones (the rates solved with it
     #: are exact) instead of evaluating and factorising the Jacobian once more.
     settled_step: float = 1e-15
+    #: Forward dynamics: the integrator's relative and absolute error tolerances per step (the
+    #: absolute one scaled as newton_tol: lengths by L, velocities by L per unit time). None:
+    #: the ``simulate`` statement's ``rtol = ..., atol = ...``, else 1e-8 and 1e-10; a value
+    #: given here (``--rtol``, ``--atol``) overrides the file's.
+    rtol: float | None = None
+    atol: float | None = None
     #: Newton iterations allowed per attempt at an instant.
     max_iterations: int = 12
     #: Assembly stops when its step is at most this (scaled as newton_tol).
@@ -118,6 +124,9 @@ class SolverOptions:
     def __post_init__(self) -> None:
         if not 0 < self.newton_tol <= 1e-4:
             raise ValueError(f"newton_tol must be in (0, 1e-4], not {self.newton_tol!r}")
+        for name in ("rtol", "atol"):
+            if getattr(self, name) is not None and not 0 < getattr(self, name) < 1:
+                raise ValueError(f"{name} must be in (0, 1), not {getattr(self, name)!r}")
         if not 0 <= self.settled_step <= 1e-13:
             raise ValueError(f"settled_step must be in [0, 1e-13], not {self.settled_step!r}")
         if not 0 < self.coarse_newton_tol <= 1e-1:

@@ -43,6 +43,7 @@ from ..memory import plan
 from ..results import Results
 from .assembly import Assembly, assemble
 from .base import Progress, Run
+from .dynamic import DynamicRun
 from .diagnose import (
     constraint_names, failure, jacobian_defects, nonfinite_message, passages_warning,
     too_coarse_message, undefined_drive_message, variant_label,
@@ -512,7 +513,7 @@ class KinematicRun(Run):
             # are read
             out = [np.empty((L, C, n)) for _ in range(3)] + [np.empty((L, C)) for _ in range(2)]
             status, residual = np.zeros(L, np.int64), np.zeros(L)
-            march(c(self.q[live]), c(self.qd[live]), c(self.qdd[live]),
+            _call_compiled(march, c(self.q[live]), c(self.qd[live]), c(self.qdd[live]),
                   c(self.sign[live], dtype=float), c(times[k - 1 : end]), fd, P, D,
                   opts.newton_tol, opts.newton_error, opts.settled_step,
                   opts.max_iterations, THRESHOLD,
@@ -708,7 +709,8 @@ class KinematicRun(Run):
 
 #: The solver methods by name: a compiled system is solved by one of them
 #: (:mod:`mechdsl.solve.base` is the contract a method fulfils).
-METHODS: dict[str, type[Run]] = {KinematicRun.name: KinematicRun}
+METHODS: dict[str, type[Run]] = {KinematicRun.name: KinematicRun,
+                                  DynamicRun.name: DynamicRun}
 
 
 def simulate(system: System, options: SolverOptions | None = None, *,
@@ -727,12 +729,33 @@ def simulate(system: System, options: SolverOptions | None = None, *,
     ``"failed"`` with the reasons in ``Results.messages``. Neither does an interrupt (status
     ``"interrupted"``): the instants solved before are kept.
     """
-    run = METHODS["kinematic"](system, options, poses=poses, rates=rates, progress=progress,
-                               extra_memory=extra_memory)
+    run = METHODS[method_for(system)](system, options, poses=poses, rates=rates,
+                                      progress=progress, extra_memory=extra_memory)
     return run.run()
 
 
+def method_for(system: System) -> str:
+    """The method that solves ``system``: the kinematic march where the drives determine the
+    motion (as many equations as coordinates, or more), the forward dynamics where they do
+    not and the model has masses."""
+    if system.m < system.n and system.dynamics is not None:
+        return "dynamic"
+    return "kinematic"
+
+
 # -- helpers without state -------------------------------------------------------------------------
+def _call_compiled(fn, *args) -> None:
+    """Call a numba function. A signal whose Python handler runs while numba's dispatcher
+    is converting the arguments or the result (an interrupt, SIGTERM made one) comes out as
+    a SystemError caused by that exception: raise the interrupt itself."""
+    try:
+        fn(*args)
+    except SystemError as err:
+        if isinstance(err.__cause__, KeyboardInterrupt):
+            raise err.__cause__ from None
+        raise
+
+
 def _nonfinite(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, need: int) -> np.ndarray:
     """(V, c): the columns of a block whose position, or the rates the outputs need (``need``
     is their highest time derivative), are not all finite. Rates solved at the last column

@@ -1,0 +1,364 @@
+"""The forward dynamics of a mechanism that is not fully driven: its motion under its loads.
+
+Haug's constrained equations of motion (1989, ch. 6) in the index-1 form: at every state
+
+    [ M(q)   Phi_q^T ] [ qdd    ]   [ Q(q, qd, t) ]
+    [ Phi_q  0       ] [ lambda ] = [ gamma       ]
+
+gives the accelerations and the multipliers, and y = (q, qd) is integrated by the explicit
+Dormand-Prince 8(5,3) method with step-size control (:mod:`mechdsl.solve.explicit`). After
+every step, and at every output instant, the state is projected back onto both constraint
+manifolds: q by Gauss-Newton on Phi(q, t) = 0 with the minimum-norm correction, qd onto
+Phi_q qd = nu. The index-1 form alone lets the constraints drift (|Phi| grows with the run);
+the projections keep them at the solver's tolerance whatever the length of the run, at the
+cost of one factorisation of Phi_q D (scaled) per step. This choice over an implicit method
+on the index-3 or stabilised index-2 form is argued, with measurements, in docs/dynamics.md.
+
+Drives may move some coordinates (a mixed case): their f(t) enters Phi, nu = f'(t) and
+gamma = ... + f''(t) exactly as in the kinematics. The initial state is the assembly at t0
+and the velocities of ``v0`` statements (zero otherwise), projected onto Phi_q qd = nu; a
+projection that changes a given velocity is reported as a warning with its size.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..compiled import equations as eq
+from ..compiled.system import System
+from ..errors import MechError
+from ..results import Results
+from .assembly import gauss_newton
+from .base import Progress, Run
+from .diagnose import constraint_names, variant_label
+from .options import SolverOptions
+
+
+#: The integrator's tolerances where neither the options nor the simulate statement give them
+RTOL, ATOL = 1e-8, 1e-10
+
+
+class DynamicRun(Run):
+    """Forward dynamics of every variant over ``system.times`` (see the module)."""
+
+    name = "dynamic"
+
+    def __init__(self, system: System, options: SolverOptions | None = None, *,
+                 poses: bool = False, rates: bool = False, progress: Progress | None = None,
+                 extra_memory: int = 0) -> None:
+        super().__init__(system, options, progress=progress)
+        if system.dynamics is None:
+            raise MechError(
+                f"the mechanism is not fully driven ({system.n} coordinates, {system.m} "
+                "equations) and has no masses: give its bodies mass and inertia to simulate "
+                "its motion, or add drives", source=system.source)
+        if system.m > system.n:
+            raise MechError("forward dynamics of a mechanism with more equations than "
+                            "coordinates (redundant constraints) is not supported: remove the "
+                            "redundant joints", source=system.source)
+        self.keep_poses, self.keep_rates = poses or rates, rates
+        tol = system.tolerances  # the file's; options given explicitly override them
+        self.rtol = self.opts.rtol or tol.get("rtol", RTOL)
+        self.atol = self.opts.atol or tol.get("atol", ATOL)
+
+    # -- the equations of one variant --------------------------------------------------------
+    def _augmented(self, v: int, t: float, q: np.ndarray, qd: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """qdd and lambda of the current variant at (t, q, qd) from the index-1 system."""
+        return self.ev.accelerations(t, q, qd)
+
+    def _project(self, v: int, t: float, y: np.ndarray) -> np.ndarray:
+        """(q, qd) moved onto Phi(q, t) = 0 and Phi_q qd = nu: Gauss-Newton with the
+        minimum-norm correction in coordinates scaled by D, dz = -(J D)^+ Phi, then
+        qd -= D (J D)^+ (J qd - nu)."""
+        ev = self.ev
+        n, m = ev.n, ev.m
+        if m == 0:
+            return y
+        D = ev.D
+        q, qd = y[:n].copy(), y[n:].copy()
+        tol = self.opts.newton_tol * 1e-4
+        for _ in range(self.opts.max_iterations):
+            phi, jac = ev.phi_jac(t, q)
+            dz = _min_norm(jac * D, phi)
+            q -= D * dz
+            if not np.abs(dz).max() > tol:
+                break
+        _, jac = ev.phi_jac(t, q)
+        qd -= D * _min_norm(jac * D, jac @ qd - ev.nu(t))
+        return np.concatenate((q, qd))
+
+    # -- the run -------------------------------------------------------------------------------
+    def run(self) -> Results:
+        sysm, times = self.system, self.times
+        V, K, n = sysm.n_variants, len(times), sysm.n
+        start = time.perf_counter()
+        self.data = {o.label: np.full((V, K), np.nan) for o in sysm.outputs}
+        self.poses = np.full((V, K, n), np.nan) if self.keep_poses else None
+        self.pose_rates = np.full((V, K, 2, n), np.nan) if self.keep_rates else None
+        self.residual = 0.0
+        status = "ok"
+        try:
+            q0 = self._initial_positions()
+            for v in range(V):
+                if q0[v] is None:
+                    continue
+                if self._variant(v, q0[v]) == "interrupted":
+                    status = "interrupted"
+                    break
+        except KeyboardInterrupt:
+            status = "interrupted"
+        if status == "ok" and self.failures:
+            status = "failed"
+        poses = None if self.poses is None else self.poses.reshape(V, K, -1, 3)
+        rates = None if self.pose_rates is None else self.pose_rates.reshape(V, K, 2, -1, 3)
+        return self.results(status, time.perf_counter() - start, residual=self.residual,
+                            poses=poses, rates=rates)
+
+    def _initial_positions(self) -> list[np.ndarray | None]:
+        """The assembly at t0: the joints from the guesses, then every equation (drives
+        included), each by damped Gauss-Newton with minimum-norm steps (the configuration
+        nearest the guesses)."""
+        sysm, opts = self.system, self.opts
+        V = sysm.n_variants
+        t = np.full((V, 1), self.times[0])
+        guess = sysm.guess.reshape(V, 1, sysm.n)
+        q1, ok1, _ = gauss_newton(sysm, guess, t, self.D, sysm.joint_rows, opts)
+        q2, ok2, _ = gauss_newton(sysm, q1, t, self.D, np.arange(sysm.m), opts)
+        out: list[np.ndarray | None] = []
+        for v in range(V):
+            if ok1[v] and ok2[v]:
+                out.append(q2[v, 0])
+                continue
+            phi = np.abs(eq.constraint_values(sysm, q2[v : v + 1], t[v : v + 1])[0, 0])
+            worst = np.argsort(-np.nan_to_num(phi, nan=np.inf))[:3]
+            self.failures.append(
+                f"the mechanism cannot be assembled at t = {self.times[0]:g}"
+                f"{variant_label(sysm, v)}: the equations of "
+                f"{constraint_names(sysm, worst)} stay unsatisfied near the guesses; check "
+                "the dimensions, or give guesses nearer the intended configuration")
+            out.append(None)
+        return out
+
+    def _variant(self, v: int, q0: np.ndarray) -> str:
+        from .explicit import Problem, integrate
+
+        #: the system as variant v sees it: its params, its functions
+        self.one, self.variant = _one(self.system, v), v
+        self.ev = _Evaluator(self.one, self.D[v, 0])
+        sysm, times, d = self.one, self.times, self.one.dynamics
+        n = sysm.n
+        t0 = float(times[0])
+        qd_given = np.array(d.v0[0], dtype=float)
+        y0 = self._project(v, t0, np.concatenate((q0, qd_given)))
+        moved = np.abs(y0[n:] - qd_given)
+        if d.v0_given.any() and (moved > self.opts.newton_tol * (1 + np.abs(qd_given))).any():
+            k = int(np.argmax(moved))
+            self.warnings.append(
+                f"the initial velocities{variant_label(sysm, v)} do not satisfy the "
+                f"constraints: projected onto them, changing {self._coordinate(k)} by "
+                f"{moved[k]:.3g}")
+        try:
+            self._augmented(v, t0, y0[:n], y0[n:])
+        except np.linalg.LinAlgError:
+            self.failures.append(self._singular_message(v, t0))
+            return "failed"
+
+        def rhs(t: float, y: np.ndarray) -> np.ndarray:
+            qdd, _ = self._augmented(v, t, y[:n], y[n:])
+            return np.concatenate((y[n:], qdd))
+
+        def record(k: int, t: float, y: np.ndarray) -> None:
+            self._record(k, t, y)
+            if self.progress is not None and v == self.system.n_variants - 1:
+                self.progress(k + 1, len(times))
+
+        K = len(times)
+        #: the states at the output instants, written as outputs when the variant ends
+        self.states = {"q": np.full((K, n), np.nan), "qd": np.full((K, n), np.nan),
+                       "qdd": np.full((K, n), np.nan), "lambda": np.full((K, sysm.m), np.nan)}
+        scale = np.concatenate((self.D[v, 0], self.D[v, 0]))
+        try:
+            sol = integrate(Problem(rhs, lambda t, y: self._project(v, t, y)), y0, times,
+                            rtol=self.rtol, atol=self.atol, scale=scale, on_output=record)
+        finally:  # an interrupt too: the instants solved are written, complete
+            self._write(v)
+        if sol.status == "failed":
+            t_fail = float(sol.t[-1]) if len(sol.t) else t0
+            self.failures.append(
+                f"the forward dynamics stopped after t = {t_fail:.10g}"
+                f"{variant_label(sysm, v)}: {sol.message}")
+        return sol.status
+
+    def _record(self, k: int, t: float, y: np.ndarray) -> None:
+        """Keep the state at output instant k, with its accelerations and multipliers."""
+        n, st = self.ev.n, self.states
+        q, qd = y[:n], y[n:]
+        try:
+            qdd, lam = self.ev.accelerations(t, q, qd)
+        except np.linalg.LinAlgError:
+            qdd, lam = np.full(n, np.nan), np.full(self.ev.m, np.nan)
+        if self.ev.m:
+            phi, _ = self.ev.phi_jac(t, q)
+            self.residual = max(self.residual, float(np.abs(phi).max()))
+        st["q"][k], st["qd"][k], st["qdd"][k], st["lambda"][k] = q, qd, qdd, lam
+        self.n_solved[self.variant] = k + 1
+
+    def _write(self, v: int) -> None:
+        """The outputs of variant ``v`` at the instants it has solved, all at once."""
+        k = int(self.n_solved[v])
+        if k == 0:
+            return
+        st = self.states
+        q, qd, qdd = (st[name][None, :k] for name in ("q", "qd", "qdd"))
+        T = self.times[None, :k]
+        cache = {"lambda": st["lambda"][None, :k]}
+        for spec in self.one.outputs:
+            self.data[spec.label][v, :k] = eq.output_values(self.one, spec, q, qd, qdd, T,
+                                                            cache)[0]
+        if self.poses is not None:
+            self.poses[v, :k] = q[0]
+        if self.pose_rates is not None:
+            self.pose_rates[v, :k, 0], self.pose_rates[v, :k, 1] = qd[0], qdd[0]
+
+    def _coordinate(self, k: int) -> str:
+        body = self.system.body_names[k // 3]
+        return f"{body}.{('vx', 'vy', 'omega')[k % 3]}"
+
+    def _singular_message(self, v: int, t: float) -> str:
+        sysm, d = self.one, self.one.dynamics
+        massless = [b for i, b in enumerate(sysm.body_names) if d.mass[0, i] == 0]
+        what = (f"bodies without mass ({', '.join(massless[:5])}) whose motion the "
+                "constraints do not fix" if massless else "the constraints lock the mechanism "
+                "or are redundant")
+        return (f"the equations of motion are singular at t = {t:g}{variant_label(sysm, v)}: "
+                f"{what}; give every free body a mass and an inertia")
+
+
+def _one(system: System, v: int) -> System:
+    """The system as variant ``v`` alone sees it (its params), for the outputs."""
+    if system.n_variants == 1:
+        return system
+    from ..solve.diagnose import one_variant
+
+    return one_variant(system, v)
+
+
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x = b by LAPACK's dgesv (a few microseconds: np.linalg.solve's checks cost more than
+    the arithmetic on one small system); LinAlgError where a is singular."""
+    from scipy.linalg.lapack import dgesv
+
+    _, _, x, info = dgesv(a, b)
+    if info != 0 or not np.isfinite(x).all():
+        raise np.linalg.LinAlgError("singular matrix")
+    return x
+
+
+def _min_norm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The minimum-norm solution of a x = b for a of full row rank: a^T (a a^T)^-1 b (the
+    least-squares one where a a^T is singular)."""
+    try:
+        return a.T @ np.linalg.solve(a @ a.T, b)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(a, b, rcond=None)[0]
+
+
+class _Evaluator:
+    """Phi, Phi_q, nu, gamma, M and Q of one variant at one state. Where the model is
+    traced constraint by constraint (the member layout), by the scalar kernels of its graphs
+    (:func:`mechdsl.symbolic.codegen.scalar_kernel`: Python floats, a few microseconds for a
+    small mechanism, against a microsecond per numpy operation on arrays of one state);
+    otherwise, or where a scalar kernel meets a value outside a function's domain, by the
+    array kernels."""
+
+    def __init__(self, system: System, D: np.ndarray) -> None:
+        from ..symbolic.codegen import scalar_functions, scalar_kernel
+
+        self.system, self.D = system, D
+        f, d = system.fused, system.dynamics
+        self.n, self.m = n, m = system.n, system.m
+        self.scalar = f is not None and f.layout == "member" and d.graph is not None
+        if self.scalar:
+            self.k_phi_jac = scalar_kernel(f.graph, [*f.phi_nodes, *f.jac_nodes], "phi_jac")
+            self.k_gamma = scalar_kernel(f.graph, list(f.gamma_nodes), "gamma")
+            self.k_load = scalar_kernel(d.graph, list(d.load_nodes), "load")
+            self.k_mass = scalar_kernel(d.graph, list(d.mass_nodes), "mass")
+            self.p = [float(np.asarray(x).reshape(-1)[0]) for x in f.params]
+            self.F = scalar_functions(f.functions)
+            self.pd = [float(np.asarray(x).reshape(-1)[0]) for x in d.params]
+            self.Fd = scalar_functions(d.functions)
+            rows, cols = f.rows, f.cols
+            self.jac_flat = rows * n + cols
+            big = n + m
+            self.aug_jac = (rows + n) * big + cols
+            self.aug_jac_t = cols * big + rows + n
+            self.aug_mass = d.rows * big + d.cols
+        self.drive_rows = system.drive_rows
+
+    def _drives(self, t: float, which: str) -> np.ndarray:
+        T = np.full((1, 1), t)
+        return eq.drive_values(self.system, T, which, (1, 1))[0, 0]
+
+    def phi_jac(self, t: float, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Phi(q, t) (m,) and Phi_q (m, n)."""
+        n, m = self.n, self.m
+        if self.scalar:
+            try:
+                out = self.k_phi_jac(q.tolist(), (), t, self.p, self.F)
+                phi = np.array(out[:m])
+                jac = np.zeros(m * n)
+                jac[self.jac_flat] = out[m:]
+                jac = jac.reshape(m, n)
+                if self.drive_rows.size:
+                    phi[self.drive_rows] -= self._drives(t, "f")
+                return phi, jac
+            except (ValueError, ZeroDivisionError, OverflowError):
+                pass
+        Q3, T2 = q[None, None], np.full((1, 1), t)
+        with np.errstate(all="ignore"):
+            return (eq.constraint_values(self.system, Q3, T2)[0, 0],
+                    eq.jacobian(self.system, Q3)[0, 0])
+
+    def nu(self, t: float) -> np.ndarray:
+        out = np.zeros(self.m)
+        if self.drive_rows.size:
+            out[self.drive_rows] = self._drives(t, "fd")
+        return out
+
+    def accelerations(self, t: float, q: np.ndarray, qd: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """qdd (n,) and lambda (m,) from [M Phi_q^T; Phi_q 0][qdd; lambda] = [Q; gamma]."""
+        n, m = self.n, self.m
+        big = n + m
+        if self.scalar:
+            try:
+                qs, qds = q.tolist(), qd.tolist()
+                out = self.k_phi_jac(qs, (), t, self.p, self.F)
+                a = np.zeros(big * big)
+                a[self.aug_jac] = out[m:]
+                a[self.aug_jac_t] = out[m:]
+                a[self.aug_mass] = self.k_mass(qs, (), t, self.pd, self.Fd)
+                rhs = np.array(self.k_load(qs, qds, t, self.pd, self.Fd)
+                               + self.k_gamma(qs, qds, t, self.p, self.F))
+                if self.drive_rows.size:
+                    rhs[n + self.drive_rows] += self._drives(t, "fdd")
+                sol = _solve(a.reshape(big, big), rhs)
+                return sol[:n], sol[n:]
+            except (ValueError, ZeroDivisionError, OverflowError):
+                pass
+        sysm, d = self.system, self.system.dynamics
+        Q3, Qd3, T2 = q[None, None], qd[None, None], np.full((1, 1), t)
+        with np.errstate(all="ignore"):
+            jac = eq.jacobian(sysm, Q3)[0, 0]
+            gamma = eq.acceleration_rhs(sysm, Q3, Qd3, T2)[0, 0]
+            mass = d.mass_matrix(Q3)[0, 0]
+            load = d.generalised_forces(Q3, Qd3, T2)[0, 0]
+        a = np.zeros((big, big))
+        a[:n, :n] = mass
+        a[:n, n:] = jac.T
+        a[n:, :n] = jac
+        sol = np.linalg.solve(a, np.concatenate((load, gamma)))
+        return sol[:n], sol[n:]

