@@ -515,6 +515,8 @@ def hostile_data(rng: random.Random) -> Case:
             text = data.replace(b'"data/cam_pitch.csv"', f'"{path}"'.encode())
         else:
             text = _append_to_line(data, rb"^drive ", b" + 0*" + ref)
+            if text == data:  # no drive (a forward-dynamics model): a param reads it
+                text = data + f'\nparam fuzz_table = 0*table("{path}", 0)\n'.encode()
     else:
         ext = rng.choice([".msh", ".vtk", ".vtu", ".obj", ".stl", ".xdmf"])
         if what == "shape":

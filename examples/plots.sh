@@ -21,3 +21,7 @@ done
 # a sweep: each variant in its colour, named in the legend, with its own supports
 "$M" run examples/fourbar.mech -q -o /dev/null --sweep d=3.8,4.2 --snapshot "$out/fourbar_sweep.png" \
     --at 0,0.5
+# forward dynamics: Andrews' squeezing mechanism, its angles and the mechanism at four instants
+"$M" run examples/andrews.mech -q -o /dev/null --plot "$out/andrews.png"
+"$M" run examples/andrews.mech -q -o /dev/null --trace triangle.D --snapshot "$out/andrews_snapshot.png" \
+    --at 0,0.01,0.02,0.03

@@ -117,7 +117,8 @@ class Mechanism:
                            f"mechdsl.load(..., allow_plugins=['{module}'])"])
             asked = list(self._plugins) + [m for m, _ in self.model.plugins]
             if self._registry is None:
-                wanted = {c.type_name for c in (*self.model.joints, *self.model.drives)}
+                wanted = {c.type_name for c in
+                          (*self.model.joints, *self.model.drives, *self.model.forces)}
                 registry = build_registry(asked, wanted=wanted)
             else:
                 registry = self._registry.merged(

@@ -106,7 +106,7 @@ def _parser() -> argparse.ArgumentParser:
     check = sub.add_parser("check", help="parse, compile and assemble; print the structure")
     model_options(check)
 
-    sub.add_parser("plugins", help="list the installed joint and drive types")
+    sub.add_parser("plugins", help="list the installed joint, drive and force types")
 
     plot = sub.add_parser("plot", help="redraw a CSV written by 'run', without solving again")
     plot.add_argument("file", metavar="FILE.csv", help="a CSV written by mechdsl run -o")

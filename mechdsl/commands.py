@@ -420,7 +420,7 @@ def plugins_command() -> int:
     from .plugins.manager import build_registry
 
     registry = build_registry()
-    for kind in ("joint", "drive"):
+    for kind in ("joint", "drive", "force"):
         names = registry.names(kind)
         emit(f"{kind} types:")
         if not names:
@@ -429,8 +429,9 @@ def plugins_command() -> int:
             ctype = registry.get(kind, name)
             provider = registry.provider(kind, name)
             emit(f"  {ctype.describe()}")
-            emit(f"      {ctype.n_eq} equation{'s' if ctype.n_eq != 1 else ''}; "
-                 f"{ctype.doc or ''}  [{provider}]")
+            what = ("loads" if kind == "force" else
+                    f"{ctype.n_eq} equation{'s' if ctype.n_eq != 1 else ''}")
+            emit(f"      {what}; {ctype.doc or ''}  [{provider}]")
     if registry.broken:
         emit("broken plugins:")
         for b in registry.broken:

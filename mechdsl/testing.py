@@ -317,3 +317,164 @@ def _broadcasting(ctype: ConstraintType, q, qd, p, n: int) -> None:
             _shape(ctype, f"Jacobian block {k}" + where, blk, want + (m, 3))
         _shape(ctype, "gamma" + where, _call(ctype, "gamma", q2, qd2, p2, where=where),
                with_v + (m,))
+
+
+# -- force types ------------------------------------------------------------------------------
+
+def _force_args(ftype, p: Mapping[str, object]):
+    """The arguments as a force type's loads() receives them on arrays."""
+    from .plugins.contract import Args
+    from .plugins.geometry import Vec
+
+    args = {}
+    for arg in ftype.signature:
+        if arg.kind == "body":
+            continue
+        value = p[arg.name]
+        if arg.kind in ("point", "vector"):
+            value = np.asarray(value)
+            args[arg.name] = Vec(value[..., 0], value[..., 1])
+        else:
+            args[arg.name] = value
+    return Args(args)
+
+
+def force_loads(ftype, q: tuple[np.ndarray, ...], qd: tuple[np.ndarray, ...],
+                p: Mapping[str, object], t) -> np.ndarray:
+    """A force type's loads on arrays: poses and velocities ``(..., 3)`` per attached body,
+    arguments as :func:`random_params` gives them, time ``t`` (broadcasting): shape
+    ``(..., bodies, 3)``."""
+    from .plugins.geometry import Body, Rate
+
+    bodies = tuple(Body.of(x) for x in q)
+    rates = tuple(Rate.of(x) for x in qd)
+    batch = np.broadcast_shapes(*(np.shape(x)[:-1] for x in (*q, *qd)), np.shape(t))
+    with np.errstate(all="ignore"):
+        loads = ftype.loads(bodies, rates, _force_args(ftype, p), np.asarray(t, dtype=float))
+        return np.stack([np.stack([np.broadcast_to(np.asarray(c, dtype=float), batch)
+                                   for c in load], axis=-1) for load in loads], axis=-2)
+
+
+def force_energy(ftype, q: tuple[np.ndarray, ...], p: Mapping[str, object]) -> np.ndarray:
+    """A force type's potential energy on arrays (types that write ``energy``)."""
+    from .plugins.geometry import Body
+
+    with np.errstate(all="ignore"):
+        return np.asarray(ftype.energy(tuple(Body.of(x) for x in q), _force_args(ftype, p)),
+                          dtype=float)
+
+
+def _force_traced(ftype) -> None:
+    """Trace loads() (and energy()) as mechdsl does; what cannot be traced is a violation."""
+    from .plugins.contract import Args
+    from .plugins.derived import _TracedFunction, body_of
+    from .plugins.geometry import Rate, Vec
+    from .symbolic import Graph
+
+    g = Graph()
+    S = len(ftype.slots)
+    bodies = tuple(body_of(g, 3 * k) for k in range(S))
+    rates = tuple(Rate(*(g.var("qd", 3 * k + c) for c in range(3))) for k in range(S))
+    args, j = {}, 0
+    for a in ftype.signature:
+        if a.kind == "body":
+            continue
+        if a.kind == "function":
+            args[a.name] = _TracedFunction(g, g.function(None, None, None))
+        elif a.kind in ("point", "vector"):
+            args[a.name] = Vec(g.var("p", j), g.var("p", j + 1))
+            j += 2
+        else:
+            args[a.name] = g.var("p", j)
+            j += 1
+    methods = [("loads", lambda: ftype.loads(bodies, rates, Args(args), g.var("t")))]
+    if ftype.supplies("energy"):
+        methods.append(("energy", lambda: [ftype.energy(bodies, Args(args))]))
+    for name, call in methods:
+        try:
+            out = call()
+            for item in out:
+                for c in (item if name == "loads" else [item]):
+                    g.lift(c)
+        except (GraphError, EquationError) as err:
+            raise ContractViolation(f"force type '{ftype.name}': {name}() cannot be traced: "
+                                    f"{err}") from None
+        except Exception as err:  # noqa: BLE001 - the plugin's failure is the finding
+            raise ContractViolation(
+                f"force type '{ftype.name}': {name}() raised {type(err).__name__} on traced "
+                f"values: {err} (a type may not branch on, compare or convert them)") from err
+
+
+def check_force_type(ftype, *, samples: int = 24, seed: int = 0,
+                     params: Mapping[str, object] | None = None) -> None:
+    """Check a force type (:class:`~mechdsl.plugins.force.ForceType`) against its contract
+    on random poses, velocities, times and argument values; raise ContractViolation with
+    the numbers where it fails:
+
+    1. the declaration, and ``validate`` accepting the values used;
+    2. loads() and energy() can be traced (no branching on values);
+    3. one (F_x, F_y, n) triple per attached body, of the batch's shape, finite;
+    4. each member of a batch computed from its own values (as if alone);
+    5. where the type writes ``energy``: at rest (its damping gives nothing), the loads are
+       -dV/dq by central differences of V in every coordinate of every attached body.
+
+    ``params`` restricts argument values as for :func:`check_constraint_type` (a point or
+    scalar as ``f(rng, shape)``, a function as expression text of its variable)."""
+    from .plugins.force import ForceType, force_problems
+
+    problems = force_problems(ftype)
+    if problems:
+        raise ContractViolation(f"force type '{getattr(ftype, 'name', ftype)}': "
+                                + "; ".join(problems))
+    assert isinstance(ftype, ForceType)
+    rng = np.random.default_rng(seed)
+    S = len(ftype.slots)
+    p = random_params(ftype, rng, (samples,), params)
+    try:
+        ftype.validate(p)
+    except Exception as err:  # noqa: BLE001
+        raise ContractViolation(f"force type '{ftype.name}': validate() rejects the test's "
+                                f"values: {err}") from err
+    _force_traced(ftype)
+    q = tuple(np.column_stack((rng.uniform(-1, 1, (samples, 2)), rng.uniform(-3, 3, samples)))
+              for _ in range(S))
+    qd = tuple(rng.uniform(-1, 1, (samples, 3)) for _ in range(S))
+    t = rng.uniform(0, 2, samples)
+    try:
+        loads = force_loads(ftype, q, qd, p, t)
+    except Exception as err:  # noqa: BLE001
+        raise ContractViolation(f"force type '{ftype.name}': loads() failed on arrays: "
+                                f"{type(err).__name__}: {err}") from err
+    if loads.shape != (samples, S, 3):
+        raise ContractViolation(f"force type '{ftype.name}': loads() gave shape "
+                                f"{loads.shape[1:]} per sample, expected ({S}, 3): one "
+                                "(F_x, F_y, n) triple per attached body")
+    if not np.isfinite(loads).all():
+        i = _index(int(np.argmin(np.isfinite(loads))), loads.shape)
+        raise ContractViolation(f"force type '{ftype.name}': loads() is "
+                                f"{float(loads[i])!r} at index {i} for valid input")
+    for j in range(min(samples, 4)):
+        one = {k: (v if isinstance(v, ExprFunction) else np.asarray(v)[j : j + 1])
+               for k, v in p.items()}
+        alone = force_loads(ftype, tuple(x[j : j + 1] for x in q),
+                            tuple(x[j : j + 1] for x in qd), one, t[j : j + 1])
+        if not np.allclose(alone[0], loads[j], rtol=1e-13, atol=1e-13):
+            raise ContractViolation(f"force type '{ftype.name}': member {j} of a batch differs "
+                                    "from the same values alone: loads() mixes the batch")
+    if ftype.supplies("energy"):
+        rest = tuple(np.zeros_like(x) for x in qd)
+        at_rest = force_loads(ftype, q, rest, p, t)
+        scale = max(1.0, float(np.abs(at_rest).max()))
+        for k in range(S):
+            for c in range(3):
+                h = 1e-6
+                plus = tuple(x + (h if (i == k) else 0.0) * np.eye(3)[c] for i, x in enumerate(q))
+                minus = tuple(x - (h if (i == k) else 0.0) * np.eye(3)[c] for i, x in enumerate(q))
+                dV = (force_energy(ftype, plus, p) - force_energy(ftype, minus, p)) / (2 * h)
+                got, want = at_rest[:, k, c], -dV
+                if not np.allclose(got, want, rtol=1e-6, atol=1e-6 * scale):
+                    i = int(np.argmax(np.abs(got - want)))
+                    raise ContractViolation(
+                        f"force type '{ftype.name}': the load on body {k}, component "
+                        f"{('F_x', 'F_y', 'n')[c]}, is not -dV/dq of its energy(): got "
+                        f"{got[i]!r}, -dV/dq by differences {want[i]!r}")

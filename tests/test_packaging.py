@@ -56,10 +56,10 @@ VERSION = CORE["version"]
 LIBRARY_NAMES = [project(d)["name"] for d in LIBRARY]
 
 
-def test_the_library_is_seven_distributions_of_the_mechdsl_entry_point_group():
+def test_the_library_is_eight_distributions_of_the_mechdsl_entry_point_group():
     assert CORE["name"] == "mechdsl"
     assert sorted(LIBRARY_NAMES) == ["mechdsl-" + f for f in ("cams", "distance", "drives",
-                                                               "gears", "prismatic",
+                                                               "forces", "gears", "prismatic",
                                                                "revolute", "rigid")]
     for folder in LIBRARY:
         assert project(folder)["entry-points"]["mechdsl"], folder

@@ -132,7 +132,7 @@ class _Compiler:
         if self.V > 1:
             model = self.model
             values = (2 * sum(len(b.points) + 1 for b in (*model.bodies, model.ground))
-                      + 2 * sum(len(c.args) for c in (*model.joints, *model.drives))
+                      + 2 * sum(len(c.args) for c in (*model.joints, *model.drives, *model.forces))
                       + 6 * len(model.bodies) + len(model.params))
             check_compile(self.V, values, self.ov.max_memory)
         self._bodies()

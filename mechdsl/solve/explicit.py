@@ -22,11 +22,27 @@ preallocated stage array, a handful of numpy calls per stage besides the derivat
 
 from __future__ import annotations
 
+import importlib.util
+import os
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy.integrate._ivp import dop853_coefficients as dop
+
+
+def _coefficients():
+    """scipy's table of the DOP853 coefficients, read from its file: importing it as
+    ``scipy.integrate._ivp.dop853_coefficients`` would import all of scipy.integrate first
+    (a quarter of a second of every start-up)."""
+    root = os.path.dirname(importlib.util.find_spec("scipy").origin)
+    path = os.path.join(root, "integrate", "_ivp", "dop853_coefficients.py")
+    spec = importlib.util.spec_from_file_location("_mechdsl_dop853_coefficients", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)  # numbers only: it imports numpy
+    return module
+
+
+dop = _coefficients()
 
 _STAGES = dop.N_STAGES
 _A = [np.ascontiguousarray(dop.A[s, :s]) for s in range(dop.N_STAGES_EXTENDED)]
