@@ -22,7 +22,12 @@ Sections (each prints a table; the plots and a Markdown copy of the tables go to
 * long: the slider-crank over 100,001 instants, numpy and compiled;
 * startup: wall time of ``mechdsl run examples/slider_crank.mech -o out.csv`` as a process,
   and of importing mechdsl (and exudyn);
-* animation: solving a 101-body chain over 1000 instants and writing its GIF.
+* animation: solving a 101-body chain over 1000 instants and writing its GIF;
+* andrews: forward dynamics, Andrews' squeezing mechanism (the Test Set for IVP Solvers):
+  relative error of the seven angles at t = 0.03 against run time, mechdsl (numpy and
+  compiled) over rtol, beside scipy's solve_ivp on the published index-1 form (DOP853,
+  Radau) and Exudyn's generalised-alpha over its step; and the whole process of
+  ``mechdsl run examples/andrews.mech``.
 
 Times are medians of repeated runs; ratios are taken between figures of the same run.
 """
@@ -437,8 +442,79 @@ def levers(rep: Report, quick: bool) -> None:
               ["instants", "setting", "ms", "x default", "max err (x, vx, ax)"], rows)
 
 
+def andrews(rep: Report, quick: bool) -> None:
+    """Andrews' squeezing mechanism: the curves of error at t = 0.03 against time."""
+    import andrews as ref
+    from mechdsl.compiled.variants import Overrides as Ov
+
+    names = ("beta", "Theta", "gamma", "Phi", "delta", "Omega", "epsilon")
+    repeat = 3 if quick else 7
+    mech = mechdsl.load(ROOT / "examples" / "andrews.mech")
+    one = mech.compile(Ov(step=0.03))  # the reference's instant only, as the peers
+    rows, curves = [], {}
+    engines = [("mechdsl numpy", NUMPY)] + ([("mechdsl compiled", COMPILED)] if have_numba()
+                                           else [])
+    for label, base in engines:
+        for rtol in (1e-6, 1e-7, 1e-8, 1e-9, 1e-10):
+            opts = replace(base, rtol=rtol, atol=rtol * 1e-2)
+            t, res = median_time(lambda: simulate(one, opts), repeat)
+            err = ref.relative_error(np.array([res[n][-1] for n in names]))
+            rows.append([label, f"rtol {rtol:g}", f"{1e3 * t:.1f}", f"{err:.1e}"])
+            curves.setdefault(label, []).append((t, err))
+    for rtol in (1e-6, 1e-7, 1e-8, 1e-9, 1e-10):
+        r = ref.scipy_andrews(rtol, repeat=repeat)
+        rows.append(["scipy solve_ivp DOP853, index 1", f"rtol {rtol:g}", f"{1e3 * r['time']:.1f}",
+                     f"{r['err']:.1e}"])
+        curves.setdefault("scipy DOP853", []).append((r["time"], r["err"]))
+    for rtol in (1e-5, 1e-6, 1e-7, 1e-8):
+        r = ref.scipy_andrews(rtol, "Radau", repeat=1)
+        rows.append(["scipy solve_ivp Radau, index 1", f"rtol {rtol:g}", f"{1e3 * r['time']:.1f}",
+                     f"{r['err']:.1e}"])
+        curves.setdefault("scipy Radau", []).append((r["time"], r["err"]))
+    if importlib.util.find_spec("exudyn") is not None:
+        for h in (1e-4, 3e-5, 1e-5, 3e-6) if not quick else (1e-4, 1e-5):
+            r = ref.exudyn_andrews(h, repeat=1 if h < 1e-5 else 3)
+            rows.append(["Exudyn generalised-alpha", f"h {h:g}", f"{1e3 * r['time']:.1f}",
+                         f"{r['err']:.1e}"])
+            curves.setdefault("Exudyn gen.-alpha", []).append((r["time"], r["err"]))
+    rep.table("Andrews' squeezing mechanism: error of the seven angles at t = 0.03 against "
+              "solve time (in-process)", ["solver", "setting", "ms", "max rel. error"], rows)
+    cmd = [sys.executable, "-m", "mechdsl", "run", str(ROOT / "examples" / "andrews.mech"),
+           "-o", "-", "-q"]
+    t_run, _ = median_time(lambda: subprocess.run(cmd, check=True, env=peers.user_env(),
+                                                  stdout=subprocess.DEVNULL), repeat)
+    system = mech.compile()
+    t_solve, full = median_time(lambda: simulate(system, NUMPY), repeat)
+    err = ref.relative_error(np.array([full[n][-1] for n in names]))
+    t_in, _ = median_time(lambda: mech.simulate(), repeat)
+    table = [["error of the angles at t = 0.03", f"{err:.1e}"],
+             ["solve, in-process, numpy (model compiled)", f"{1e3 * t_solve:.1f} ms"]]
+    if have_numba():
+        t_fast, _ = median_time(lambda: simulate(system, COMPILED), repeat)
+        table.append(["solve, in-process, compiled", f"{1e3 * t_fast:.1f} ms"])
+    table += [["compile and solve, in-process, numpy", f"{1e3 * t_in:.1f} ms"],
+              ["mechdsl run examples/andrews.mech, whole process", f"{1e3 * t_run:.0f} ms"]]
+    rep.table("Andrews: examples/andrews.mech as written (31 instants, rtol 1e-7)",
+              ["what", "value"], table)
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    for label, pts in curves.items():
+        pts = np.array(pts)
+        ax.loglog(pts[:, 1], 1e3 * pts[:, 0], "o-", label=label)
+    ax.set_xlabel("max relative error of the angles at t = 0.03")
+    ax.set_ylabel("solve time (ms)")
+    ax.set_title("Andrews' squeezing mechanism: work against precision")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(rep.out / "andrews.png", dpi=90)
+    plt.close(fig)
+
+
 SECTIONS = {"seed": seed, "levers": levers, "work-precision": work_precision, "scaling": scaling,
-            "sweep": sweep, "long": long_span, "startup": startup, "animation": animation}
+            "sweep": sweep, "long": long_span, "startup": startup, "animation": animation,
+            "andrews": andrews}
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -26,6 +26,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..functions import ExprFunction
+from ..grammar.expr import free_names
 from ..plugins.derived import _TracedFunction, body_of, trace
 from ..plugins.geometry import Body, Vec
 from ..symbolic import Graph, Kernel, Node, kernel
@@ -128,7 +129,14 @@ def _args(graph: Graph, params: _Params, group, j: int | None = None) -> dict:
         if a.kind == "function":
             f = (value if j is None else
                  ExprFunction([value.exprs[j]], value.var, value.env, elementwise=True))
-            args[a.name] = _TracedFunction(graph, graph.function(f, f.d1, f.d2))
+            if j is not None and value.var not in free_names(value.exprs[j]):
+                # a constant (a torque's value = mom): a number in the graph, not a call
+                V = len(next(iter(value.env.values()))) if value.env else 1
+                with np.errstate(all="ignore"):
+                    level = np.broadcast_to(f(np.zeros((V, 1))), (V, 1))[:, 0]
+                args[a.name] = _Constant(params.leaf(level), graph.zero)
+            else:
+                args[a.name] = _TracedFunction(graph, graph.function(f, f.d1, f.d2))
         elif a.kind in ("point", "vector"):
             xy = value[:, 0, at]
             args[a.name] = Vec(params.leaf(xy[..., 0]), params.leaf(xy[..., 1]))
@@ -270,6 +278,23 @@ def _fuse_groups(graph: Graph, params: _Params, groups, n_bodies: int, m: int) -
                constants),
         kernel(graph, list(g_nodes), "gamma", list(g_pos), m, constants),
         rows_sorted, cols_sorted, tuple(params.arrays), tuple(graph.functions), m, n, "group")
+
+
+class _Constant:
+    """A function argument whose expression does not read its variable: its value, with
+    zero derivatives."""
+
+    def __init__(self, value, zero) -> None:
+        self.value, self.zero = value, zero
+
+    def __call__(self, x):
+        return self.value
+
+    def d1(self, x):
+        return self.zero
+
+    def d2(self, x):
+        return self.zero
 
 
 class _Duplicate(Exception):

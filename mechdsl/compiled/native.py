@@ -56,6 +56,8 @@ JIT = '@njit(cache=True, error_model="numpy")'
 
 def _read(key: tuple) -> str:
     kind = key[0]
+    if kind == "t":
+        return "t"
     if kind not in ("q", "qd", "p"):
         raise ValueError(f"the compiled backend cannot read {kind}")
     return f"{kind}[{key[1]}]"
@@ -319,10 +321,17 @@ def load(system) -> Callable | None:
     text = source(system)
     if text is None or not available():
         return None
+    return _module(text).march
+
+
+def _module(text: str):
+    """The module of generated source ``text``: imported from the user's cache folder (the
+    file written there first, and checked byte for byte), so that numba's cache beside it
+    serves the next process; compiled in memory where there is no such folder."""
     key = hashlib.sha256(text.encode()).hexdigest()[:20]
     name = f"mechdsl_native_{key}"
     if name in sys.modules:
-        return sys.modules[name].march
+        return sys.modules[name]
     folder = _cache_folder()
     if folder is not None:
         path = os.path.join(folder, name + ".py")
@@ -340,7 +349,7 @@ def load(system) -> Callable | None:
         module = importlib.util.module_from_spec(spec)
         sys.modules[name] = module
         spec.loader.exec_module(module)  # our own generated source, checked byte for byte
-        return module.march
+        return module
     import types
 
     module = types.ModuleType(name)
@@ -348,4 +357,129 @@ def load(system) -> Callable | None:
     exec(compile(text.replace("cache=True", "cache=False"), f"<{name}>", "exec"),  # noqa: S102
          module.__dict__)
     sys.modules[name] = module
-    return module.march
+    return module
+
+
+def dynamics_source(system) -> str | None:
+    """The module source of the compiled equations of motion of ``system``: ``accel(t, q,
+    qd, p, pd, qdd, lam)`` solves [M Phi_q^T; Phi_q 0][qdd; lambda] = [Q; gamma] for one
+    state (by M's blocks and the Schur complement, see ``SCHUR``), with the same graphs as
+    the numpy kernels written as scalar code; None where the backend does not apply (the
+    group layout, function arguments, drives)."""
+    f, d = system.fused, system.dynamics
+    if (f is None or d is None or d.graph is None or f.layout != "member" or f.functions
+            or d.functions or system.drive_functions):
+        return None
+    n, m = system.n, system.m
+    big = n + m
+    nnz = len(f.rows)
+    code = ["import numpy as np", f"from numpy import {', '.join(CALLED)}, inf, nan",
+            "from numba import njit", "", JIT, "def constraint_part(q, qd, p, out):"]
+    code += _scalar_code(f.graph, [(f"out[{k}]", x) for k, x in
+                                   enumerate([*f.jac_nodes, *f.gamma_nodes])], "    ")
+    code += ["", JIT, "def motion_part(q, qd, t, p, out):"]
+    code += _scalar_code(d.graph, [(f"out[{k}]", x) for k, x in
+                                   enumerate([*d.load_nodes, *d.mass_nodes])], "    ")
+    aug_jac = ", ".join(str(int((r + n) * big + c)) for r, c in zip(f.rows, f.cols))
+    aug_jac_t = ", ".join(str(int(c * big + r + n)) for r, c in zip(f.rows, f.cols))
+    aug_mass = ", ".join(str(int(r * big + c)) for r, c in zip(d.rows, d.cols))
+    rows = ", ".join(str(int(r)) for r in f.rows)
+    cols = ", ".join(str(int(c)) for c in f.cols)
+    mrows = ", ".join(str(int(r)) for r in d.rows)
+    mcols = ", ".join(str(int(c)) for c in d.cols)
+    nb, nmass = n // 3, len(d.mass_nodes)
+    code += ["", f"AUG_JAC = np.array([{aug_jac}], dtype=np.int64)",
+             f"AUG_JAC_T = np.array([{aug_jac_t}], dtype=np.int64)",
+             f"AUG_MASS = np.array([{aug_mass}], dtype=np.int64)",
+             f"ROWS = np.array([{rows}], dtype=np.int64)",
+             f"COLS = np.array([{cols}], dtype=np.int64)",
+             f"MROWS = np.array([{mrows}], dtype=np.int64)",
+             f"MCOLS = np.array([{mcols}], dtype=np.int64)", "",
+             SCHUR.format(n=n, m=m, big=big, nnz=nnz, nb=nb, nmass=nmass)]
+    return "\n".join(code) + "\n"
+
+
+SCHUR = '''
+@njit(cache=True, error_model="numpy")
+def accel(t, q, qd, p, pd, qdd, lam):
+    """qdd and lambda of one state; False where they are not finite numbers. Every body's
+    3 x 3 block of M inverted in closed form, then the Schur complement
+    (Phi_q M^-1 Phi_q^T) lambda = Phi_q M^-1 Q - gamma, qdd = M^-1 (Q - Phi_q^T lambda);
+    where a block is singular (a body without mass), the augmented system instead."""
+    c = np.empty({nnz} + {m})
+    w = np.empty({n} + {nmass})
+    constraint_part(q, qd, p, c)
+    motion_part(q, qd, t, pd, w)
+    blocks = np.zeros(({nb}, 3, 3))
+    for k in range({nmass}):
+        blocks[MROWS[k] // 3, MROWS[k] % 3, MCOLS[k] % 3] = w[{n} + k]
+    minv = np.empty(({nb}, 3, 3))
+    regular = True
+    for i in range({nb}):
+        b = blocks[i]
+        c00 = b[1, 1] * b[2, 2] - b[1, 2] * b[2, 1]
+        c01 = b[1, 2] * b[2, 0] - b[1, 0] * b[2, 2]
+        c02 = b[1, 0] * b[2, 1] - b[1, 1] * b[2, 0]
+        det = b[0, 0] * c00 + b[0, 1] * c01 + b[0, 2] * c02
+        if not (abs(det) > 1e-300 and np.isfinite(det)):
+            regular = False
+            break
+        minv[i, 0, 0] = c00 / det
+        minv[i, 1, 0] = c01 / det
+        minv[i, 2, 0] = c02 / det
+        minv[i, 0, 1] = (b[0, 2] * b[2, 1] - b[0, 1] * b[2, 2]) / det
+        minv[i, 1, 1] = (b[0, 0] * b[2, 2] - b[0, 2] * b[2, 0]) / det
+        minv[i, 2, 1] = (b[0, 1] * b[2, 0] - b[0, 0] * b[2, 1]) / det
+        minv[i, 0, 2] = (b[0, 1] * b[1, 2] - b[0, 2] * b[1, 1]) / det
+        minv[i, 1, 2] = (b[0, 2] * b[1, 0] - b[0, 0] * b[1, 2]) / det
+        minv[i, 2, 2] = (b[0, 0] * b[1, 1] - b[0, 1] * b[1, 0]) / det
+    if regular and {m} > 0:
+        jac = np.zeros(({m}, {n}))
+        for k in range({nnz}):
+            jac[ROWS[k], COLS[k]] = c[k]
+        u = np.empty({n})
+        wt = np.zeros(({n}, {m}))
+        for i in range({nb}):
+            for a in range(3):
+                s = 0.0
+                for e in range(3):
+                    s += minv[i, a, e] * w[3 * i + e]
+                u[3 * i + a] = s
+                for r in range({m}):
+                    s = 0.0
+                    for e in range(3):
+                        s += minv[i, a, e] * jac[r, 3 * i + e]
+                    wt[3 * i + a, r] = s
+        schur = jac @ wt
+        rhs = jac @ u - c[{nnz}:]
+        lam[:] = np.linalg.solve(schur, rhs)
+        qdd[:] = u - wt @ lam
+    else:
+        a = np.zeros({big} * {big})
+        for k in range({nnz}):
+            a[AUG_JAC[k]] = c[k]
+            a[AUG_JAC_T[k]] = c[k]
+        for k in range({nmass}):
+            a[AUG_MASS[k]] = w[{n} + k]
+        rhs = np.empty({big})
+        rhs[:{n}] = w[:{n}]
+        rhs[{n}:] = c[{nnz}:]
+        sol = np.linalg.solve(a.reshape(({big}, {big})), rhs)
+        qdd[:] = sol[:{n}]
+        lam[:] = sol[{n}:]
+    for i in range({n}):
+        if not np.isfinite(qdd[i]):
+            return False
+    for i in range({m}):
+        if not np.isfinite(lam[i]):
+            return False
+    return True
+'''
+
+
+def load_dynamics(system) -> Callable | None:
+    """The compiled ``accel`` of ``system`` (see :func:`dynamics_source`), or None."""
+    text = dynamics_source(system)
+    if text is None or not available():
+        return None
+    return _module(text).accel

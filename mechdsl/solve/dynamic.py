@@ -79,12 +79,12 @@ class DynamicRun(Run):
             return y
         D = ev.D
         q, qd = y[:n].copy(), y[n:].copy()
-        tol = self.opts.newton_tol * 1e-4
+        # as the kinematics: a step of at most newton_tol leaves an error of its square
         for _ in range(self.opts.max_iterations):
             phi, jac = ev.phi_jac(t, q)
             dz = _min_norm(jac * D, phi)
             q -= D * dz
-            if not np.abs(dz).max() > tol:
+            if not np.abs(dz).max() > self.opts.newton_tol:
                 break
         _, jac = ev.phi_jac(t, q)
         qd -= D * _min_norm(jac * D, jac @ qd - ev.nu(t))
@@ -117,6 +117,26 @@ class DynamicRun(Run):
         return self.results(status, time.perf_counter() - start, residual=self.residual,
                             poses=poses, rates=rates)
 
+    def _compiled(self):
+        """The compiled equations of motion where the options ask for the compiled backend
+        ("compiled": a small forward dynamics never pays numba's start-up unasked), numba
+        is installed and the model compiles (no function arguments, no drives); else None,
+        with a warning where it was asked for."""
+        if self.opts.backend != "compiled":
+            return None
+        if getattr(self, "_accel", None) is None:
+            from ..compiled import native
+
+            self._accel = native.load_dynamics(self.system) or False
+            if not self._accel:
+                why = ("numba is not installed (pip install mechdsl[fast])"
+                       if not native.available() else "the compiled backend does not "
+                       "compile this model (a function argument, a drive, or more than a "
+                       "small mechanism's constraints)")
+                self.warnings.append(f"backend 'compiled' asked for, but {why}: solved on "
+                                     "numpy")
+        return self._accel or None
+
     def _initial_positions(self) -> list[np.ndarray | None]:
         """The assembly at t0: the joints from the guesses, then every equation (drives
         included), each by damped Gauss-Newton with minimum-norm steps (the configuration
@@ -147,7 +167,7 @@ class DynamicRun(Run):
 
         #: the system as variant v sees it: its params, its functions
         self.one, self.variant = _one(self.system, v), v
-        self.ev = _Evaluator(self.one, self.D[v, 0])
+        self.ev = _Evaluator(self.one, self.D[v, 0], self._compiled())
         sysm, times, d = self.one, self.times, self.one.dynamics
         n = sysm.n
         t0 = float(times[0])
@@ -247,11 +267,13 @@ def _one(system: System, v: int) -> System:
 
 
 def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a x = b; LinAlgError where a is singular. (numpy's LAPACK call: scipy's dgesv is
-    5 us faster on Andrews' 41 x 41 system, but importing scipy.linalg costs 0.12 s of
-    every start-up, more than the calls save.)"""
-    x = np.linalg.solve(a, b)
-    if not np.isfinite(x).all():
+    """a x = b by LAPACK's dgesv through scipy (9 us on Andrews' 41 x 41 system, against
+    np.linalg.solve's 20: its checks cost more than the arithmetic); LinAlgError where a is
+    singular. scipy.linalg is imported by the forward dynamics only (0.1 s of start-up)."""
+    from scipy.linalg.lapack import dgesv
+
+    _, _, x, info = dgesv(a, b)
+    if info != 0 or not np.isfinite(x).all():
         raise np.linalg.LinAlgError("singular matrix")
     return x
 
@@ -260,7 +282,7 @@ def _min_norm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The minimum-norm solution of a x = b for a of full row rank: a^T (a a^T)^-1 b (the
     least-squares one where a a^T is singular)."""
     try:
-        return a.T @ np.linalg.solve(a @ a.T, b)
+        return a.T @ _solve(a @ a.T, b)
     except np.linalg.LinAlgError:
         return np.linalg.lstsq(a, b, rcond=None)[0]
 
@@ -273,21 +295,26 @@ class _Evaluator:
     otherwise, or where a scalar kernel meets a value outside a function's domain, by the
     array kernels."""
 
-    def __init__(self, system: System, D: np.ndarray) -> None:
-        from ..symbolic.codegen import scalar_functions, scalar_kernel
+    def __init__(self, system: System, D: np.ndarray, compiled=None) -> None:
+        from ..symbolic.codegen import joint_scalar_kernel, scalar_functions, scalar_kernel
 
         self.system, self.D = system, D
+        #: the compiled accel of the backend (mechdsl.compiled.native), or None
+        self.compiled = compiled
         f, d = system.fused, system.dynamics
         self.n, self.m = n, m = system.n, system.m
         self.scalar = f is not None and f.layout == "member" and d.graph is not None
         if self.scalar:
             self.k_phi_jac = scalar_kernel(f.graph, [*f.phi_nodes, *f.jac_nodes], "phi_jac")
-            self.k_gamma = scalar_kernel(f.graph, list(f.gamma_nodes), "gamma")
-            self.k_load = scalar_kernel(d.graph, list(d.load_nodes), "load")
-            self.k_mass = scalar_kernel(d.graph, list(d.mass_nodes), "mass")
+            #: Phi_q's entries, gamma, Q and M's entries: everything the index-1 system needs
+            self.k_motion = joint_scalar_kernel(
+                [(f.graph, [*f.jac_nodes, *f.gamma_nodes]),
+                 (d.graph, [*d.load_nodes, *d.mass_nodes])], "motion")
+            self.cuts = np.cumsum([len(f.jac_nodes), m, n])
             self.p = [float(np.asarray(x).reshape(-1)[0]) for x in f.params]
             self.F = scalar_functions(f.functions)
             self.pd = [float(np.asarray(x).reshape(-1)[0]) for x in d.params]
+            self.p_arr, self.pd_arr = np.array(self.p), np.array(self.pd)
             self.Fd = scalar_functions(d.functions)
             rows, cols = f.rows, f.cols
             self.jac_flat = rows * n + cols
@@ -332,16 +359,22 @@ class _Evaluator:
         """qdd (n,) and lambda (m,) from [M Phi_q^T; Phi_q 0][qdd; lambda] = [Q; gamma]."""
         n, m = self.n, self.m
         big = n + m
+        if self.compiled is not None:
+            qdd, lam = np.empty(n), np.empty(m)
+            if not self.compiled(t, q, qd, self.p_arr, self.pd_arr, qdd, lam):
+                raise np.linalg.LinAlgError("singular matrix")
+            return qdd, lam
         if self.scalar:
             try:
-                qs, qds = q.tolist(), qd.tolist()
-                out = self.k_phi_jac(qs, (), t, self.p, self.F)
+                out = self.k_motion(q.tolist(), qd.tolist(), t, (self.p, self.pd),
+                                    (self.F, self.Fd))
+                nnz, g_end, q_end = self.cuts
                 a = np.zeros(big * big)
-                a[self.aug_jac] = out[m:]
-                a[self.aug_jac_t] = out[m:]
-                a[self.aug_mass] = self.k_mass(qs, (), t, self.pd, self.Fd)
-                rhs = np.array(self.k_load(qs, qds, t, self.pd, self.Fd)
-                               + self.k_gamma(qs, qds, t, self.p, self.F))
+                jac = out[:nnz]
+                a[self.aug_jac] = jac
+                a[self.aug_jac_t] = jac
+                a[self.aug_mass] = out[q_end:]
+                rhs = np.array(out[g_end:q_end] + out[nnz:g_end])
                 if self.drive_rows.size:
                     rhs[n + self.drive_rows] += self._drives(t, "fdd")
                 sol = _solve(a.reshape(big, big), rhs)

@@ -58,9 +58,10 @@ CALLED = sorted(set(_CALLS.values()))
 
 
 def assignments(graph: Graph, outputs: Sequence[Node], read: Callable[[tuple], str],
-                major: bool = False) -> tuple[list[str], dict[int, str]]:
+                major: bool = False, prefix: str = "") -> tuple[list[str], dict[int, str]]:
     """Assignments for every operation node the outputs need, in topological order, and the
-    name of each node; ``read(key)`` is the expression that reads a variable. Numpy's
+    name of each node (``prefix`` before every name, to join the code of two graphs);
+    ``read(key)`` is the expression that reads a variable. Numpy's
     functions are called by their names in :data:`CALLED` (and constants may be ``nan``,
     ``inf``): the namespace the code runs in provides them. (Also the compiled backend's.)"""
     names: dict[int, str] = {}
@@ -70,7 +71,7 @@ def assignments(graph: Graph, outputs: Sequence[Node], read: Callable[[tuple], s
             names[n.id] = _const(n.value)
             continue
         if n.op == "var":
-            name = "v_" + "_".join(map(str, n.value))
+            name = f"{prefix}v_" + "_".join(map(str, n.value))
             lines.append(f"{name} = {read(n.value)}")
         else:
             a = [names[x.id] for x in n.args]
@@ -87,7 +88,7 @@ def assignments(graph: Graph, outputs: Sequence[Node], read: Callable[[tuple], s
                         else f"F[{index}][{order}]({a[0]})")
             else:
                 expr = f"{_CALLS[n.op]}({', '.join(a)})"
-            name = f"n{n.id}"
+            name = f"{prefix}n{n.id}"
             lines.append(f"{name} = {expr}")
         names[n.id] = name
     return lines, names
@@ -198,9 +199,28 @@ class ScalarKernel:
 def scalar_kernel(graph: Graph, outputs: Sequence[Node], name: str = "scalar") -> ScalarKernel:
     """Compile ``outputs`` (variables q, qd, p, t; not the gathered layout) into one
     function of floats (see :class:`ScalarKernel`)."""
-    lines, names = assignments(graph, outputs, _read_scalar)
-    body = [f"def {name}(q, qd, t, p, F):"] + [f"    {ln}" for ln in lines]
-    body.append(f"    return [{', '.join(names[n.id] for n in outputs)}]")
+    return joint_scalar_kernel([(graph, outputs)], name, single=True)
+
+
+def joint_scalar_kernel(parts: Sequence[tuple[Graph, Sequence[Node]]],
+                        name: str = "scalar", single: bool = False) -> ScalarKernel:
+    """One function of floats for the outputs of several graphs, in order:
+    ``fn(q, qd, t, p, F)`` with ``p`` and ``F`` sequences of each graph's parameters and
+    functions (``p[i][j]``, ``F[i][k]``; with ``single``, one graph's, ``p[j]``); one list
+    of every output."""
+    body = [f"def {name}(q, qd, t, p, F):"]
+    out = []
+    for i, (graph, outputs) in enumerate(parts):
+        body.append(f"    p{i}, F{i} = p, F" if single else f"    p{i}, F{i} = p[{i}], F[{i}]")
+
+        def read(key: tuple, i: int = i) -> str:
+            text = _read_scalar(key)
+            return f"p{i}{text[1:]}" if key[0] == "p" else text
+
+        lines, names = assignments(graph, outputs, read, prefix=f"g{i}")
+        body += [f"    {ln}".replace("F[", f"F{i}[") for ln in lines]
+        out += [names[n.id] for n in outputs]
+    body.append(f"    return [{', '.join(out)}]")
     source = "\n".join(body) + "\n"
     namespace = dict(_SCALAR_NAMESPACE)
     exec(compile(source, f"<mechdsl generated {name}>", "exec"), namespace)  # noqa: S102
