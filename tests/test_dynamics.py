@@ -112,3 +112,52 @@ def test_the_compiled_backend_integrates_the_same_motion():
         np.testing.assert_allclose(fast[name], slow[name], rtol=1e-6,
                                    atol=1e-6 * np.abs(slow[name]).max())
     assert fast.residual <= 1e-10
+
+
+def test_a_pendulum_on_a_cart_driven_at_constant_speed_swings_as_on_a_fixed_pivot():
+    # a mixed case: the cart's x is driven (x = v t), the pendulum is free; in the cart's
+    # frame, moving uniformly, it swings exactly as the fixed pendulum (Galilean invariance)
+    length = 1.2
+    T = float(4 * np.sqrt(length / G) * ellipk(0.5))
+    text = f"""
+    body cart {{ mass = 3  inertia = 0.1 }}
+    body rod {{ guess = (0, 0, 0)  point tip = ({length}, 0)
+               mass = 2  inertia = 0  centroid = ({length}, 0) }}
+    joint slide: prismatic(ground.origin, cart.origin, axis = (1, 0))
+    joint pivot: revolute(cart.origin, rod.origin)
+    drive move: x(cart.origin) = 0.7*t
+    gravity = (0, -{G})
+    simulate t = 0 .. {T} step {T / 40}, rtol = 1e-12, atol = 1e-14
+    output rod.phi, rod.omega, rod.alpha, move.force, cart.vx
+    """
+    res = mechdsl.loads(text, "cart.mech").simulate()
+    assert res.status == "ok", res.messages
+    t, phi, w = res["t"], res["rod.phi"], res["rod.omega"]
+    for k, when in ((10, T / 4), (30, 3 * T / 4)):
+        assert abs(t[k] - (phi[k] + np.pi / 2) / w[k] - when) <= 1e-9 * T
+    np.testing.assert_allclose(res["cart.vx"], 0.7, rtol=0, atol=1e-12)
+    # the cart does not accelerate: the drive's force balances the pendulum's pull on it,
+    # which is the rod's mass times its centre's horizontal acceleration (its weight is
+    # vertical), -L (sin(phi) alpha + cos(phi) omega^2)
+    ax = -length * (np.sin(phi) * res["rod.alpha"] + np.cos(phi) * w**2)
+    np.testing.assert_allclose(res["move.force"], 2 * ax, rtol=0,
+                               atol=1e-9 * np.abs(2 * ax).max())
+
+
+def test_an_interrupt_keeps_the_instants_integrated_before_it():
+    system = mechdsl.loads(pendulum(1.0), "p.mech").compile()
+    from mechdsl.solve import simulate
+
+    def progress(done, total):
+        if done == 12:
+            raise KeyboardInterrupt
+
+    res = simulate(system, progress=progress)
+    assert res.status == "interrupted"
+    k = int(res.n_solved[0])
+    assert k == 12
+    phi = res["rod.phi"]
+    assert np.isfinite(phi[:k]).all() and np.isnan(phi[k:]).all()
+    # what was kept is the motion: the pendulum's energy per unit mass is still zero
+    vx, vy, y = res["rod.tip.vx"][:k], res["rod.tip.vy"][:k], res["rod.tip.y"][:k]
+    assert np.abs(0.5 * (vx**2 + vy**2) + G * y).max() <= 1e-9 * G
