@@ -206,35 +206,28 @@ class Mechanism:
     def _check_dynamic(self, system: System, lines: list[str], done, opts) -> "CheckReport":
         """:meth:`check` of a mechanism with free degrees of freedom and masses: its
         assembly, its mobility, and whether its equations of motion can be solved at t0."""
-        from .solve.dynamic import DynamicRun, _Evaluator
+        from .solve.dynamic import DynamicRun
 
-        run = DynamicRun(system, opts)
-        q0 = run._initial_positions()
-        if q0[0] is None:
-            return done(error=NumericalError(run.failures[0], source=system.source))
+        q0, trouble = DynamicRun(system, opts).initial_state()
+        if q0 is None:
+            return done(error=NumericalError(trouble, source=system.source))
         t0 = float(system.times[0]) if system.times is not None else 0.0
         lines.append(f"assembled at t = {t0:g}:")
         width = max(len(b) for b in system.body_names)
         for i, b in enumerate(system.body_names):
-            x, y, phi = q0[0][3 * i : 3 * i + 3]
+            x, y, phi = q0[3 * i : 3 * i + 3]
             lines.append(f"  {b:<{width}}  x = {x:< 12.6g} y = {y:< 12.6g} phi = {phi:.6g}")
         D = col_scale(system)
-        mobility, rank, redundant = report(one_variant(system, 0), q0[0], D[0, 0])
+        mobility, rank, redundant = report(one_variant(system, 0), q0, D[0, 0])
         drives = len(system.drive_rows)
         lines.append(f"mobility {mobility} = {system.n} coordinates - {rank} independent "
                      f"equations; {_count(drives, 'drive')}: {mobility} degree"
                      f"{'s' if mobility != 1 else ''} of freedom left to the forward dynamics")
-        run.one = one_variant(system, 0)
-        run.ev = _Evaluator(run.one, D[0, 0])
-        try:
-            run._augmented(0, t0, q0[0], np.zeros(system.n))
-        except np.linalg.LinAlgError:
-            return done(mobility=mobility, rank=rank, redundant=redundant,
-                        error=NumericalError(run._singular_message(0, t0),
-                                             source=system.source))
-        return done(mobility=mobility, rank=rank, redundant=redundant,
-                    verdict=f"ok: assembles at t = {t0:g}; the equations of motion are "
-                            "regular there")
+        found = dict(mobility=mobility, rank=rank, redundant=redundant)
+        if trouble is not None:
+            return done(**found, error=NumericalError(trouble, source=system.source))
+        return done(**found, verdict=f"ok: assembles at t = {t0:g}; the equations of motion "
+                                     "are regular there")
 
     def compile(self, overrides: Overrides | None = None, *, need_times: bool = True) -> System:
         """Resolve the model against the registry (see

@@ -161,3 +161,30 @@ def test_an_interrupt_keeps_the_instants_integrated_before_it():
     # what was kept is the motion: the pendulum's energy per unit mass is still zero
     vx, vy, y = res["rod.tip.vx"][:k], res["rod.tip.vy"][:k], res["rod.tip.y"][:k]
     assert np.abs(0.5 * (vx**2 + vy**2) + G * y).max() <= 1e-9 * G
+
+
+def test_check_reports_the_freedom_left_to_the_dynamics_and_a_singular_start():
+    report = mechdsl.load(EXAMPLES / "andrews.mech").check()
+    assert report.error is None and report.mobility == 1
+    assert any("1 degree of freedom left to the forward dynamics" in ln for ln in report.lines)
+    assert any(ln.strip().startswith("force spring") for ln in report.lines)
+    text = pendulum(1.0).replace("mass = 2  inertia = 0  centroid = (L, 0)", "")
+    text = text.replace("gravity", "body other { mass = 1 }\ngravity")
+    bad = mechdsl.loads(text, "p.mech").check()
+    assert bad.error is not None and "singular" in str(bad.error)
+
+
+def test_the_command_line_tolerance_overrides_the_file(tmp_path):
+    import subprocess
+    import sys
+
+    errors = {}
+    for extra in ([], ["--rtol", "1e-4", "--atol", "1e-6"]):
+        out = tmp_path / f"a{len(extra)}.csv"
+        subprocess.run([sys.executable, "-m", "mechdsl", "run", str(EXAMPLES / "andrews.mech"),
+                        "-o", str(out), "-q", *extra], check=True)
+        header = out.read_text().splitlines()[0].split(",")
+        last = np.loadtxt(out, delimiter=",", comments="#", skiprows=1)[-1]
+        got = np.array([last[header.index(name)] for name in ANDREWS_NAMES])
+        errors[len(extra)] = (np.abs(got - ANDREWS_Q) / np.abs(ANDREWS_Q)).max()
+    assert errors[0] <= 1e-7 < 1e-5 < errors[4]

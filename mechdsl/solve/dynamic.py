@@ -117,6 +117,21 @@ class DynamicRun(Run):
         return self.results(status, time.perf_counter() - start, residual=self.residual,
                             poses=poses, rates=rates)
 
+    def initial_state(self) -> tuple[np.ndarray | None, str | None]:
+        """The first variant's configuration at t0 (the assembly this run starts from) and,
+        where there is none or the equations of motion are singular there, the message
+        that the run would stop with (what ``mechdsl check`` reports)."""
+        q0 = self._initial_positions()[0]
+        if q0 is None:
+            return None, self.failures[0]
+        self.one, self.variant = _one(self.system, 0), 0
+        self.ev = _Evaluator(self.one, self.D[0, 0])
+        try:
+            self.ev.accelerations(float(self.times[0]), q0, np.zeros(self.system.n))
+        except np.linalg.LinAlgError:
+            return q0, self._singular_message(0, float(self.times[0]))
+        return q0, None
+
     def _compiled(self):
         """The compiled equations of motion where the options ask for the compiled backend
         ("compiled": a small forward dynamics never pays numba's start-up unasked), numba
