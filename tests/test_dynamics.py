@@ -188,3 +188,20 @@ def test_the_command_line_tolerance_overrides_the_file(tmp_path):
         got = np.array([last[header.index(name)] for name in ANDREWS_NAMES])
         errors[len(extra)] = (np.abs(got - ANDREWS_Q) / np.abs(ANDREWS_Q)).max()
     assert errors[0] <= 1e-7 < 1e-5 < errors[4]
+
+
+def test_andrews_keeps_its_energy_balance():
+    # E = T + V_spring - mom (beta - beta0) is constant (the torque's work leaves through
+    # the last term); its published value at t = 0, and within 1e-8 at rtol = 1e-8
+    from mechdsl.solve import SolverOptions
+
+    text = (EXAMPLES / "andrews.mech").read_text().replace(
+        "output beta", "output kinetic_energy, potential_energy, beta")
+    res = mechdsl.loads(text, "andrews.mech").simulate(
+        options=SolverOptions(rtol=1e-8, atol=1e-10))
+    assert res.status == "ok"
+    energy = res["kinetic_energy"] + res["potential_energy"] - 0.033 * (res["beta"]
+                                                                        - res["beta"][0])
+    assert energy[0] == pytest.approx(ANDREWS_ENERGY, rel=1e-14)
+    assert np.abs(energy / ANDREWS_ENERGY - 1).max() <= 1e-8
+    assert np.ptp(res["kinetic_energy"]) > 1.0  # the energy does change form

@@ -19,7 +19,7 @@ from ..grammar import expr as E
 from ..grammar.checks import TIME, check_expr
 from ..grammar.derive import derivative, total_derivative
 from ..grammar.model import (
-    BODY_QUANTITIES, DRIVE_QUANTITIES, GROUND, JOINT_QUANTITIES, ORIGIN, POINT_QUANTITIES, Body,
+    BODY_QUANTITIES, DRIVE_QUANTITIES, ENERGY_QUANTITIES, GROUND, JOINT_QUANTITIES, ORIGIN, POINT_QUANTITIES, Body,
     Drive, Force, Joint, Model, NamedOutput, Vector,
 )
 from ..memory import check_compile
@@ -33,7 +33,8 @@ from .shapes import mass_properties, shape_edges
 from .sparse import Pattern
 from . import dynamics as dyn
 from .system import (
-    Constraint, DriveFunction, ExprOutput, Group, OutputSpec, ReactionOutput, Sketch, System,
+    Constraint, DriveFunction, EnergyOutput, ExprOutput, Group, OutputSpec, ReactionOutput,
+    Sketch, System,
 )
 from .variants import Overrides, evaluate, time_grid
 
@@ -192,7 +193,7 @@ class _Compiler:
         wanted = (model.forces or model.gravity is not None
                   or any(b.mass is not None or b.density is not None or b.v0 is not None
                          for b in self.bodies)
-                  or any(isinstance(o, ReactionOutput) for o in outputs))
+                  or any(isinstance(o, (ReactionOutput, EnergyOutput)) for o in outputs))
         if not wanted:
             return None
         V, nb = self.V, len(self.bodies)
@@ -575,6 +576,8 @@ class _Compiler:
 
     def _output(self, parts: tuple[str, ...], span: Span) -> list[OutputSpec]:
         body = parts[0]
+        if body not in self.body_index and parts in ((q,) for q in ENERGY_QUANTITIES):
+            return [EnergyOutput(body, 1 if body == "kinetic_energy" else 0)]
         if body not in self.body_index:
             for k, c in enumerate(self.constraints):
                 if c.name == body:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from .sparse import LU_BATCH, LUJac, SparseJac
-from .system import ExprOutput, ReactionOutput, System
+from .system import EnergyOutput, ExprOutput, ReactionOutput, System
 
 
 def drive_values(system: System, t: np.ndarray, which: str, shape) -> np.ndarray:
@@ -180,6 +180,10 @@ def output_values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
     A named output (:class:`~mechdsl.compiled.system.ExprOutput`) is its expression evaluated on the
     params, t and the quantities it reads.
     """
+    if isinstance(spec, EnergyOutput):
+        d = system.dynamics
+        with np.errstate(all="ignore"):
+            return (d.kinetic_energy(q, qd) if spec.order else d.potential_energy(q)).copy()
     if isinstance(spec, ReactionOutput):
         cache = {} if cache is None else cache
         if "lambda" not in cache:

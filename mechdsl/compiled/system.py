@@ -101,6 +101,16 @@ class ReactionOutput:
 
 
 @dataclass(frozen=True)
+class EnergyOutput:
+    """The mechanism's kinetic energy 1/2 qd^T M qd (``order`` 1) or the potential energy of
+    gravity and of the force elements that write one (``order`` 0)."""
+
+    label: str
+    order: int
+    unit: str = ""
+
+
+@dataclass(frozen=True)
 class Sketch:
     """What a drawing of the mechanism needs, in body frames; body index ``n_bodies`` is the
     ground. ``outlines[i]`` (V, P, 2): the points of body i in declaration order (its origin
@@ -168,6 +178,21 @@ class System:
         from . import native
 
         return native.load(self)
+
+    @functools.cached_property
+    def scalar_kernels(self):
+        """The forward dynamics' one-state kernels on floats
+        (:func:`mechdsl.symbolic.codegen.scalar_kernel`): ``(phi_jac, motion)``, Phi and
+        Phi_q's entries, and Phi_q's entries, gamma, Q and M's entries; None where the model
+        is traced type by type (the group layout) or has no masses."""
+        from ..symbolic.codegen import joint_scalar_kernel, scalar_kernel
+
+        f, d = self.fused, self.dynamics
+        if f is None or d is None or f.layout != "member" or d.graph is None:
+            return None
+        return (scalar_kernel(f.graph, [*f.phi_nodes, *f.jac_nodes], "phi_jac"),
+                joint_scalar_kernel([(f.graph, [*f.jac_nodes, *f.gamma_nodes]),
+                                     (d.graph, [*d.load_nodes, *d.mass_nodes])], "motion"))
 
     @property
     def n_bodies(self) -> int:

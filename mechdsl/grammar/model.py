@@ -22,6 +22,8 @@ POINT_QUANTITIES = ("x", "y", "vx", "vy", "ax", "ay")
 #: drive ``D.q`` (the actuator's effort, a torque or a force, and its power)
 JOINT_QUANTITIES = ("fx", "fy", "torque")
 DRIVE_QUANTITIES = ("torque", "force", "power")
+#: The mechanism's energies, output quantities of their own
+ENERGY_QUANTITIES = ("kinetic_energy", "potential_energy")
 #: The options of the simulate statement: the forward dynamics' tolerances
 SIMULATE_OPTIONS = ("rtol", "atol")
 

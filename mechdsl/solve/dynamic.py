@@ -311,32 +311,31 @@ class _Evaluator:
     array kernels."""
 
     def __init__(self, system: System, D: np.ndarray, compiled=None) -> None:
-        from ..symbolic.codegen import joint_scalar_kernel, scalar_functions, scalar_kernel
+        from ..symbolic.codegen import scalar_functions
 
         self.system, self.D = system, D
         #: the compiled accel of the backend (mechdsl.compiled.native), or None
         self.compiled = compiled
         f, d = system.fused, system.dynamics
         self.n, self.m = n, m = system.n, system.m
-        self.scalar = f is not None and f.layout == "member" and d.graph is not None
+        kernels = system.scalar_kernels
+        self.scalar = kernels is not None
         if self.scalar:
-            self.k_phi_jac = scalar_kernel(f.graph, [*f.phi_nodes, *f.jac_nodes], "phi_jac")
-            #: Phi_q's entries, gamma, Q and M's entries: everything the index-1 system needs
-            self.k_motion = joint_scalar_kernel(
-                [(f.graph, [*f.jac_nodes, *f.gamma_nodes]),
-                 (d.graph, [*d.load_nodes, *d.mass_nodes])], "motion")
+            self.k_phi_jac, self.k_motion = kernels
             self.cuts = np.cumsum([len(f.jac_nodes), m, n])
             self.p = [float(np.asarray(x).reshape(-1)[0]) for x in f.params]
             self.F = scalar_functions(f.functions)
             self.pd = [float(np.asarray(x).reshape(-1)[0]) for x in d.params]
-            self.p_arr, self.pd_arr = np.array(self.p), np.array(self.pd)
             self.Fd = scalar_functions(d.functions)
+            self.p_arr, self.pd_arr = np.array(self.p), np.array(self.pd)
             rows, cols = f.rows, f.cols
             self.jac_flat = rows * n + cols
             big = n + m
-            self.aug_jac = (rows + n) * big + cols
-            self.aug_jac_t = cols * big + rows + n
-            self.aug_mass = d.rows * big + d.cols
+            #: where the entries of Phi_q (twice) and M go in the augmented matrix, in the
+            #: order the motion kernel gives them
+            self.aug = np.concatenate(((rows + n) * big + cols, cols * big + rows + n,
+                                       d.rows * big + d.cols))
+            self.a = np.zeros((big, big))
         self.drive_rows = system.drive_rows
 
     def _drives(self, t: float, which: str) -> np.ndarray:
@@ -384,15 +383,13 @@ class _Evaluator:
                 out = self.k_motion(q.tolist(), qd.tolist(), t, (self.p, self.pd),
                                     (self.F, self.Fd))
                 nnz, g_end, q_end = self.cuts
-                a = np.zeros(big * big)
                 jac = out[:nnz]
-                a[self.aug_jac] = jac
-                a[self.aug_jac_t] = jac
-                a[self.aug_mass] = out[q_end:]
+                # the same positions every time: the other entries stay zero
+                self.a.flat[self.aug] = jac + jac + out[q_end:]
                 rhs = np.array(out[g_end:q_end] + out[nnz:g_end])
                 if self.drive_rows.size:
                     rhs[n + self.drive_rows] += self._drives(t, "fdd")
-                sol = _solve(a.reshape(big, big), rhs)
+                sol = _solve(self.a, rhs)
                 return sol[:n], sol[n:]
             except (ValueError, ZeroDivisionError, OverflowError):
                 pass
