@@ -205,3 +205,20 @@ def test_andrews_keeps_its_energy_balance():
     assert energy[0] == pytest.approx(ANDREWS_ENERGY, rel=1e-14)
     assert np.abs(energy / ANDREWS_ENERGY - 1).max() <= 1e-8
     assert np.ptp(res["kinetic_energy"]) > 1.0  # the energy does change form
+
+
+def test_a_spring_is_drawn_between_its_points():
+    from mechdsl.outputs.draw import zigzag
+
+    system = mechdsl.load(EXAMPLES / "andrews.mech").compile()
+    ((b1, xy1, b2, xy2),) = system.sketch.links
+    assert system.body_names[b1] == "triangle" and b2 == system.n_bodies  # to the ground
+    np.testing.assert_allclose(xy1[0], [0.02, -0.018])
+    np.testing.assert_allclose(xy2[0], [0.014, 0.072])
+    p, q = np.array([1.0, 2.0]), np.array([4.0, 6.0])
+    z = zigzag(p, q)
+    np.testing.assert_allclose(z[[0, -1]], [p, q])
+    # every vertex lies within a twentieth of the length from the line p-q
+    u = (q - p) / 5.0
+    offsets = (z - p) @ np.array([-u[1], u[0]])
+    assert np.abs(offsets).max() == pytest.approx(0.05 * 5.0)

@@ -178,11 +178,19 @@ class _Compiler:
         """The force elements, packed by type like the constraints (rows unused)."""
         packed: dict[str, list] = {}
         elements = []
+        #: (body, (V, 2), body, (V, 2)): the force elements drawn between two points
+        self.links = []
         for f in self.model.forces:
             ftype = self._type("force", f.type_name, f.type_span)
             slots, params = self._bind(f, ftype)
             elements.append(dyn.ForceElement(f.name, f.type_name, f.span,
                                              tuple(self._name_of(s) for s in slots)))
+            points = [a.name for a in ftype.signature if a.kind == "point"]
+            if len(points) >= 2:  # drawn as a spring between its first two points
+                refs = [a for a in ftype.signature if a.is_reference]
+                k1, k2 = (refs.index(next(a for a in refs if a.name == n)) for n in points[:2])
+                self.links.append((slots[k1], _readonly(params[points[0]]), slots[k2],
+                                   _readonly(params[points[1]])))
             packed.setdefault(f.type_name, [ftype, []])[1].append(
                 (len(elements) - 1, slots, params, (0, 0)))
         return [self._group(ftype, members) for ftype, members in packed.values()], elements
@@ -502,7 +510,8 @@ class _Compiler:
                                 + suggest(point, self.points[body], f"{body}."), r.span)
             traces.append(('.'.join(r.parts), i, _readonly(self.points[body][point])))
         shapes = tuple(shape_edges(b, self.var) for b in [*self.bodies, self.model.ground])
-        return Sketch(tuple(outlines), tuple(pins), tuple(traces), shapes)
+        return Sketch(tuple(outlines), tuple(pins), tuple(traces), shapes,
+                      tuple(getattr(self, "links", ())))
 
     def _outputs(self) -> list[OutputSpec | ExprOutput]:
         refs = self.model.outputs

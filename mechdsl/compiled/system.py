@@ -123,6 +123,9 @@ class Sketch:
     traces: tuple[tuple[str, int, np.ndarray], ...]
     #: per body (the ground last), the edges (V, E, 2, 2) of its shape's outline, or None
     shapes: tuple[np.ndarray | None, ...] = ()
+    #: force elements between two points (springs), drawn as zigzags: (body, (V, 2), body,
+    #: (V, 2))
+    links: tuple = ()
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ Pillow holds each as a palette image (one byte a pixel).
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -90,6 +90,8 @@ class _Frames:
     ground: np.ndarray
     #: per body with a shape: its outline's edges (V, K, E, 2, 2)
     shapes: list[np.ndarray]
+    #: per spring-like force element: its two ends (V, K, 2) each
+    links: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
 
 
 def _frames(results: Results, system: System) -> _Frames:
@@ -100,7 +102,23 @@ def _frames(results: Results, system: System) -> _Frames:
     ground = world(results.poses, nb, drawn[nb])
     pins = [world(results.poses, body, xy) for body, xy in sk.pins]
     shapes = [world(results.poses, i, e) for i, e in enumerate(sk.shapes) if e is not None]
-    return _Frames(bodies, pins, paths(results, sk), ground, shapes)
+    links = [(world(results.poses, b1, xy1), world(results.poses, b2, xy2))
+             for b1, xy1, b2, xy2 in sk.links]
+    return _Frames(bodies, pins, paths(results, sk), ground, shapes, links)
+
+
+def zigzag(p: np.ndarray, q: np.ndarray, turns: int = 8) -> np.ndarray:
+    """A spring's drawing from p to q: straight ends and ``turns`` zigzags between them, a
+    tenth of its length wide."""
+    d = q - p
+    length = float(np.hypot(*d))
+    if not length > 0:
+        return np.array([p, q])
+    u, n = d / length, np.array([-d[1], d[0]]) / length
+    s = np.concatenate(([0.0, 0.15], np.linspace(0.15, 0.85, 2 * turns + 1)[1:-1], [0.85, 1.0]))
+    side = np.zeros(len(s))
+    side[2:-2] = np.where(np.arange(len(s) - 4) % 2 == 0, 1.0, -1.0)
+    return p + np.outer(s * length, u) + np.outer(side * 0.05 * length, n)
 
 
 def _need_poses(results: Results) -> None:
@@ -231,8 +249,10 @@ class _Artists:
                                alpha=alpha, zorder=3)[0]
         self.shape_art = ax.add_collection(LineCollection([], colors=["0.2"], linewidths=1.0,
                                                           alpha=alpha, zorder=2))
+        self.link_art = ax.add_collection(LineCollection([], colors=["0.35"], linewidths=1.0,
+                                                         alpha=alpha, zorder=1))
         self.artists = [self.bar_art, self.plate_art, self.dot_art, self.pin_art,
-                        self.shape_art]
+                        self.shape_art, self.link_art]
 
     def update(self, v: int, k: int) -> list:
         fr = self.fr
@@ -244,6 +264,7 @@ class _Artists:
         self.pin_art.set_data(pins[:, 0], pins[:, 1])
         edges = [e for shape in fr.shapes for e in shape[v, k]]
         self.shape_art.set_segments(edges)
+        self.link_art.set_segments([zigzag(a[v, k], b[v, k]) for a, b in fr.links])
         return self.artists
 
 
