@@ -222,3 +222,18 @@ def test_a_spring_is_drawn_between_its_points():
     u = (q - p) / 5.0
     offsets = (z - p) @ np.array([-u[1], u[0]])
     assert np.abs(offsets).max() == pytest.approx(0.05 * 5.0)
+
+
+def test_a_sweep_integrates_every_variant_with_its_own_values():
+    lengths = [0.5, 1.0, 2.0]
+    text = pendulum(1.0).replace("param L = 1.0", "param L = 1.0\nsweep L = [0.5, 1.0, 2.0]")
+    res = mechdsl.loads(text, "p.mech").simulate()
+    assert res.status == "ok"
+    for v, length in enumerate(lengths):
+        x, y, vx, vy = (res[k][v] for k in ("rod.tip.x", "rod.tip.y", "rod.tip.vx",
+                                             "rod.tip.vy"))
+        assert np.abs(np.hypot(x, y) - length).max() <= 1e-12 * length
+        assert np.abs(0.5 * (vx**2 + vy**2) + G * y).max() <= 1e-9 * G * length
+    # a longer pendulum swings slower: at the same instant it has fallen less far
+    k = len(res["t"]) // 8
+    assert res["rod.phi"][0, k] < res["rod.phi"][1, k] < res["rod.phi"][2, k] < 0

@@ -135,9 +135,20 @@ def one_variant(system: System, v: int) -> System:
                                       for k, a in g.params.items()})
                    for g in system.groups)
     return replace(system, groups=groups, env={k: a[v : v + 1] for k, a in system.env.items()},
+                   outputs=tuple(_output_variant(o, v) for o in system.outputs),
                    n_variants=1, scale=system.scale[v : v + 1], guess=system.guess[v : v + 1],
                    fused=None if system.fused is None else system.fused.variant(v),
                    dynamics=None if system.dynamics is None else system.dynamics.variant(v))
+
+
+def _output_variant(spec, v: int):
+    """An output column's spec for variant ``v`` alone (its point's coordinates)."""
+    if getattr(spec, "point", None) is not None:
+        return replace(spec, point=spec.point[v : v + 1])
+    if getattr(spec, "inputs", None):
+        return replace(spec, inputs=tuple((name, _output_variant(s, v))
+                                          for name, s in spec.inputs))
+    return spec
 
 
 def failure(system: System, q_last: np.ndarray, t_last: float, v: int, target: float,
