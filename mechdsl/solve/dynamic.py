@@ -29,6 +29,7 @@ import numpy as np
 from ..compiled import equations as eq
 from ..compiled.system import System
 from ..errors import MechError
+from ..memory import plan
 from ..results import Results
 from .assembly import gauss_newton
 from .base import Progress, Run
@@ -59,6 +60,10 @@ class DynamicRun(Run):
                             "coordinates (redundant constraints) is not supported: remove the "
                             "redundant joints", source=system.source)
         self.keep_poses, self.keep_rates = poses or rates, rates
+        # refused before anything the size of the run is allocated, as the kinematics is
+        plan(system, self.opts.max_memory, self.opts.max_batch_elements, sparse=False,
+             poses=poses or rates, rates=rates, extra=extra_memory,
+             compiled=self.opts.backend == "compiled")
         tol = system.tolerances  # the file's; options given explicitly override them
         self.rtol = self.opts.rtol or tol.get("rtol", RTOL)
         self.atol = self.opts.atol or tol.get("atol", ATOL)
@@ -205,10 +210,12 @@ class DynamicRun(Run):
             qdd, _ = self._augmented(v, t, y[:n], y[n:])
             return np.concatenate((y[n:], qdd))
 
+        V = self.system.n_variants
+
         def record(k: int, t: float, y: np.ndarray) -> None:
             self._record(k, t, y)
-            if self.progress is not None and v == self.system.n_variants - 1:
-                self.progress(k + 1, len(times))
+            if self.progress is not None:  # the variants one after another
+                self.progress((v * len(times) + k + 1) // V, len(times))
 
         K = len(times)
         #: the states at the output instants, written as outputs when the variant ends
