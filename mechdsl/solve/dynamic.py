@@ -69,12 +69,12 @@ class DynamicRun(Run):
         self.atol = self.opts.atol or tol.get("atol", ATOL)
 
     # -- the equations of one variant --------------------------------------------------------
-    def _augmented(self, v: int, t: float, q: np.ndarray, qd: np.ndarray
+    def _augmented(self, t: float, q: np.ndarray, qd: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
         """qdd and lambda of the current variant at (t, q, qd) from the index-1 system."""
         return self.ev.accelerations(t, q, qd)
 
-    def _project(self, v: int, t: float, y: np.ndarray) -> np.ndarray:
+    def _project(self, t: float, y: np.ndarray) -> np.ndarray:
         """(q, qd) moved onto Phi(q, t) = 0 and Phi_q qd = nu: Gauss-Newton with the
         minimum-norm correction in coordinates scaled by D, dz = -(J D)^+ Phi, then
         qd -= D (J D)^+ (J qd - nu)."""
@@ -91,6 +91,9 @@ class DynamicRun(Run):
             q -= D * dz
             if not np.abs(dz).max() > self.opts.newton_tol:
                 break
+        else:  # the integrator reports it, with the instant
+            raise np.linalg.LinAlgError("the position constraints cannot be closed there "
+                                        "(a lock-up)")
         _, jac = ev.phi_jac(t, q)
         qd -= D * _min_norm(jac * D, jac @ qd - ev.nu(t))
         return np.concatenate((q, qd))
@@ -192,7 +195,12 @@ class DynamicRun(Run):
         n = sysm.n
         t0 = float(times[0])
         qd_given = np.array(d.v0[0], dtype=float)
-        y0 = self._project(v, t0, np.concatenate((q0, qd_given)))
+        try:
+            y0 = self._project(t0, np.concatenate((q0, qd_given)))
+            self._augmented(t0, y0[:n], y0[n:])
+        except np.linalg.LinAlgError:
+            self.failures.append(self._singular_message(v, t0))
+            return "failed"
         moved = np.abs(y0[n:] - qd_given)
         if d.v0_given.any() and (moved > self.opts.newton_tol * (1 + np.abs(qd_given))).any():
             k = int(np.argmax(moved))
@@ -200,14 +208,9 @@ class DynamicRun(Run):
                 f"the initial velocities{variant_label(sysm, v)} do not satisfy the "
                 f"constraints: projected onto them, changing {self._coordinate(k)} by "
                 f"{moved[k]:.3g}")
-        try:
-            self._augmented(v, t0, y0[:n], y0[n:])
-        except np.linalg.LinAlgError:
-            self.failures.append(self._singular_message(v, t0))
-            return "failed"
 
         def rhs(t: float, y: np.ndarray) -> np.ndarray:
-            qdd, _ = self._augmented(v, t, y[:n], y[n:])
+            qdd, _ = self._augmented(t, y[:n], y[n:])
             return np.concatenate((y[n:], qdd))
 
         V = self.system.n_variants
@@ -223,7 +226,7 @@ class DynamicRun(Run):
                        "qdd": np.full((K, n), np.nan), "lambda": np.full((K, sysm.m), np.nan)}
         scale = np.concatenate((self.D[v, 0], self.D[v, 0]))
         try:
-            sol = integrate(Problem(rhs, lambda t, y: self._project(v, t, y)), y0, times,
+            sol = integrate(Problem(rhs, lambda t, y: self._project(t, y)), y0, times,
                             rtol=self.rtol, atol=self.atol, scale=scale, on_output=record)
         finally:  # an interrupt too: the instants solved are written, complete
             self._write(v)
@@ -271,10 +274,12 @@ class DynamicRun(Run):
 
     def _singular_message(self, v: int, t: float) -> str:
         sysm, d = self.one, self.one.dynamics
-        massless = [b for i, b in enumerate(sysm.body_names) if d.mass[0, i] == 0]
-        what = (f"bodies without mass ({', '.join(massless[:5])}) whose motion the "
-                "constraints do not fix" if massless else "the constraints lock the mechanism "
-                "or are redundant")
+        massless = [b + (" (no mass)" if d.mass[0, i] == 0 else " (no inertia)")
+                    for i, b in enumerate(sysm.body_names)
+                    if d.mass[0, i] == 0 or d.inertia[0, i] == 0]
+        what = (f"bodies without mass or inertia ({', '.join(massless[:5])}) whose motion the "
+                "constraints may not fix" if massless else "the constraints lock the "
+                "mechanism or are redundant")
         return (f"the equations of motion are singular at t = {t:g}{variant_label(sysm, v)}: "
                 f"{what}; give every free body a mass and an inertia")
 
