@@ -108,6 +108,11 @@ def _parser() -> argparse.ArgumentParser:
 
     sub.add_parser("plugins", help="list the installed joint, drive and force types")
 
+    fmt = sub.add_parser("fmt", help="write .mech files in the canonical layout")
+    fmt.add_argument("files", metavar="FILE", nargs="+", help="the .mech files to format")
+    fmt.add_argument("--check", action="store_true",
+                     help="change nothing; exit 1 if some file is not in the canonical layout")
+
     plot = sub.add_parser("plot", help="redraw a CSV written by 'run', without solving again")
     plot.add_argument("file", metavar="FILE.csv", help="a CSV written by mechdsl run -o")
     plot.add_argument("-o", "--output", metavar="OUT.png",

@@ -440,6 +440,35 @@ def plugins_command() -> int:
 
 
 
+def fmt_command(args) -> int:
+    """``mechdsl fmt FILE...``: each file in the canonical layout
+    (:mod:`mechdsl.grammar.format`), rewritten in place only where that changes it (whole or
+    not at all: written beside it and renamed); with ``--check``, nothing is written and the
+    files that would change are listed (exit 1). A file that does not parse is reported as
+    ``run`` reports it, and left as it is."""
+    from .grammar import normalise
+    from .grammar.format import format_text
+    from .reading import read_data
+    from .writing import write_text
+
+    changed = []
+    for path in args.files:
+        raw = read_data(path, "", "MAX_MODEL_BYTES")
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError:
+            raise MechError(f"{path} is not UTF-8 text") from None
+        out = format_text(text, path)
+        if out == normalise(text):
+            continue
+        changed.append(path)
+        if not args.check:
+            write_text(path, lambda f, out=out: f.write(out))
+    for path in changed:
+        emit(f"{path}: {'not in the canonical layout' if args.check else 'formatted'}")
+    return 1 if (args.check and changed) else 0
+
+
 def plot_command(args) -> int:
     """``mechdsl plot FILE.csv``: the time-history figure of a CSV written by ``run``."""
     from .outputs.csv import read_csv
