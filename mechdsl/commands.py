@@ -399,13 +399,43 @@ def _interrupted_text(args, results, written: list[str], signum: int) -> str:
     return text + (f"; not written: {', '.join(missing)}" if missing else "")
 
 
+def _all_errors(args, err: MechError) -> MechError:
+    """The error to raise for ``err``, found while loading or checking the file: every
+    syntax and name error of the file at once (:mod:`mechdsl.diagnostics`), all but the last
+    printed here, the last returned. An error that is not in the file (memory, reading), or
+    a file with ``plugin`` lines (left to the path that loads the plugins it allows), keeps
+    its one error."""
+    from .diagnostics import diagnose
+    from .plugins.manager import build_registry
+    from .reading import read_data
+
+    if err.span is None or args.plugin:
+        return err
+    try:
+        text = read_data(args.file, "", "MAX_MODEL_BYTES").decode("utf-8")
+    except (MechError, UnicodeDecodeError):
+        return err
+    if "plugin" in text:
+        return err
+    errors = diagnose(text, args.file, build_registry())
+    if not errors:
+        return err
+    for other in errors[:-1]:
+        print(format_error(other), file=sys.stderr)
+    return errors[-1]
+
+
 def check_command(args) -> int:
     """``mechdsl check``: what the model declares, its assembly at t0, mobility and
-    redundancy at the assembled configuration (:meth:`Mechanism.check`), printed."""
-    # compile() comes next and finds the same mistakes: no separate check of the names
-    mech = load(args.file, plugins=args.plugin, allow_plugins=args.allow_plugin, check=False,
-                max_memory=_max_memory(args) or MAX_MEMORY)
-    report = mech.check(_overrides(mech, args))
+    redundancy at the assembled configuration (:meth:`Mechanism.check`), printed; a file
+    with errors has every syntax and name error printed at once."""
+    try:
+        # compile() comes next and finds the same mistakes: no separate check of the names
+        mech = load(args.file, plugins=args.plugin, allow_plugins=args.allow_plugin,
+                    check=False, max_memory=_max_memory(args) or MAX_MEMORY)
+        report = mech.check(_overrides(mech, args))
+    except MechError as err:
+        raise _all_errors(args, err) from None
     emit("\n".join(report.lines))
     for warning in report.warnings:
         print(f"{report.source}: warning: {warning}", file=sys.stderr)
