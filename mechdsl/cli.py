@@ -108,6 +108,9 @@ def _parser() -> argparse.ArgumentParser:
 
     sub.add_parser("plugins", help="list the installed joint, drive and force types")
 
+    sub.add_parser("lsp", help="a language server over standard input and output "
+                              "(pip install mechdsl[lsp])")
+
     fmt = sub.add_parser("fmt", help="write .mech files in the canonical layout")
     fmt.add_argument("files", metavar="FILE", nargs="+", help="the .mech files to format")
     fmt.add_argument("--check", action="store_true",
@@ -146,8 +149,8 @@ def _flush_stdout() -> int:
     """Flush standard output; 0, or the exit status of its failure."""
     try:
         with stdout_errors():
-            if sys.stdout is not None:
-                sys.stdout.flush()
+            if sys.stdout is not None and not sys.stdout.closed:  # (the language server
+                sys.stdout.flush()                                  # closes it at exit)
     except StdoutError as err:
         return _stdout_failed(err)
     return 0
@@ -177,6 +180,11 @@ def _command(args, signals: SignalGuard) -> int:
             from .commands import plugins_command
 
             return plugins_command()
+        if args.command == "lsp":
+            from .lsp import serve
+
+            serve()
+            return ExitCode.OK
         from . import commands
 
         if args.command == "run":

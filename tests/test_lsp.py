@@ -1,0 +1,104 @@
+"""mechdsl lsp, driven as an editor drives it: the real server as a subprocess over stdio
+(pytest-lsp). It answers initialize with its capabilities, publishes every error of a file
+with two or more at once with their exact ranges (and none for a valid file), formats as
+mechdsl fmt does, gives the outline of examples/slider_crank.mech, and imports no plugin a
+file names."""
+
+import sys
+
+import pytest
+import pytest_lsp
+from lsprotocol import types as lsp
+from pytest_lsp import ClientServerConfig, LanguageClient, client_capabilities
+
+from conftest import EXAMPLES
+from mechdsl.grammar.format import format_text
+
+BROKEN = """param r = 2
+param l = 3.5 *
+body crank { guess = (1, 0, 0)  point A = (-r/2, 0)  point B = (r/2, 0) }
+joint A: revolute(ground.origin, crank.A)
+joint B: revolut(crank.B, crank.A)
+output crank.x, crnk.x
+"""
+
+
+@pytest_lsp.fixture(config=ClientServerConfig(server_command=[sys.executable, "-m", "mechdsl",
+                                                              "lsp"]))
+async def client(lsp_client: LanguageClient):
+    result = await lsp_client.initialize_session(
+        lsp.InitializeParams(capabilities=client_capabilities("visual-studio-code")))
+    lsp_client.capabilities_seen = result.capabilities
+    yield
+    await lsp_client.shutdown_session()
+
+
+def open_doc(client: LanguageClient, uri: str, text: str) -> None:
+    client.text_document_did_open(lsp.DidOpenTextDocumentParams(
+        text_document=lsp.TextDocumentItem(uri=uri, language_id="mech", version=1, text=text)))
+
+
+@pytest.mark.asyncio
+async def test_the_capabilities(client: LanguageClient):
+    caps = client.capabilities_seen
+    assert caps.document_formatting_provider
+    assert caps.document_symbol_provider
+    assert caps.text_document_sync is not None
+
+
+@pytest.mark.asyncio
+async def test_every_error_is_published_at_once(client: LanguageClient, tmp_path):
+    uri = (tmp_path / "broken.mech").as_uri()
+    open_doc(client, uri, BROKEN)
+    await client.wait_for_notification(lsp.TEXT_DOCUMENT_PUBLISH_DIAGNOSTICS)
+    found = client.diagnostics[uri]
+    assert [(d.range.start.line, d.range.start.character, d.range.end.character)
+            for d in found] == [(1, 15, 16), (4, 9, 16), (5, 16, 22)]
+    assert found[1].message.startswith("unknown joint type 'revolut'; did you mean 'revolute'?")
+    assert all(d.severity == lsp.DiagnosticSeverity.Error for d in found)
+
+
+@pytest.mark.asyncio
+async def test_a_valid_file_has_no_diagnostic_and_its_outline(client: LanguageClient):
+    path = EXAMPLES / "slider_crank.mech"
+    open_doc(client, path.as_uri(), path.read_text())
+    await client.wait_for_notification(lsp.TEXT_DOCUMENT_PUBLISH_DIAGNOSTICS)
+    assert client.diagnostics[path.as_uri()] == []
+    symbols = await client.text_document_document_symbol_async(
+        lsp.DocumentSymbolParams(text_document=lsp.TextDocumentIdentifier(uri=path.as_uri())))
+    names = [s.name for s in symbols]
+    assert names[:3] == ["r", "l", "omega"]
+    crank = next(s for s in symbols if s.name == "crank")
+    assert [c.name for c in crank.children] == ["A", "B"]
+    assert crank.range.start.line == 8 and crank.range.end.line == 12  # lines 9 to 13
+    joint = next(s for s in symbols if s.name == "D")
+    assert joint.detail == "joint prismatic"
+
+
+@pytest.mark.asyncio
+async def test_formatting_is_mechdsl_fmt(client: LanguageClient, tmp_path):
+    text = "param a=1;param b=2*a # b\nbody c{guess=(1,0,0)}\n"
+    uri = (tmp_path / "f.mech").as_uri()
+    open_doc(client, uri, text)
+    edits = await client.text_document_formatting_async(lsp.DocumentFormattingParams(
+        text_document=lsp.TextDocumentIdentifier(uri=uri),
+        options=lsp.FormattingOptions(tab_size=4, insert_spaces=True)))
+    (edit,) = edits
+    assert edit.new_text == format_text(text)
+    assert edit.range.start == lsp.Position(line=0, character=0)
+
+
+@pytest.mark.asyncio
+async def test_opening_a_file_that_names_a_plugin_imports_nothing(client: LanguageClient,
+                                                                  tmp_path):
+    # the probe module writes a file when imported: opening the model must not create it
+    probe = tmp_path / "mechdsl_lsp_probe.py"
+    marker = tmp_path / "imported"
+    probe.write_text(f"open({str(marker)!r}, 'w').close()\n")
+    text = 'plugin "mechdsl_lsp_probe"\nbody b { }\njoint j: nosuch(b.origin, ground.origin)\n'
+    uri = (tmp_path / "p.mech").as_uri()
+    open_doc(client, uri, text)
+    await client.wait_for_notification(lsp.TEXT_DOCUMENT_PUBLISH_DIAGNOSTICS)
+    assert [d.message.split("\n")[0] for d in client.diagnostics[uri]] == \
+        ["unknown joint type 'nosuch'"]
+    assert not marker.exists()
