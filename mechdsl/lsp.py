@@ -8,8 +8,11 @@ answers, today:
   line, checked against the installed plugin types (entry points: a plugin a file names is
   never imported because the file was opened);
 * formatting: the canonical layout of ``mechdsl fmt`` (:mod:`mechdsl.grammar.format`);
-* document symbols: an outline of the params, bodies (with their points), joints, drives,
-  forces and outputs.
+* document symbols: an outline of the params, bodies (with their points), joints, drives
+  and forces;
+* hover: a joint, drive or force type's signature and documentation from its plugin, a
+  param's definition, a body's points;
+* go to definition: of a param, a body, or a point (``crank.A``).
 
 Ranges are LSP's: lines and characters from 0, where mechdsl's spans count from 1.
 """
@@ -67,6 +70,98 @@ def _symbols(text: str, path: str, lsp) -> list:
     return out
 
 
+def _word_at(text: str, line: int, character: int) -> tuple[str, str | None] | None:
+    """The name under the cursor (0-based line and character) and, for ``body.point``, the
+    body before the dot; None where there is no name."""
+    lines = text.split("\n")
+    if not 0 <= line < len(lines):
+        return None
+    row = lines[line]
+    start = end = character
+    while start > 0 and (row[start - 1].isalnum() or row[start - 1] == "_"):
+        start -= 1
+    while end < len(row) and (row[end].isalnum() or row[end] == "_"):
+        end += 1
+    if start == end or row[start].isdigit():
+        return None
+    owner = None
+    if start >= 2 and row[start - 1] == ".":
+        j = start - 1
+        while j > 0 and (row[j - 1].isalnum() or row[j - 1] == "_"):
+            j -= 1
+        owner = row[j : start - 1] or None
+    return row[start:end], owner
+
+
+def _type_before(text: str, line: int, word: str) -> str | None:
+    """The kind of statement (joint, drive, force) whose type ``word`` is on this line."""
+    row = text.split("\n")[line].split("#")[0]
+    head = row.split(":", 1)
+    if len(head) == 2 and head[1].lstrip().startswith(word):
+        first = head[0].split()
+        if first and first[0] in ("joint", "drive", "force"):
+            return first[0]
+    return None
+
+
+def hover_text(text: str, path: str, line: int, character: int, registry) -> str | None:
+    """What a hover shows at the cursor (see the module), as Markdown."""
+    from .grammar import parse
+
+    found = _word_at(text, line, character)
+    if found is None:
+        return None
+    word, owner = found
+    kind = _type_before(text, line, word)
+    if kind is not None and owner is None:
+        ctype = registry.get(kind, word)
+        if ctype is None:
+            return None
+        return f"```\n{kind} type {ctype.describe()}\n```\n{ctype.doc}"
+    try:
+        model = parse(text, path)
+    except MechError:
+        return None
+    lines = text.split("\n")
+    if owner is None:
+        for p in model.params:
+            if p.name == word:
+                return f"```\n{lines[p.span.line - 1].split('#')[0].strip()}\n```"
+        for b in model.bodies:
+            if b.name == word:
+                points = ", ".join(pt.name for pt in b.points) or "none but its origin"
+                return f"body **{b.name}**: points {points}"
+    for b in (model.ground, *model.bodies):
+        if b.name == owner:
+            for pt in b.points:
+                if pt.name == word:
+                    return f"point **{b.name}.{pt.name}** (body coordinates)"
+    return None
+
+
+def definition_span(text: str, path: str, line: int, character: int):
+    """The span of the declaration of the param, body or point under the cursor, or None."""
+    from .grammar import parse
+
+    found = _word_at(text, line, character)
+    if found is None:
+        return None
+    word, owner = found
+    try:
+        model = parse(text, path)
+    except MechError:
+        return None
+    if owner is not None:
+        for b in (model.ground, *model.bodies):
+            if b.name == owner:
+                return next((pt.span for pt in b.points if pt.name == word), None)
+        return None
+    for item in (*model.params, *model.bodies):
+        if item.name == word:
+            return item.span
+    return None
+
+
 def serve() -> None:
     """Run the server on standard input and output until the client ends it."""
     try:
@@ -112,6 +207,24 @@ def serve() -> None:
         end = lsp.Position(line=len(lines), character=0)
         return [lsp.TextEdit(range=lsp.Range(start=lsp.Position(line=0, character=0),
                                              end=end), new_text=new)]
+
+    @server.feature(lsp.TEXT_DOCUMENT_HOVER)
+    def hover(ls, params: lsp.HoverParams):
+        doc = server.workspace.get_text_document(params.text_document.uri)
+        text = hover_text(doc.source, path_of(params.text_document.uri),
+                          params.position.line, params.position.character, registry)
+        if text is None:
+            return None
+        return lsp.Hover(contents=lsp.MarkupContent(kind=lsp.MarkupKind.Markdown, value=text))
+
+    @server.feature(lsp.TEXT_DOCUMENT_DEFINITION)
+    def definition(ls, params: lsp.DefinitionParams):
+        doc = server.workspace.get_text_document(params.text_document.uri)
+        span = definition_span(doc.source, path_of(params.text_document.uri),
+                               params.position.line, params.position.character)
+        if span is None:
+            return None
+        return lsp.Location(uri=params.text_document.uri, range=_range(span, lsp))
 
     @server.feature(lsp.TEXT_DOCUMENT_DOCUMENT_SYMBOL)
     def document_symbol(ls, params: lsp.DocumentSymbolParams):

@@ -102,3 +102,48 @@ async def test_opening_a_file_that_names_a_plugin_imports_nothing(client: Langua
     assert [d.message.split("\n")[0] for d in client.diagnostics[uri]] == \
         ["unknown joint type 'nosuch'"]
     assert not marker.exists()
+
+
+def position_of(text: str, line_start: str, word: str, offset: int = 1) -> lsp.Position:
+    """The position inside ``word`` on the line that starts with ``line_start``."""
+    for number, line in enumerate(text.split("\n")):
+        if line.startswith(line_start):
+            return lsp.Position(line=number, character=line.index(word) + offset)
+    raise AssertionError(line_start)
+
+
+@pytest.mark.asyncio
+async def test_hover_shows_a_type_a_param_and_a_body(client: LanguageClient):
+    path = EXAMPLES / "slider_crank.mech"
+    text = path.read_text()
+    open_doc(client, path.as_uri(), text)
+    ident = lsp.TextDocumentIdentifier(uri=path.as_uri())
+
+    async def hover(line_start, word):
+        result = await client.text_document_hover_async(lsp.HoverParams(
+            text_document=ident, position=position_of(text, line_start, word)))
+        return result.contents.value
+
+    prismatic = await hover("joint D", "prismatic")
+    assert "prismatic(p1: point, p2: point, axis: vector = (1, 0)" in prismatic
+    assert "without relative rotation" in prismatic  # the plugin's own description
+    assert "param omega = 4*pi" in await hover("drive", "omega")
+    assert "points A, B" in await hover("joint A", "crank.A")
+
+
+@pytest.mark.asyncio
+async def test_go_to_the_definition_of_a_point_a_body_and_a_param(client: LanguageClient):
+    path = EXAMPLES / "slider_crank.mech"
+    text = path.read_text()
+    open_doc(client, path.as_uri(), text)
+    ident = lsp.TextDocumentIdentifier(uri=path.as_uri())
+    lines = text.split("\n")
+
+    async def target(line_start, word, offset):
+        loc = await client.text_document_definition_async(lsp.DefinitionParams(
+            text_document=ident, position=position_of(text, line_start, word, offset)))
+        return lines[loc.range.start.line].strip()
+
+    assert (await target("joint A", "crank.A", 6)).startswith("point A = (-r/2, 0)")
+    assert (await target("joint C", "slider.origin", 2)).startswith("body slider {")
+    assert (await target("drive", "omega", 2)).startswith("param omega = 4*pi")
