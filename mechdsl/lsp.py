@@ -12,7 +12,10 @@ answers, today:
   and forces;
 * hover: a joint, drive or force type's signature and documentation from its plugin, a
   param's definition, a body's points;
-* go to definition: of a param, a body, or a point (``crank.A``).
+* go to definition: of a param, a body, or a point (``crank.A``);
+* find references and rename: of a param, a body or a point, every use in the file (a point
+  is the name after ``body.``; the other names are the words that are not after a dot);
+* folding ranges: each body's braces, and each statement that spans lines.
 
 Ranges are LSP's: lines and characters from 0, where mechdsl's spans count from 1.
 """
@@ -162,6 +165,74 @@ def definition_span(text: str, path: str, line: int, character: int):
     return None
 
 
+def references(text: str, line: int, character: int) -> list[tuple[int, int, int]]:
+    """(line, start, end), 0-based, of every use of the name under the cursor, its
+    declaration included: a param or body is each word of that name not after a dot, a
+    point each ``body.point`` of that body; [] where the cursor is on no name."""
+    from .grammar.parser import _parser
+
+    found = _word_at(text, line, character)
+    if found is None:
+        return []
+    word, owner = found
+    out = []
+    try:
+        tokens = [t for t in _parser().lex(text)]
+    except Exception:  # noqa: BLE001 - a character no token takes
+        return []
+    # a point is also declared as `point NAME` inside its body's braces
+    body_of_line: dict[int, str] = {}
+    current = None
+    for i, t in enumerate(tokens):
+        if str(t) == "body" and i + 1 < len(tokens):
+            current = str(tokens[i + 1])
+        elif str(t) == "ground" and i + 1 < len(tokens) and str(tokens[i + 1]) == "{":
+            current = "ground"
+        elif str(t) == "}":
+            current = None
+        body_of_line[i] = current
+    if owner is None:  # only a param's or a body's name: the others have no uses
+        declared_here = {str(tokens[i + 1]) for i, t in enumerate(tokens[:-1])
+                         if str(t) in ("param", "body")}
+        if word not in declared_here:
+            return []
+    for i, t in enumerate(tokens):
+        if str(t) != word:
+            continue
+        after_dot = i > 0 and str(tokens[i - 1]) == "."
+        if owner is None:
+            # a point, joint, drive or force of the same name is another thing
+            if after_dot or (i > 0 and str(tokens[i - 1]) in ("point", "joint", "drive",
+                                                                "force")):
+                continue
+        else:
+            declared = (i > 0 and str(tokens[i - 1]) == "point" and body_of_line.get(i) == owner)
+            used = after_dot and i > 1 and str(tokens[i - 2]) == owner
+            if not (declared or used):
+                continue
+        out.append((t.line - 1, t.column - 1, t.end_column - 1))
+    return out
+
+
+def folding_ranges(text: str) -> list[tuple[int, int]]:
+    """(first line, last line), 0-based, of each body's braces and each statement on
+    several lines."""
+    from .grammar.parser import _parser
+
+    out, stack = [], []
+    try:
+        for t in _parser().lex(text):
+            if str(t) == "{":
+                stack.append(t.line - 1)
+            elif str(t) == "}" and stack:
+                first = stack.pop()
+                if t.line - 1 > first:
+                    out.append((first, t.line - 1))
+    except Exception:  # noqa: BLE001 - a character no token takes: what came before
+        pass
+    return out
+
+
 def serve() -> None:
     """Run the server on standard input and output until the client ends it."""
     try:
@@ -225,6 +296,32 @@ def serve() -> None:
         if span is None:
             return None
         return lsp.Location(uri=params.text_document.uri, range=_range(span, lsp))
+
+    def locations(uri: str, spans) -> list:
+        return [lsp.Location(uri=uri, range=lsp.Range(
+            start=lsp.Position(line=ln, character=a), end=lsp.Position(line=ln, character=b)))
+            for ln, a, b in spans]
+
+    @server.feature(lsp.TEXT_DOCUMENT_REFERENCES)
+    def find_references(ls, params: lsp.ReferenceParams):
+        doc = server.workspace.get_text_document(params.text_document.uri)
+        return locations(params.text_document.uri, references(
+            doc.source, params.position.line, params.position.character))
+
+    @server.feature(lsp.TEXT_DOCUMENT_RENAME)
+    def rename(ls, params: lsp.RenameParams):
+        doc = server.workspace.get_text_document(params.text_document.uri)
+        if not (params.new_name.isidentifier() and params.new_name.isascii()):
+            return None
+        spans = references(doc.source, params.position.line, params.position.character)
+        edits = [lsp.TextEdit(range=loc.range, new_text=params.new_name)
+                 for loc in locations(params.text_document.uri, spans)]
+        return lsp.WorkspaceEdit(changes={params.text_document.uri: edits}) if edits else None
+
+    @server.feature(lsp.TEXT_DOCUMENT_FOLDING_RANGE)
+    def folding(ls, params: lsp.FoldingRangeParams):
+        doc = server.workspace.get_text_document(params.text_document.uri)
+        return [lsp.FoldingRange(start_line=a, end_line=b) for a, b in folding_ranges(doc.source)]
 
     @server.feature(lsp.TEXT_DOCUMENT_DOCUMENT_SYMBOL)
     def document_symbol(ls, params: lsp.DocumentSymbolParams):

@@ -147,3 +147,35 @@ async def test_go_to_the_definition_of_a_point_a_body_and_a_param(client: Langua
     assert (await target("joint A", "crank.A", 6)).startswith("point A = (-r/2, 0)")
     assert (await target("joint C", "slider.origin", 2)).startswith("body slider {")
     assert (await target("drive", "omega", 2)).startswith("param omega = 4*pi")
+
+
+@pytest.mark.asyncio
+async def test_references_rename_and_folding(client: LanguageClient, tmp_path):
+    text = (EXAMPLES / "slider_crank.mech").read_text()
+    uri = (tmp_path / "sc.mech").as_uri()
+    open_doc(client, uri, text)
+    ident = lsp.TextDocumentIdentifier(uri=uri)
+    lines = text.split("\n")
+
+    async def uses(line_start, word, offset):
+        locs = await client.text_document_references_async(lsp.ReferenceParams(
+            text_document=ident, position=position_of(text, line_start, word, offset),
+            context=lsp.ReferenceContext(include_declaration=True)))
+        return [(loc.range.start.line + 1, lines[loc.range.start.line][
+            loc.range.start.character:loc.range.end.character]) for loc in locs]
+
+    # the point crank.A: declared in crank, used by joint A (not the joint named A)
+    assert await uses("joint A", "crank.A", 6) == [(11, "A"), (23, "A")]
+    # the body crank: declared, and the four references to it
+    assert await uses("drive", "crank)", 1) == [(9, "crank"), (23, "crank"), (24, "crank"),
+                                                (28, "crank")]
+    assert await uses("drive", "omega", 1) == [(5, "omega"), (28, "omega")]
+    edit = await client.text_document_rename_async(lsp.RenameParams(
+        text_document=ident, position=position_of(text, "param omega", "omega"),
+        new_name="speed"))
+    changes = edit.changes[uri]
+    assert {(c.range.start.line + 1, c.new_text) for c in changes} == {(5, "speed"),
+                                                                       (28, "speed")}
+    folds = await client.text_document_folding_range_async(lsp.FoldingRangeParams(
+        text_document=ident))
+    assert [(f.start_line + 1, f.end_line + 1) for f in folds] == [(9, 13), (14, 18), (19, 21)]
