@@ -15,7 +15,11 @@ answers, today:
 * go to definition: of a param, a body, or a point (``crank.A``);
 * find references and rename: of a param, a body or a point, every use in the file (a point
   is the name after ``body.``; the other names are the words that are not after a dot);
-* folding ranges: each body's braces, and each statement that spans lines.
+* folding ranges: each body's braces, and each statement that spans lines;
+* completion: after ``body.`` its points (and, in outputs, its quantities); after
+  ``joint NAME:`` (drive, force) the installed types with their signatures; at the start of
+  a statement the keywords (inside a body its items); elsewhere the params, bodies,
+  functions and constants.
 
 Ranges are LSP's: lines and characters from 0, where mechdsl's spans count from 1.
 """
@@ -214,6 +218,76 @@ def references(text: str, line: int, character: int) -> list[tuple[int, int, int
     return out
 
 
+_STATEMENTS = ("param", "ground", "body", "joint", "drive", "force", "gravity", "simulate",
+               "output", "trace", "units", "sweep", "plugin")
+_ITEMS = ("point", "guess", "shape", "density", "mass", "inertia", "centroid", "v0")
+_FUNCTIONS = ("sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sqrt", "exp", "log",
+              "abs", "sign", "min", "max", "table", "distance")
+
+
+def _declared(text: str) -> tuple[list[str], dict[str, list[str]]]:
+    """The params and the bodies with their points, read from the tokens (a file being
+    typed need not parse)."""
+    from .grammar.parser import _parser
+
+    params, bodies, current = [], {"ground": []}, None
+    try:
+        tokens = [str(t) for t in _parser().lex(text)]
+    except Exception:  # noqa: BLE001 - a character no token takes: what came before
+        tokens = []
+    for i, t in enumerate(tokens[:-1]):
+        nxt = tokens[i + 1]
+        if t == "param":
+            params.append(nxt)
+        elif t == "body":
+            current = nxt
+            bodies.setdefault(nxt, [])
+        elif t == "ground" and nxt == "{":
+            current = "ground"
+        elif t == "}":
+            current = None
+        elif t == "point" and current is not None:
+            bodies[current].append(nxt)
+    return params, bodies
+
+
+def completions(text: str, line: int, character: int, registry) -> list[tuple[str, str, str]]:
+    """(label, kind, detail) of what may be written at the cursor (see the module)."""
+    import re
+
+    from .grammar.model import BODY_QUANTITIES, POINT_QUANTITIES
+
+    lines = text.split("\n")
+    before = lines[line][:character] if line < len(lines) else ""
+    params, bodies = _declared(text)
+    statement = (before.split() or [""])[0]
+    dot = re.search(r"([A-Za-z_][A-Za-z0-9_]*)\.([A-Za-z_][A-Za-z0-9_]*)?$", before)
+    if dot:
+        body = dot.group(1)
+        if body not in bodies:
+            return []
+        out = [(name, "point", f"point of {body}") for name in ["origin", *bodies[body]]]
+        if statement in ("output", "trace"):
+            out += [(q, "quantity", f"quantity of {body}") for q in BODY_QUANTITIES]
+        return out
+    typed = re.match(r"\s*(joint|drive|force)\s+[A-Za-z_][A-Za-z0-9_]*\s*:\s*[A-Za-z_0-9]*$",
+                     before)
+    if typed:
+        kind = typed.group(1)
+        return [(name, "type", registry.get(kind, name).describe())
+                for name in registry.names(kind)]
+    depth = text[: sum(len(x) + 1 for x in lines[:line]) + character].count("{") - \
+        text[: sum(len(x) + 1 for x in lines[:line]) + character].count("}")
+    if re.fullmatch(r"\s*[A-Za-z_]*", before):
+        if depth > 0:
+            return [(w, "keyword", "body item") for w in _ITEMS]
+        return [(w, "keyword", "statement") for w in _STATEMENTS]
+    return ([(p, "param", "param") for p in params]
+            + [(b, "body", "body") for b in bodies if b != "ground"] + [("ground", "body", "")]
+            + [(f, "function", "function") for f in _FUNCTIONS]
+            + [(c, "constant", "") for c in ("pi", "t")])
+
+
 def folding_ranges(text: str) -> list[tuple[int, int]]:
     """(first line, last line), 0-based, of each body's braces and each statement on
     several lines."""
@@ -322,6 +396,22 @@ def serve() -> None:
     def folding(ls, params: lsp.FoldingRangeParams):
         doc = server.workspace.get_text_document(params.text_document.uri)
         return [lsp.FoldingRange(start_line=a, end_line=b) for a, b in folding_ranges(doc.source)]
+
+    kinds = {"point": lsp.CompletionItemKind.Field, "quantity": lsp.CompletionItemKind.Property,
+             "type": lsp.CompletionItemKind.Class, "keyword": lsp.CompletionItemKind.Keyword,
+             "param": lsp.CompletionItemKind.Constant, "body": lsp.CompletionItemKind.Struct,
+             "function": lsp.CompletionItemKind.Function,
+             "constant": lsp.CompletionItemKind.Constant}
+
+    @server.feature(lsp.TEXT_DOCUMENT_COMPLETION,
+                    lsp.CompletionOptions(trigger_characters=[".", ":"]))
+    def complete(ls, params: lsp.CompletionParams):
+        doc = server.workspace.get_text_document(params.text_document.uri)
+        items = completions(doc.source, params.position.line, params.position.character,
+                            registry)
+        return lsp.CompletionList(is_incomplete=False, items=[
+            lsp.CompletionItem(label=label, kind=kinds[kind], detail=detail)
+            for label, kind, detail in items])
 
     @server.feature(lsp.TEXT_DOCUMENT_DOCUMENT_SYMBOL)
     def document_symbol(ls, params: lsp.DocumentSymbolParams):

@@ -179,3 +179,32 @@ async def test_references_rename_and_folding(client: LanguageClient, tmp_path):
     folds = await client.text_document_folding_range_async(lsp.FoldingRangeParams(
         text_document=ident))
     assert [(f.start_line + 1, f.end_line + 1) for f in folds] == [(9, 13), (14, 18), (19, 21)]
+
+
+@pytest.mark.asyncio
+async def test_completion_offers_points_types_keywords_and_names(client: LanguageClient,
+                                                                  tmp_path):
+    base = (EXAMPLES / "slider_crank.mech").read_text()
+    uri = (tmp_path / "c.mech").as_uri()
+
+    async def offered(tail):
+        text = base + tail
+        lines = text.split("\n")
+        client.text_document_did_open(lsp.DidOpenTextDocumentParams(
+            text_document=lsp.TextDocumentItem(uri=uri, language_id="mech", version=1,
+                                               text=text)))
+        result = await client.text_document_completion_async(lsp.CompletionParams(
+            text_document=lsp.TextDocumentIdentifier(uri=uri),
+            position=lsp.Position(line=len(lines) - 1, character=len(lines[-1]))))
+        return {item.label: item for item in result.items}
+
+    points = await offered("output crank.")
+    assert {"origin", "A", "B", "x", "omega", "ax"} <= set(points)
+    types = await offered("joint E: ")
+    assert {"revolute", "prismatic", "gear"} <= set(types)
+    assert types["revolute"].detail == "revolute(p1: point, p2: point)"
+    assert {"angle", "distance"} <= set(await offered("drive d: "))
+    assert {"spring", "torque"} <= set(await offered("force f: "))
+    names = await offered("param k = 2*")
+    assert {"r", "l", "omega", "crank", "sin", "pi"} <= set(names)
+    assert {"param", "body", "joint", "simulate"} <= set(await offered("\n"))
