@@ -14,6 +14,21 @@ ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples"
 
 
+def load_fuzzer():
+    """benchmarks/fuzz.py as a module: its generators of mutated and generated files."""
+    import importlib.util
+    import sys
+
+    spec = importlib.util.spec_from_file_location("fuzz", ROOT / "benchmarks" / "fuzz.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["fuzz"] = module  # while its dataclasses are made
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        del sys.modules["fuzz"]
+    return module
+
+
 @pytest.fixture(scope="session")
 def registry():
     import mechdsl_cams

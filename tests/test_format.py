@@ -9,24 +9,10 @@ import sys
 
 import pytest
 
-from conftest import EXAMPLES, ROOT
+from conftest import EXAMPLES, ROOT, load_fuzzer
 from mechdsl.errors import MechError, Source, Span
 from mechdsl.grammar import parse
 from mechdsl.grammar.format import format_text
-
-
-def load_fuzzer():
-    """benchmarks/fuzz.py as a module (its generators of mutated and generated files)."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("fuzz", ROOT / "benchmarks" / "fuzz.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["fuzz"] = module  # while its dataclasses are made
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        del sys.modules["fuzz"]
-    return module
 
 ALL = sorted(EXAMPLES.glob("*.mech")) + sorted((EXAMPLES / "plugins").glob("*/*.mech"))
 

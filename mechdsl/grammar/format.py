@@ -102,6 +102,15 @@ class _Layout:
         return "\n".join(out) + "\n"
 
 
+def _comment_after(tokens: list[Token], end: int) -> Token | None:
+    """The comment on the same line right after offset ``end`` (spaces between), or None."""
+    after = (t for t in tokens if t.start_pos >= end)
+    first = next(after, None)
+    if first is not None and first.type == "WS" and "\n" not in first:
+        first = next(after, None)
+    return first if first is not None and first.type == "COMMENT" else None
+
+
 def _statements(tree: Tree) -> list[Tree]:
     return [c for c in tree.children if isinstance(c, Tree)]
 
@@ -122,13 +131,7 @@ def format_text(text: str, name: str = "<string>") -> str:
         _gap(layout, [t for t in tokens if pos <= t.start_pos < start], bool(layout.lines))
         body = [t for t in tokens if start <= t.start_pos < end]
         # the comment that ends the statement's last line belongs to it
-        after = [t for t in tokens if end <= t.start_pos]
-        trailing = None
-        if after and after[0].type == "COMMENT":
-            trailing = after[0]
-        elif len(after) > 1 and after[0].type == "WS" and "\n" not in after[0] \
-                and after[1].type == "COMMENT":
-            trailing = after[1]
+        trailing = _comment_after(tokens, end)
         if stmt.data in _BLOCKS:
             _block(layout, stmt, body, trailing)
         else:
@@ -216,13 +219,7 @@ def _block(layout: _Layout, stmt: Tree, tokens: list[Token], trailing: Token | N
             if pos <= t.start_pos < start and t.type == "COMMENT":
                 layout.add("", _INDENT + str(t).rstrip())
         code = [t for t in inner if start <= t.start_pos < end]
-        rest = [t for t in inner if t.start_pos >= end]
-        comment = None
-        if rest and rest[0].type == "COMMENT":
-            comment = rest[0]
-        elif len(rest) > 1 and rest[0].type == "WS" and "\n" not in rest[0] \
-                and rest[1].type == "COMMENT":
-            comment = rest[1]
+        comment = _comment_after(inner, end)
         _statement(layout, code, comment, _INDENT)
         pos = comment.end_pos if comment is not None else end
     for t in inner:

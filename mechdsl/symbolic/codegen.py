@@ -58,10 +58,12 @@ CALLED = sorted(set(_CALLS.values()))
 
 
 def assignments(graph: Graph, outputs: Sequence[Node], read: Callable[[tuple], str],
-                major: bool = False, prefix: str = "") -> tuple[list[str], dict[int, str]]:
+                major: bool = False, prefix: str = "", functions: str = "F"
+                ) -> tuple[list[str], dict[int, str]]:
     """Assignments for every operation node the outputs need, in topological order, and the
     name of each node (``prefix`` before every name, to join the code of two graphs);
-    ``read(key)`` is the expression that reads a variable. Numpy's
+    ``read(key)`` is the expression that reads a variable, ``functions`` the name of the
+    table of function arguments that calls index. Numpy's
     functions are called by their names in :data:`CALLED` (and constants may be ``nan``,
     ``inf``): the namespace the code runs in provides them. (Also the compiled backend's.)"""
     names: dict[int, str] = {}
@@ -84,8 +86,8 @@ def assignments(graph: Graph, outputs: Sequence[Node], read: Callable[[tuple], s
             elif n.op == "call":
                 index, order = n.value
                 # a function sees its argument with the batch axes first, as its params
-                expr = (f"_T(F[{index}][{order}](_T({a[0]})))" if major
-                        else f"F[{index}][{order}]({a[0]})")
+                expr = (f"_T({functions}[{index}][{order}](_T({a[0]})))" if major
+                        else f"{functions}[{index}][{order}]({a[0]})")
             else:
                 expr = f"{_CALLS[n.op]}({', '.join(a)})"
             name = f"{prefix}n{n.id}"
@@ -217,8 +219,8 @@ def joint_scalar_kernel(parts: Sequence[tuple[Graph, Sequence[Node]]],
             text = _read_scalar(key)
             return f"p{i}{text[1:]}" if key[0] == "p" else text
 
-        lines, names = assignments(graph, outputs, read, prefix=f"g{i}")
-        body += [f"    {ln}".replace("F[", f"F{i}[") for ln in lines]
+        lines, names = assignments(graph, outputs, read, prefix=f"g{i}", functions=f"F{i}")
+        body += [f"    {ln}" for ln in lines]
         out += [names[n.id] for n in outputs]
     body.append(f"    return [{', '.join(out)}]")
     source = "\n".join(body) + "\n"

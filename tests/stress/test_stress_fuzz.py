@@ -3,7 +3,6 @@ input ends in a result or a located error, never an internal error, a traceback 
 does nothing a data file may not make happen. And the harness itself: each kind of defect it
 looks for is found when one is planted in the pipeline."""
 
-import importlib.util
 import os
 import signal
 import sys
@@ -11,22 +10,10 @@ import tempfile
 
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, load_fuzzer
 
 SLIDER = (ROOT / "examples" / "slider_crank.mech").read_bytes()
 STEP = ["--step", "0.01"]
-
-
-def load_fuzzer():
-    spec = importlib.util.spec_from_file_location("fuzz", ROOT / "benchmarks" / "fuzz.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["fuzz"] = module  # while its dataclasses are made
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        del sys.modules["fuzz"]
-    return module
-
 
 def test_a_fuzz_sample_finds_no_defect():
     fuzz = load_fuzzer()
