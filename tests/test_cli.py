@@ -167,3 +167,15 @@ def test_a_run_imports_only_the_plugins_and_libraries_it_needs():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
     assert r.stderr.strip().splitlines()[-1] == \
         "['mechdsl_drives', 'mechdsl_prismatic', 'mechdsl_revolute']"
+
+
+def test_a_model_with_forces_imports_only_the_force_plugin_beside_its_joints():
+    # the force types have one entry point each, as the joints do: naming `spring` must not
+    # make the registry load every installed plugin to find it
+    code = ("import sys, mechdsl.cli as c; c.main(['check', %r]);"
+            "print(sorted(m for m in sys.modules if m.startswith('mechdsl_')), file=sys.stderr)"
+            ) % str(ROOT / "examples" / "andrews.mech")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    loaded = r.stderr.strip().splitlines()[-1]
+    assert "'mechdsl_forces'" in loaded and "'mechdsl_revolute'" in loaded
+    assert "mechdsl_cams" not in loaded and "mechdsl_gears" not in loaded, loaded

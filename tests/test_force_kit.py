@@ -68,6 +68,11 @@ class NoLoads(ForceType):
     signature = (Arg("body", "body"),)
 
 
+class NoVariable(GoodSpring):
+    name = "no_variable"
+    signature = (*GoodSpring.signature, Arg("f", "function"))  # a function of what?
+
+
 def test_a_correct_type_passes():
     check_force_type(GoodSpring())
 
@@ -79,6 +84,7 @@ def test_a_correct_type_passes():
     (OneTriple(), "one \\(F_x, F_y, n\\) triple per attached body"),
     (NotANumber(), "nan"),
     (NoLoads(), "loads\\(\\) is missing"),
+    (NoVariable(), "needs var"),
 ], ids=lambda x: getattr(x, "name", ""))
 def test_the_kit_catches(ftype, message):
     with pytest.raises(ContractViolation, match=message):

@@ -213,6 +213,31 @@ class ConstraintType:
         return self.derived.gamma(q, qd, p)
 
 
+def signature_problems(sig: object) -> list[str]:
+    """What is wrong with a type's ``signature`` (joint, drive and force types alike)."""
+    if not isinstance(sig, tuple) or not all(isinstance(a, Arg) for a in sig):
+        return ["signature must be a tuple of Arg"]
+    problems = []
+    names = [a.name for a in sig]
+    if len(set(names)) != len(names):
+        problems.append("signature has two arguments with the same name")
+    for a in sig:
+        if not isinstance(a.name, str) or not a.name.isidentifier():
+            problems.append(f"argument name {a.name!r} is not an identifier")
+        elif a.name in RESERVED_ARG_NAMES:
+            problems.append(f"argument name {a.name!r} is a reserved word of the language")
+        if a.kind not in ARG_KINDS:
+            problems.append(f"argument {a.name!r} has kind {a.kind!r}; use one of {ARG_KINDS}")
+        elif (a.is_reference or a.kind == "function") and a.default is not REQUIRED:
+            problems.append(f"{a.kind} argument {a.name!r} cannot have a default")
+        if a.kind == "function" and not (isinstance(a.var, str) and a.var.isidentifier()):
+            problems.append(f"function argument {a.name!r} needs var, the name of its "
+                            "variable")
+    if not any(a.is_reference for a in sig):
+        problems.append("signature attaches no body (no point or body argument)")
+    return problems
+
+
 def contract_problems(ctype: object) -> list[str]:
     """What is wrong with the *declaration* of ``ctype`` (empty list when it is well formed)."""
     problems = []
@@ -226,27 +251,7 @@ def contract_problems(ctype: object) -> list[str]:
         problems.append(f"n_eq must be a positive int, not {n_eq!r}")
     elif getattr(ctype, "kind", None) == "drive" and n_eq != 1:
         problems.append("a drive type has exactly one equation (n_eq = 1)")
-    sig = getattr(ctype, "signature", None)
-    if not isinstance(sig, tuple) or not all(isinstance(a, Arg) for a in sig):
-        problems.append("signature must be a tuple of Arg")
-    else:
-        names = [a.name for a in sig]
-        if len(set(names)) != len(names):
-            problems.append("signature has two arguments with the same name")
-        for a in sig:
-            if not isinstance(a.name, str) or not a.name.isidentifier():
-                problems.append(f"argument name {a.name!r} is not an identifier")
-            elif a.name in RESERVED_ARG_NAMES:
-                problems.append(f"argument name {a.name!r} is a reserved word of the language")
-            if a.kind not in ARG_KINDS:
-                problems.append(f"argument {a.name!r} has kind {a.kind!r}; use one of {ARG_KINDS}")
-            elif (a.is_reference or a.kind == "function") and a.default is not REQUIRED:
-                problems.append(f"{a.kind} argument {a.name!r} cannot have a default")
-            if a.kind == "function" and not (isinstance(a.var, str) and a.var.isidentifier()):
-                problems.append(f"function argument {a.name!r} needs var, the name of its "
-                                "variable")
-        if not any(a.is_reference for a in sig):
-            problems.append("signature attaches no body (no point or body argument)")
+    problems += signature_problems(getattr(ctype, "signature", None))
     if isinstance(ctype, ConstraintType):
         if not ctype.supplies_equations():
             problems.append("method equations() is missing: a type writes its equations")

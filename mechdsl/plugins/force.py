@@ -11,7 +11,7 @@ point s' contributes (F, (A s') x F)), as plain arithmetic of
 * ``bodies``: one :class:`~mechdsl.plugins.geometry.Body` per slot (x, y, phi, c, s,
   ``point``, ``rotate``, ``wrench``);
 * ``rates``: one :class:`~mechdsl.plugins.geometry.Rate` per slot (the velocities x, y,
-  phi, and ``point_velocity``);
+  phi, and ``point``: the velocity of a body point);
 * ``args``: the other arguments by name;
 * ``t``: the time.
 
@@ -28,7 +28,7 @@ from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
-from .contract import ARG_KINDS, REQUIRED, RESERVED_ARG_NAMES, Arg
+from .contract import Arg, signature_problems
 from .geometry import Body, Rate
 
 
@@ -84,23 +84,7 @@ def force_problems(ftype: object) -> list[str]:
         problems.append(f"name {name!r} is not an identifier")
     if getattr(ftype, "kind", None) != "force":
         problems.append("kind must be 'force'")
-    sig = getattr(ftype, "signature", None)
-    if not isinstance(sig, tuple) or not all(isinstance(a, Arg) for a in sig):
-        return problems + ["signature must be a tuple of Arg"]
-    names = [a.name for a in sig]
-    if len(set(names)) != len(names):
-        problems.append("signature has two arguments with the same name")
-    for a in sig:
-        if not isinstance(a.name, str) or not a.name.isidentifier():
-            problems.append(f"argument name {a.name!r} is not an identifier")
-        elif a.name in RESERVED_ARG_NAMES:
-            problems.append(f"argument name {a.name!r} is a reserved word of the language")
-        if a.kind not in ARG_KINDS:
-            problems.append(f"argument {a.name!r} has kind {a.kind!r}; use one of {ARG_KINDS}")
-        elif (a.is_reference or a.kind == "function") and a.default is not REQUIRED:
-            problems.append(f"{a.kind} argument {a.name!r} cannot have a default")
-    if not any(a.is_reference for a in sig):
-        problems.append("signature attaches no body (no point or body argument)")
+    problems += signature_problems(getattr(ftype, "signature", None))
     if type(ftype).loads is ForceType.loads:
         problems.append("method loads() is missing: a force type writes its loads")
     return problems
