@@ -22,31 +22,12 @@ from .errors import MechError, Source
 from .grammar import normalise, parse
 from .plugins.registry import Registry
 
-#: Keywords that start a statement and name nothing else: a statement starts here
-_RESERVED = {"param", "body", "joint", "drive", "simulate", "output", "sweep", "plugin"}
-#: Keywords that start a statement unless a name or a value is expected there
-_SOFT = {"force", "gravity", "trace", "units", "ground"}
-#: After these, a word is a name or a value, not the start of a statement
-_EXPECTS_VALUE = {"param", "body", "joint", "drive", "force", "sweep", "point", "trace", ":",
-                  ".", "=", ",", "(", "[", "+", "-", "*", "/", "^", "..", "<", "<=", ">",
-                  ">=", "if", "then", "else", "and", "or", "not", "step", "count"}
-
-
 def statement_spans(text: str) -> list[tuple[int, int]]:
     """(start, end) offsets of each statement of ``text`` (a best cut for broken text)."""
-    from .grammar.parser import _parser
+    from .grammar.symbols import statement_starts, tokens
 
-    starts: list[int] = []
-    prev = None
-    try:
-        tokens = list(_parser().lex(text))
-    except Exception:  # noqa: BLE001 - a character no token takes: cut at lines instead
-        tokens = []
-    for tok in tokens:
-        word = str(tok)
-        if word in _RESERVED or (word in _SOFT and prev not in _EXPECTS_VALUE):
-            starts.append(tok.start_pos)
-        prev = word
+    toks = tokens(text)
+    starts = [toks[i].offset for i in statement_starts(toks)]
     if not starts:
         return [(0, len(text))] if text.strip() else []
     bounds = [0] + starts[1:] + [len(text)]

@@ -44,6 +44,12 @@ async def test_the_capabilities(client: LanguageClient):
     assert caps.document_formatting_provider
     assert caps.document_symbol_provider
     assert caps.text_document_sync is not None
+    for provider in ("hover_provider", "definition_provider", "references_provider",
+                     "folding_range_provider", "completion_provider"):
+        assert getattr(caps, provider), provider
+    assert caps.rename_provider.prepare_provider
+    legend = caps.semantic_tokens_provider.legend
+    assert {"keyword", "class", "property", "type", "variable"} <= set(legend.token_types)
 
 
 @pytest.mark.asyncio
@@ -63,7 +69,12 @@ async def test_a_valid_file_has_no_diagnostic_and_its_outline(client: LanguageCl
     path = EXAMPLES / "slider_crank.mech"
     open_doc(client, path.as_uri(), path.read_text())
     await client.wait_for_notification(lsp.TEXT_DOCUMENT_PUBLISH_DIAGNOSTICS)
-    assert client.diagnostics[path.as_uri()] == []
+    # no error; what mechdsl check finds, as information on the simulate statement
+    (info,) = client.diagnostics[path.as_uri()]
+    assert info.severity == lsp.DiagnosticSeverity.Information
+    assert info.range.start.line == 29  # simulate t = 0 .. 1 step 0.001
+    assert info.message.startswith("3 bodies, 9 coordinates, 8 joint equations: mobility 1, "
+                                   "1 drive; assembles at t = 0")
     symbols = await client.text_document_document_symbol_async(
         lsp.DocumentSymbolParams(text_document=lsp.TextDocumentIdentifier(uri=path.as_uri())))
     names = [s.name for s in symbols]
@@ -129,6 +140,12 @@ async def test_hover_shows_a_type_a_param_and_a_body(client: LanguageClient):
     assert "without relative rotation" in prismatic  # the plugin's own description
     assert "param omega = 4*pi" in await hover("drive", "omega")
     assert "points A, B" in await hover("joint A", "crank.A")
+    assert "param **omega** = 12.5664" in await hover("drive", "omega")
+    # a point's body coordinates, evaluated; an output's meaning and unit
+    assert "point **crank.A** at (-1, 0) in body coordinates" in \
+        await hover("joint A", "A)")
+    assert await hover("output", "vx") == "output **slider.vx**: velocity, x, in m/s"
+    assert "drive crank_angle: angle(crank)" in await hover("drive", "crank_angle")
 
 
 @pytest.mark.asyncio
@@ -208,3 +225,112 @@ async def test_completion_offers_points_types_keywords_and_names(client: Languag
     names = await offered("param k = 2*")
     assert {"r", "l", "omega", "crank", "sin", "pi"} <= set(names)
     assert {"param", "body", "joint", "simulate"} <= set(await offered("\n"))
+
+
+@pytest.mark.asyncio
+async def test_a_file_that_does_not_assemble_is_a_warning(client: LanguageClient, tmp_path):
+    text = (EXAMPLES / "slider_crank.mech").read_text().replace("param l = 3.5", "param l = 0.5")
+    uri = (tmp_path / "short.mech").as_uri()
+    open_doc(client, uri, text)
+    await client.wait_for_notification(lsp.TEXT_DOCUMENT_PUBLISH_DIAGNOSTICS)
+    (warning,) = client.diagnostics[uri]
+    assert warning.severity == lsp.DiagnosticSeverity.Warning
+    assert warning.message.startswith("the mechanism cannot be assembled at t = 0")
+
+
+@pytest_lsp.fixture(config=ClientServerConfig(server_command=[sys.executable, "-m", "mechdsl",
+                                                              "lsp"]))
+async def slow_client(lsp_client: LanguageClient):
+    await lsp_client.initialize_session(lsp.InitializeParams(
+        capabilities=client_capabilities("visual-studio-code"),
+        initialization_options={"debounce": 0.5, "assemble": False}))
+    yield
+    await lsp_client.shutdown_session()
+
+
+@pytest.mark.asyncio
+async def test_changes_are_debounced(slow_client: LanguageClient, tmp_path):
+    import asyncio
+
+    client = slow_client
+    uri = (tmp_path / "typing.mech").as_uri()
+    open_doc(client, uri, "param a = 1\n")
+    await client.wait_for_notification(lsp.TEXT_DOCUMENT_PUBLISH_DIAGNOSTICS)
+    assert client.diagnostics[uri] == []
+    # five keystrokes in a burst: each intermediate text has an error, the last has two
+    for version, text in enumerate(["param a = 1\nparam", "param a = 1\nparam b",
+                                    "param a = 1\nparam b =", "param a = 1\nparam b = c",
+                                    "param a = 1\nparam b = c\nparam"], start=2):
+        client.text_document_did_change(lsp.DidChangeTextDocumentParams(
+            text_document=lsp.VersionedTextDocumentIdentifier(uri=uri, version=version),
+            content_changes=[lsp.TextDocumentContentChangeEvent_Type2(text=text)]))
+    await client.wait_for_notification(lsp.TEXT_DOCUMENT_PUBLISH_DIAGNOSTICS)
+    # one check, of the newest text: its two errors, and no other publication follows
+    assert [d.range.start.line for d in client.diagnostics[uri]] == [1, 2]
+    with pytest.raises(asyncio.TimeoutError):
+        await asyncio.wait_for(
+            client.wait_for_notification(lsp.TEXT_DOCUMENT_PUBLISH_DIAGNOSTICS), 1.0)
+
+
+def decode(data: list[int], legend, text: str) -> dict[tuple[int, str], tuple[str, set]]:
+    """{(line, word): (type, modifiers)} from LSP's relative encoding (a word's first token on
+    its line)."""
+    lines, out, line, col = text.split("\n"), {}, 0, 0
+    for i in range(0, len(data), 5):
+        dl, dc, length, kind, mods = data[i : i + 5]
+        line, col = line + dl, (col + dc if dl == 0 else dc)
+        word = lines[line][col : col + length]
+        out.setdefault((line + 1, word), (legend.token_types[kind], {
+            m for b, m in enumerate(legend.token_modifiers) if mods >> b & 1}))
+    return out
+
+
+@pytest.mark.asyncio
+async def test_semantic_tokens_colour_names_by_what_they_name(client: LanguageClient):
+    path = EXAMPLES / "slider_crank.mech"
+    text = path.read_text()
+    open_doc(client, path.as_uri(), text)
+    result = await client.text_document_semantic_tokens_full_async(lsp.SemanticTokensParams(
+        text_document=lsp.TextDocumentIdentifier(uri=path.as_uri())))
+    tokens = decode(result.data, client.capabilities_seen.semantic_tokens_provider.legend, text)
+    assert tokens[(3, "param")] == ("keyword", set())
+    assert tokens[(3, "r")] == ("variable", {"declaration", "readonly"})
+    assert tokens[(3, "2")] == ("number", set())
+    assert tokens[(9, "crank")] == ("class", {"declaration"})
+    assert tokens[(11, "A")] == ("property", {"declaration"})
+    assert tokens[(23, "A")][0] == "event"  # the joint A, not the point crank.A
+    assert tokens[(23, "revolute")] == ("type", set())
+    assert tokens[(23, "origin")] == ("property", {"defaultLibrary"})
+    assert tokens[(26, "axis")] == ("parameter", set())
+    assert tokens[(28, "t")] == ("variable", {"defaultLibrary"})
+    assert tokens[(31, '"m"')] == ("string", set())
+    assert tokens[(32, "vx")] == ("enumMember", {"defaultLibrary"})
+
+
+@pytest.mark.asyncio
+async def test_rename_a_joint_and_a_point_and_refuse_a_clash(client: LanguageClient, tmp_path):
+    from pygls.exceptions import JsonRpcException
+
+    text = (EXAMPLES / "slider_crank.mech").read_text() + "output D.fx, D.fy, crank.B.x\n"
+    uri = (tmp_path / "r.mech").as_uri()
+    open_doc(client, uri, text)
+    ident = lsp.TextDocumentIdentifier(uri=uri)
+
+    async def rename(line_start, word, new_name, offset=1):
+        edit = await client.text_document_rename_async(lsp.RenameParams(
+            text_document=ident, position=position_of(text, line_start, word, offset),
+            new_name=new_name))
+        return sorted((c.range.start.line + 1, c.range.start.character)
+                      for c in edit.changes[uri])
+
+    # the joint D: its declaration and its two reactions in the output
+    assert await rename("joint D", "D", "guide", 0) == [(26, 6), (33, 7), (33, 13)]
+    # the point crank.B: declared, joined, output; not rod.B nor the joint B
+    assert await rename("joint B", "crank.B", "tip", 6) == [(12, 10), (24, 24), (33, 25)]
+    prepared = await client.text_document_prepare_rename_async(lsp.PrepareRenameParams(
+        text_document=ident, position=position_of(text, "joint A", "revolute")))
+    assert prepared is None  # a type belongs to its plugin
+    with pytest.raises(JsonRpcException, match="already a body named 'rod'"):
+        await rename("body crank", "crank", "rod")
+    with pytest.raises(JsonRpcException, match="not a name the language accepts"):
+        await rename("param r", "r =", "joint", 0)
