@@ -97,6 +97,18 @@ async def test_formatting_is_mechdsl_fmt(client: LanguageClient, tmp_path):
     (edit,) = edits
     assert edit.new_text == format_text(text)
     assert edit.range.start == lsp.Position(line=0, character=0)
+    # slider_crank.mech, its layout undone (indentation, spacing), formats back to itself
+    example = (EXAMPLES / "slider_crank.mech").read_text()
+    messy = "\n".join(line if "#" in line else
+                      " ".join(line.split()).replace(" = ", "=").replace(", ", ",")
+                      for line in example.split("\n"))
+    assert messy != example
+    uri = (tmp_path / "sc.mech").as_uri()
+    open_doc(client, uri, messy)
+    (edit,) = await client.text_document_formatting_async(lsp.DocumentFormattingParams(
+        text_document=lsp.TextDocumentIdentifier(uri=uri),
+        options=lsp.FormattingOptions(tab_size=4, insert_spaces=True)))
+    assert edit.new_text == example
 
 
 @pytest.mark.asyncio
