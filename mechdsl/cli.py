@@ -108,8 +108,11 @@ def _parser() -> argparse.ArgumentParser:
 
     sub.add_parser("plugins", help="list the installed joint, drive and force types")
 
-    sub.add_parser("lsp", help="a language server over standard input and output "
-                              "(pip install mechdsl[lsp])")
+    lsp = sub.add_parser("lsp", help="a language server over standard input and output "
+                                    "(pip install mechdsl[lsp])")
+    # clients built on vscode-languageclient's stdio transport, and some others, append it
+    lsp.add_argument("--stdio", action="store_true",
+                     help="talk over standard input and output (the default and only way)")
 
     fmt = sub.add_parser("fmt", help="write .mech files in the canonical layout")
     fmt.add_argument("files", metavar="FILE", nargs="+", help="the .mech files to format")

@@ -147,6 +147,8 @@ def _evaluated(text: str, path: str) -> tuple[object | None, dict[str, float]]:
     try:
         model = parse(text, path)
     except MechError:
+        model = _declarations(text, path)
+    if model is None:
         return None, {}
     values: dict[str, float] = {}
     for p in model.params:
@@ -156,6 +158,31 @@ def _evaluated(text: str, path: str) -> tuple[object | None, dict[str, float]]:
         except Exception:  # noqa: BLE001 - a param of a sweep or a table: shown as written
             continue
     return model, values
+
+
+#: The statements a hover reads values from: a file with an error elsewhere still has them
+_DECLARATIONS = ("param", "ground", "body", "units")
+
+
+def _declarations(text: str, path: str):
+    """The model of ``text``'s params, ground, bodies and units alone (a file whose joints or
+    drives have errors still shows its values on hover), or None if even they do not parse.
+    Blank lines replace the other statements, so that lines keep their numbers."""
+    from .grammar import parse
+    from .grammar.symbols import statement_starts, tokens
+
+    toks = tokens(text)
+    starts = statement_starts(toks)
+    keep = bytearray(len(text))
+    for i, start in enumerate(starts):
+        end = toks[starts[i + 1]].offset if i + 1 < len(starts) else len(text)
+        if toks[start].text in _DECLARATIONS:
+            keep[toks[start].offset:end] = b"\x01" * (end - toks[start].offset)
+    kept = "".join(c if keep[k] or c == "\n" else " " for k, c in enumerate(text))
+    try:
+        return parse(kept + "\nsimulate t = 0 .. 1 step 1\n", path)
+    except MechError:
+        return None
 
 
 def _number(e, values: dict[str, float]) -> str:

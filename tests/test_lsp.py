@@ -11,7 +11,7 @@ import pytest_lsp
 from lsprotocol import types as lsp
 from pytest_lsp import ClientServerConfig, LanguageClient, client_capabilities
 
-from conftest import EXAMPLES
+from conftest import EXAMPLES, ROOT
 from mechdsl.grammar.format import format_text
 
 BROKEN = """param r = 2
@@ -23,8 +23,10 @@ output crank.x, crnk.x
 """
 
 
+# started as clients on vscode-languageclient's stdio transport start it, with --stdio (the
+# slow_client fixture below starts it without)
 @pytest_lsp.fixture(config=ClientServerConfig(server_command=[sys.executable, "-m", "mechdsl",
-                                                              "lsp"]))
+                                                              "lsp", "--stdio"]))
 async def client(lsp_client: LanguageClient):
     result = await lsp_client.initialize_session(
         lsp.InitializeParams(capabilities=client_capabilities("visual-studio-code")))
@@ -158,6 +160,28 @@ async def test_hover_shows_a_type_a_param_and_a_body(client: LanguageClient):
         await hover("joint A", "A)")
     assert await hover("output", "vx") == "output **slider.vx**: velocity, x, in m/s"
     assert "drive crank_angle: angle(crank)" in await hover("drive", "crank_angle")
+
+
+@pytest.mark.asyncio
+async def test_hover_evaluates_values_in_a_file_with_mistakes(client: LanguageClient, tmp_path):
+    # the joints and the drive are wrong (the README's captured session): the params and the
+    # points still hover with their values, r = 2 and l = 3.5 giving crank.B at (1, 0)
+    text = (EXAMPLES / "slider_crank.mech").read_text()
+    text = text.replace("revolute(crank.B", "revolute(cranck.B").replace("+ omega*t", "+ omga*t")
+    uri = (tmp_path / "mistakes.mech").as_uri()
+    open_doc(client, uri, text)
+    await client.wait_for_notification(lsp.TEXT_DOCUMENT_PUBLISH_DIAGNOSTICS)
+    assert len(client.diagnostics[uri]) == 2
+    ident = lsp.TextDocumentIdentifier(uri=uri)
+
+    async def hover(line_start, word):
+        result = await client.text_document_hover_async(lsp.HoverParams(
+            text_document=ident, position=position_of(text, line_start, word)))
+        return result.contents.value
+
+    assert "point **rod.B** at (-1.75, 0) in body coordinates" in \
+        await hover("joint B", ".B)")
+    assert "param **omega** = 12.5664" in await hover("param omega", "omega")
 
 
 @pytest.mark.asyncio
@@ -346,3 +370,22 @@ async def test_rename_a_joint_and_a_point_and_refuse_a_clash(client: LanguageCli
         await rename("body crank", "crank", "rod")
     with pytest.raises(JsonRpcException, match="not a name the language accepts"):
         await rename("param r", "r =", "joint", 0)
+
+
+@pytest.mark.asyncio
+async def test_the_readme_capture_is_what_the_server_says(client: LanguageClient):
+    # docs/images/nvim-diagnostics.txt, shown in the README, was captured from Neovim on
+    # editors/nvim/mistakes.mech: the server still gives each of those errors on those lines
+    path = ROOT / "editors" / "nvim" / "mistakes.mech"
+    open_doc(client, path.as_uri(), path.read_text())
+    await client.wait_for_notification(lsp.TEXT_DOCUMENT_PUBLISH_DIAGNOSTICS)
+    published = {(d.range.start.line + 1, d.message.split("\n")[0])
+                 for d in client.diagnostics[path.as_uri()]}
+    captured = set()
+    for line in (ROOT / "docs" / "images" / "nvim-diagnostics.txt").read_text().split("\n"):
+        if line.startswith("E ") and "● " in line:
+            captured.add((int(line[1:6]), line.split("● ", 1)[1]))
+    assert len(captured) == 4 and len(published) == 4
+    for number, shown in captured:
+        assert any(n == number and message.startswith(shown) for n, message in published), \
+            (number, shown, published)
