@@ -22,7 +22,7 @@ from .compiled.files import read_files, read_tables
 from .compiled.system import System
 from .compiled.variants import Overrides
 from .errors import MechError, NumericalError, Source, Span
-from .grammar import Model, normalise, parse, parse_expr, parse_expr_list
+from .grammar import Model, normalise, parse, parse_expr, parse_expr_list, parse_reductions
 from .grammar.expr import to_text
 from .plugins.manager import allowed_plugins, build_registry
 from .plugins.registry import Registry
@@ -243,8 +243,12 @@ class Mechanism:
         params: Mapping[str, float] | None = None,
         options: SolverOptions | None = None,
         poses: bool = False,
+        reduce: str | Sequence[str] | None = None,
+        client=None,
+        chunk: int | None = None,
+        store: str | os.PathLike | None = None,
         **param_values: float,
-    ) -> Results:
+    ):
         """Compile with the given overrides and solve.
 
         ``span = (t0, t1)`` and ``step`` replace the file's ``simulate`` line. Params are
@@ -252,7 +256,17 @@ class Mechanism:
         the keywords here); ``sweep`` maps param names to lists of values. Every value may
         be a number or, as on the command line (``--set l=3*2``), the text of an expression
         of the params before it (``l="3*2"``, ``sweep={"l": ["r", "2*r"]}``). ``poses``
-        keeps every body's pose at every instant in ``Results.poses``.
+        keeps every body's pose at every instant in ``Results.poses``. ``reduce`` replaces
+        the file's outputs by reductions, as ``mechdsl run --reduce`` (``"max(abs(slider.ax)),
+        stroke = range(slider.x)"``, or a list of such texts): one value per variant, in
+        ``Results.reduced``.
+
+        A sweep is solved in chunks of ``chunk`` variants (by default chosen from the model's
+        size, at most 1000), as ``mechdsl run`` does: on the cluster of the Dask ``client``
+        (``distributed.Client``) if one is given, else in this process; the results are the
+        same bit for bit either way. With ``store`` (a ``.zarr`` or ``.parquet`` path) each
+        chunk is written there where it was solved, nothing is held whole, and the stored
+        results are returned, read lazily (:class:`mechdsl.outputs.store.StoredResults`).
         """
         names = [p.name for p in self.model.params]
 
@@ -267,7 +281,42 @@ class Mechanism:
                        t1=value(t1, "span"), step=value(step, "step"))
         if options is not None:  # one memory limit for the time grid and the run
             ov.max_memory = options.max_memory
-        return simulate(self.compile(ov), options, poses=poses)
+        mech = self.reducing(reduce) if reduce is not None else self
+        from .study import plan, solve_sweep
+
+        planned = plan(mech, ov, chunk)
+        system, total, size, _ = planned
+        if store is None and client is None and total <= size:
+            return simulate(system, options, poses=poses)
+        if store is not None:
+            from .outputs.store import open_store, store_kind
+
+            store = os.fspath(store)
+            if store_kind(store) is None:
+                raise MechError(f"store={store!r}: a store is a .zarr or .parquet path")
+        results = solve_sweep(mech, ov, options, client=client, store=store, poses=poses,
+                              planned=planned)
+        return results if store is None else open_store(store)
+
+    def reducing(self, reduce: str | Sequence[str]) -> "Mechanism":
+        """This mechanism with its outputs replaced by the reductions of ``reduce`` (the text
+        of ``mechdsl run --reduce``, or a list of such texts), sharing its plugins."""
+        from dataclasses import replace
+
+        texts = [reduce] if isinstance(reduce, str) else list(reduce)
+        names = [p.name for p in self.model.params]
+        self.check_names()  # the file's own mistakes, located in the file
+        outputs = []
+        for text in texts:
+            found = parse_reductions(text, "--reduce", names)
+            try:  # what is left to find is in this text: locate it here
+                check_structure(replace(self.model, outputs=found), self.registry)
+            except MechError as err:
+                err.source = Source("--reduce", normalise(text))
+                raise
+            outputs.extend(found)
+        return Mechanism(replace(self.model, outputs=tuple(outputs)), registry=self.registry,
+                         allow_plugins=self._allowed)
 
 
 def parse_value(text: str, what: str, params: Iterable[str], many: bool = False):

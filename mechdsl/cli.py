@@ -59,49 +59,86 @@ def _parser() -> argparse.ArgumentParser:
                         help="let the model's 'plugin \"MODULE\"' line import MODULE (a model "
                              "file imports no module that is not an installed plugin otherwise)")
 
+    def run_options(run: argparse.ArgumentParser) -> None:
+        run.add_argument("-o", "--output", metavar="OUT.csv",
+                         help="write the results as CSV ('-' for standard output)")
+        run.add_argument("--plot", metavar="OUT.png", help="draw the time histories")
+        run.add_argument("--snapshot", metavar="OUT.png",
+                         help="draw the mechanism at a few instants over the traced paths")
+        run.add_argument("--at", metavar="T1,T2,...",
+                         help="the instants of --snapshot (default: six, evenly spread)")
+        run.add_argument("--animate", metavar="OUT.gif",
+                         help="write an animation of the motion (.gif; .mp4 with ffmpeg)")
+        run.add_argument("--export", metavar="OUT.xdmf",
+                         help="write the motion as meshes for ParaView: .xdmf (a time series) or "
+                              ".vtu (a file per instant and a .pvd index)")
+        run.add_argument("--frames", type=int, default=100, metavar="N",
+                         help="frames of the animation at most, at least 2 (default 100)")
+        run.add_argument("--trace", metavar="BODY.POINT", action="append", default=[],
+                         help="draw the path of this point (repeatable; adds to 'trace' lines)")
+        run.add_argument("--t0", type=float, help="start time (overrides the file)")
+        run.add_argument("--t1", type=float, help="end time (overrides the file)")
+        run.add_argument("--step", type=float, help="time step (overrides the file)")
+        run.add_argument("--newton-tol", type=float, metavar="TOL",
+                         help="Newton-Raphson step tolerance, relative to the model's size "
+                              "(default 1e-10)")
+        run.add_argument("--rtol", type=float, metavar="TOL",
+                         help="forward dynamics: the integrator's relative tolerance (overrides "
+                              "the simulate statement's; default 1e-8)")
+        run.add_argument("--atol", type=float, metavar="TOL",
+                         help="forward dynamics: the integrator's absolute tolerance, relative to "
+                              "the model's size (overrides the simulate statement's; default 1e-10)")
+        run.add_argument("--through-singular", action="store_true",
+                         help="at a singular position (dead point, change point) continue on the "
+                              "branch the motion was on, instead of stopping")
+        run.add_argument("--keep-nonfinite", action="store_true",
+                         help="keep positions, velocities or accelerations that are not finite "
+                              "numbers (inf, nan) in the results and go on, instead of stopping")
+        run.add_argument("--backend", metavar="NAME",
+                         help="auto (default: the compiled backend for runs of 100,000 states or "
+                              "more when numba is installed), numpy, or compiled")
+        run.add_argument("--reduce", metavar="OUTPUTS", action="append",
+                         help="replace the outputs by per-variant reductions, e.g. "
+                              "'max(abs(slider.ax)), stroke = range(slider.x)': one row per "
+                              "variant (max, min, mean, rms, range, initial, final, argmax, argmin)")
+        run.add_argument("--workers", metavar="N", type=int,
+                         help="solve the sweep's chunks on a local Dask cluster of N processes "
+                              "(pip install \"mechdsl[cluster]\")")
+        run.add_argument("--scheduler", metavar="ADDRESS",
+                         help="solve the sweep's chunks on the Dask cluster at ADDRESS "
+                              "(tcp://host:8786)")
+        run.add_argument("--chunk", metavar="N", type=int,
+                         help="variants per chunk of a sweep (default: chosen from the model's "
+                              "size, at most 1000; the results do not depend on where a chunk runs)")
+        run.add_argument("--max-memory", metavar="SIZE",
+                         help="refuse runs whose results would take more memory than this "
+                              "(e.g. 16G; default 4G)")
+        run.add_argument("-q", "--quiet", action="store_true", help="print only errors")
+
     run = sub.add_parser("run", help="solve a mechanism over time; write CSV and plots")
     model_options(run)
-    run.add_argument("-o", "--output", metavar="OUT.csv",
-                     help="write the results as CSV ('-' for standard output)")
-    run.add_argument("--plot", metavar="OUT.png", help="draw the time histories")
-    run.add_argument("--snapshot", metavar="OUT.png",
-                     help="draw the mechanism at a few instants over the traced paths")
-    run.add_argument("--at", metavar="T1,T2,...",
-                     help="the instants of --snapshot (default: six, evenly spread)")
-    run.add_argument("--animate", metavar="OUT.gif",
-                     help="write an animation of the motion (.gif; .mp4 with ffmpeg)")
-    run.add_argument("--export", metavar="OUT.xdmf",
-                     help="write the motion as meshes for ParaView: .xdmf (a time series) or "
-                          ".vtu (a file per instant and a .pvd index)")
-    run.add_argument("--frames", type=int, default=100, metavar="N",
-                     help="frames of the animation at most, at least 2 (default 100)")
-    run.add_argument("--trace", metavar="BODY.POINT", action="append", default=[],
-                     help="draw the path of this point (repeatable; adds to 'trace' lines)")
-    run.add_argument("--t0", type=float, help="start time (overrides the file)")
-    run.add_argument("--t1", type=float, help="end time (overrides the file)")
-    run.add_argument("--step", type=float, help="time step (overrides the file)")
-    run.add_argument("--newton-tol", type=float, metavar="TOL",
-                     help="Newton-Raphson step tolerance, relative to the model's size "
-                          "(default 1e-10)")
-    run.add_argument("--rtol", type=float, metavar="TOL",
-                     help="forward dynamics: the integrator's relative tolerance (overrides "
-                          "the simulate statement's; default 1e-8)")
-    run.add_argument("--atol", type=float, metavar="TOL",
-                     help="forward dynamics: the integrator's absolute tolerance, relative to "
-                          "the model's size (overrides the simulate statement's; default 1e-10)")
-    run.add_argument("--through-singular", action="store_true",
-                     help="at a singular position (dead point, change point) continue on the "
-                          "branch the motion was on, instead of stopping")
-    run.add_argument("--keep-nonfinite", action="store_true",
-                     help="keep positions, velocities or accelerations that are not finite "
-                          "numbers (inf, nan) in the results and go on, instead of stopping")
-    run.add_argument("--backend", metavar="NAME",
-                     help="auto (default: the compiled backend for runs of 100,000 states or "
-                          "more when numba is installed), numpy, or compiled")
-    run.add_argument("--max-memory", metavar="SIZE",
-                     help="refuse runs whose results would take more memory than this "
-                          "(e.g. 16G; default 4G)")
-    run.add_argument("-q", "--quiet", action="store_true", help="print only errors")
+    run_options(run)
+
+    optimize = sub.add_parser("optimize", help="find the params of the model's 'optimize' "
+                                               "statement that minimise its objective; then "
+                                               "run the model there (the options of run)")
+    model_options(optimize)
+    run_options(optimize)
+    optimize.add_argument("--popsize", type=int, metavar="N", default=15,
+                          help="differential evolution's population per varied param "
+                               "(default 15)")
+    optimize.add_argument("--maxiter", type=int, metavar="N", default=200,
+                          help="generations of the evolution at most (default 200)")
+    optimize.add_argument("--tol", type=float, metavar="TOL", default=1e-6,
+                          help="the evolution stops when its objectives' spread is below TOL "
+                               "times their mean (default 1e-6)")
+    optimize.add_argument("--seed", type=int, metavar="N", default=0,
+                          help="the evolution's random seed (default 0): a run is repeatable")
+    optimize.add_argument("--grid", type=int, metavar="N",
+                          help="brute force instead: the best of an N x N x ... grid of the "
+                               "ranges, solved as one sweep")
+    optimize.add_argument("--no-refine", action="store_true",
+                          help="skip the local refinement (SLSQP) of the evolution's best")
 
     check = sub.add_parser("check", help="parse, compile and assemble; print the structure")
     model_options(check)
@@ -119,8 +156,10 @@ def _parser() -> argparse.ArgumentParser:
     fmt.add_argument("--check", action="store_true",
                      help="change nothing; exit 1 if some file is not in the canonical layout")
 
-    plot = sub.add_parser("plot", help="redraw a CSV written by 'run', without solving again")
-    plot.add_argument("file", metavar="FILE.csv", help="a CSV written by mechdsl run -o")
+    plot = sub.add_parser("plot", help="redraw a CSV or a store written by 'run', without "
+                                      "solving again")
+    plot.add_argument("file", metavar="FILE", help="a CSV, .zarr or .parquet written by "
+                                                   "mechdsl run -o")
     plot.add_argument("-o", "--output", metavar="OUT.png",
                       help="the picture (default: FILE with the extension .png)")
     plot.add_argument("--only", metavar="Q1,Q2,...",
@@ -190,8 +229,8 @@ def _command(args, signals: SignalGuard) -> int:
             return ExitCode.OK
         from . import commands
 
-        if args.command == "run":
-            return commands.run_command(args, signals)
+        if args.command in ("run", "optimize"):
+            return getattr(commands, f"{args.command}_command")(args, signals)
         return getattr(commands, f"{args.command}_command")(args)
     except StdoutError as err:
         return _stdout_failed(err)

@@ -94,7 +94,7 @@ def _check_targets(args) -> None:
         if is_direct(path):
             continue  # a device, a pipe, a stream: written in place
         target = os.path.realpath(path)  # a link is written through: check what it names
-        if os.path.isdir(target):
+        if os.path.isdir(target) and not (option == "-o" and _is_store_path(path)):
             raise MechError(f"{option} {path}: that is a folder; give a file name")
         folder = os.path.dirname(target)
         if not os.path.isdir(folder):
@@ -117,6 +117,14 @@ def _check_targets(args) -> None:
         raise MechError(f"--frames {args.frames}: an animation needs at least 2 frames")
     if args.at is not None and not args.snapshot:
         raise MechError("--at chooses the instants of --snapshot, which is not given")
+
+
+def _is_store_path(path: str) -> bool:
+    """A .zarr or .parquet path: a folder that -o may replace if mechdsl wrote it
+    (:func:`mechdsl.outputs.store.create_store` checks which)."""
+    from .outputs.store import store_kind
+
+    return store_kind(path) is not None
 
 
 def _override_files(ov: Overrides) -> list[str]:
@@ -236,9 +244,18 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
         from .grammar.model import OutputRef
         extra = tuple(OutputRef(tuple(_trace_ref(mech.model, r)), None) for r in args.trace)
         mech.model = replace(mech.model, traces=mech.model.traces + extra)
+    if getattr(args, "reduce", None):
+        mech = mech.reducing(args.reduce)
     ov = _overrides(mech, args)
-    system = mech.compile(ov)
+    from .study import plan, solve_sweep
+
+    planned = plan(mech, ov, args.chunk)
+    system, total, chunk, _ = planned
     _check_outputs(args, mech, ov, system, at)
+    if system.reductions:
+        _check_reduced(args, system)
+    store = _store(args)
+    client = _client(args)
     drawing = bool(args.snapshot or args.animate)
     from .memory import outputs_bytes
 
@@ -247,15 +264,123 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
                           frames_kept=str(args.animate).lower().endswith(".gif"),
                           export=args.export)
     bar = ProgressBar(sys.stderr) if not args.quiet else None
+    options = _options(args)
     try:
-        results = simulate(system, _options(args), poses=drawing, rates=bool(args.export),
-                           progress=bar, extra_memory=extra)
+        if store is None and client is None and total <= chunk:
+            results = simulate(system, options, poses=drawing, rates=bool(args.export),
+                               progress=bar, extra_memory=extra)
+        else:  # chunks of the sweep, here or on the cluster, merged or into the store
+            results = solve_sweep(mech, ov, options, client=client, store=store,
+                                  poses=drawing, rates=bool(args.export), progress=bar,
+                                  planned=planned, extra_memory=extra)
     finally:
         signals.hold()  # what was solved is written whole before any signal acts
         if bar is not None:
             bar.close()
+        if client is not None:
+            _close(client)
+    if store is not None:
+        return _report(args, results, [store], None, signals)
     written, stop = _write_outputs(args, system, results, at, signals)
     return _report(args, results, written, stop, signals)
+
+
+def _store(args) -> str | None:
+    """The -o path when it names a store (.zarr, .parquet), which takes the results chunk by
+    chunk; None for a CSV. Drawings need the histories in memory: refused with a store."""
+    from .outputs.store import store_kind
+
+    if not args.output or store_kind(args.output) is None:
+        return None
+    for option, given in (("--plot", args.plot), ("--snapshot", args.snapshot),
+                          ("--animate", args.animate), ("--export", args.export)):
+        if given:
+            raise MechError(f"{option} with -o {args.output}: a store is written a chunk at "
+                            f"a time and never held whole; draw from it afterwards with "
+                            f"mechdsl plot {args.output}")
+    return args.output
+
+
+def _client(args):
+    """The Dask client of --workers N (a local cluster) or --scheduler ADDRESS, or None."""
+    if args.workers is not None and args.scheduler is not None:
+        raise MechError("--workers starts a local cluster and --scheduler names one; give "
+                        "one of them")
+    from .study.run import local_client, remote_client
+
+    if args.workers is not None:
+        return local_client(args.workers)
+    if args.scheduler is not None:
+        return remote_client(args.scheduler)
+    return None
+
+
+def _close(client) -> None:
+    """Close a client, and the local cluster it started (not a remote one)."""
+    cluster = client.cluster
+    client.close()
+    if cluster is not None and type(cluster).__name__ == "LocalCluster":
+        cluster.close()
+
+
+def optimize_command(args, signals: SignalGuard | None = None) -> int:
+    """``mechdsl optimize``: the params of the model's ``optimize`` statement at the minimum
+    of its objective under its requirements (:func:`mechdsl.study.optimize.optimize`), on
+    the cluster of --workers or --scheduler if given; printed, then the model run there with
+    the options of ``run`` (``-o``, ``--plot``, ...). No design satisfying the requirements:
+    exit 2, nothing run."""
+    from .study.optimize import optimize
+
+    _check_targets(args)
+    mech = load(args.file, plugins=args.plugin, allow_plugins=args.allow_plugin,
+                max_memory=_max_memory(args) or MAX_MEMORY)
+    if mech.model.optimization is None:
+        raise MechError(f"{args.file} has no 'optimize' statement: add one, such as "
+                        "'optimize l in 2.5 .. 4', and 'minimize EXPR'")
+    if args.reduce:
+        raise MechError("--reduce: the outputs of the run at the optimum are the file's; the "
+                        "objective is its 'minimize' statement")
+    ov = _overrides(mech, args)
+    client = _client(args)
+    try:
+        best = optimize(mech, ov, _options(args), client=client, chunk=args.chunk,
+                        popsize=args.popsize, maxiter=args.maxiter, tol=args.tol,
+                        seed=args.seed, refine=not args.no_refine, run=False,
+                        grid=args.grid)
+    finally:
+        if client is not None:
+            _close(client)
+    opt = mech.model.optimization
+    width = max(len(k) for k in best.params)
+    lines = [f"{args.file}: {'minimum' if opt.sense == 'min' else 'maximum'} found at"]
+    lines += [f"  {k:<{width}} = {v!r}" for k, v in best.params.items()]
+    lines.append(f"objective: {best.objective!r}")
+    for text, slack in best.requirements.items():
+        lines.append(f"requirement {text}: {'holds' if slack >= 0 else 'VIOLATED'} "
+                     f"(slack {slack:.6g})")
+    lines.append(f"{best.variants} variants solved in {best.sweeps} sweeps, "
+                 f"{best.seconds:.2f} s ({best.message})")
+    emit("\n".join(lines))
+    if not best.feasible:
+        raise NumericalError("no design in the ranges satisfies every requirement; the best "
+                             "found is above", source=Source(args.file, ""))
+    args.set = list(args.set) + [f"{k}={v!r}" for k, v in best.params.items()]
+    args.workers = args.scheduler = None
+    return run_command(args, signals)
+
+
+def _check_reduced(args, system: System) -> None:
+    """A run of reductions keeps one value per variant, no motion: refuse what draws one."""
+    first = system.reductions[0].label
+    for option, given in (("--snapshot", args.snapshot), ("--animate", args.animate),
+                          ("--export", args.export)):
+        if given:
+            raise MechError(f"{option} draws the motion, and this run keeps one value per "
+                            f"variant ('{first}'): write the histories in a run without "
+                            "reductions to draw them")
+    if args.plot and not system.sweep:
+        raise MechError(f"--plot: the outputs are reductions ('{first}'), one value for the "
+                        "run, nothing to plot without a sweep")
 
 
 @contextlib.contextmanager
@@ -345,9 +470,16 @@ def _written_lines(args, results, written: list[str]) -> list[str]:
     standard output), the plot, the snapshot's instants, the animation's frames, the files
     of the export."""
     lines = []
-    if args.output in written and args.output != "-":
-        lines.append(f"{args.output}: {int(results.n_solved.sum())} rows "
-                     f"({results.solve_time * 1e3:.1f} ms)")
+    from .outputs.store import store_kind
+
+    kind = store_kind(args.output) if args.output else None
+    if kind is not None and args.output in written:
+        lines.append(f"{args.output}: {results.n_variants} variant"
+                     f"{'s' if results.n_variants != 1 else ''} ({int(results.n_solved.sum())} "
+                     f"instants solved), a {kind} store ({results.solve_time * 1e3:.1f} ms)")
+    elif args.output in written and args.output != "-":
+        rows = results.n_variants if results.reduced else int(results.n_solved.sum())
+        lines.append(f"{args.output}: {rows} rows ({results.solve_time * 1e3:.1f} ms)")
     if args.plot in written:
         n = len(results.labels)
         lines.append(f"{args.plot}: plot of {n} quantit{'ies' if n != 1 else 'y'}")
@@ -499,14 +631,31 @@ def fmt_command(args) -> int:
     return 1 if (args.check and changed) else 0
 
 
+#: ``mechdsl plot`` of a store draws at most this many variants' histories
+MAX_PLOTTED = 40
+
+
 def plot_command(args) -> int:
     """``mechdsl plot FILE.csv``: the time-history figure of a CSV written by ``run``."""
     from .outputs.csv import read_csv
     from .outputs.plot import plot_results
+    from .outputs.store import open_store, store_kind
 
-    results = read_csv(args.file)
-    out = args.output or os.path.splitext(args.file)[0] + ".png"
-    check_distinct([("the CSV file", args.file)], [Output("-o", out)])
+    if store_kind(args.file) is not None:
+        stored = open_store(args.file)
+        shown = np.arange(stored.n_variants)
+        if stored.n_variants > MAX_PLOTTED and not stored.reduced:
+            # a line per variant: beyond a few dozen, an even selection of them says more
+            shown = np.unique(np.linspace(0, stored.n_variants - 1, MAX_PLOTTED).round()
+                              ).astype(int)
+            print(f"{args.file}: {stored.n_variants} variants; plotting {len(shown)} of them, "
+                  "evenly spaced", file=sys.stderr)
+        results = stored.to_results(shown)
+    else:
+        results = read_csv(args.file)
+    out = args.output or os.path.splitext(args.file.rstrip("/"))[0] + ".png"
+    what = "the CSV file" if store_kind(args.file) is None else "the store"
+    check_distinct([(what, args.file)], [Output("-o", out)])
     FORMATS["plot"].check(out, option="-o")
     labels = None
     if args.only:

@@ -40,6 +40,10 @@ class Results:
     #: the unit of each output quantity and of time, where the model gives them (labels)
     units: Mapping[str, str] = field(default_factory=dict)
     time_unit: str = ""
+    #: per-variant reductions (``output peak = max(abs(slider.ax))``), each (V,): a run
+    #: asked for them keeps no histories (``data`` is empty); NaN for a variant that did not
+    #: solve every instant
+    reduced: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -47,8 +51,8 @@ class Results:
 
     @property
     def labels(self) -> tuple[str, ...]:
-        """The output quantities, in the order requested."""
-        return tuple(self.data)
+        """The output quantities (or reductions), in the order requested."""
+        return tuple(self.reduced or self.data)
 
     @property
     def n_variants(self) -> int:
@@ -63,17 +67,23 @@ class Results:
             return self.times[:last]
         if key in self.sweep:
             return np.asarray(self.sweep[key])
+        if key in self.reduced:
+            a = np.asarray(self.reduced[key])
+            return a[0] if not self.sweep else a
         if key not in self.data:
             raise KeyError(f"no output '{key}'; outputs: {', '.join(self.data)}")
         a = self.data[key][:, :last]
         return a[0] if not self.sweep else a
 
     def __contains__(self, key: str) -> bool:
-        return key == "t" or key in self.data or key in self.sweep
+        return key == "t" or key in self.data or key in self.sweep or key in self.reduced
 
     @property
     def header(self) -> list[str]:
-        """The CSV's columns: swept params, ``t``, then the outputs."""
+        """The CSV's columns: swept params, ``t``, then the outputs; for reductions, swept
+        params then the reductions (one row per variant)."""
+        if self.reduced:
+            return [*self.sweep, *self.reduced]
         return [*self.sweep, "t", *self.data]
 
     def table(self) -> tuple[list[str], np.ndarray]:
@@ -94,10 +104,12 @@ def summary(results: Results) -> str:
         + f", solved in {results.solve_time * 1e3:.1f} ms",
         f"largest constraint residual: {results.residual:.3g}",
     ]
-    if results.data:
-        width = max(len(label) for label in results.data)
-        lines.append(f"{'quantity':<{width}}  {'min':>14}  {'max':>14}")
-        for label, a in results.data.items():
+    columns = results.reduced or results.data
+    if columns:
+        width = max(len(label) for label in columns)
+        over = " over the variants" if results.reduced and results.sweep else ""
+        lines.append(f"{'quantity':<{width}}  {'min':>14}  {'max':>14}{over}")
+        for label, a in columns.items():
             finite = a[np.isfinite(a)]
             lo, hi = (finite.min(), finite.max()) if finite.size else (np.nan, np.nan)
             lines.append(f"{label:<{width}}  {lo:>14.6g}  {hi:>14.6g}")

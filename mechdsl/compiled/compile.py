@@ -20,7 +20,7 @@ from ..grammar.checks import TIME, check_expr
 from ..grammar.derive import derivative, total_derivative
 from ..grammar.model import (
     BODY_QUANTITIES, DRIVE_QUANTITIES, ENERGY_QUANTITIES, GROUND, JOINT_QUANTITIES, ORIGIN, POINT_QUANTITIES, Body,
-    Drive, Force, Joint, Model, NamedOutput, Vector,
+    Drive, Force, Joint, Model, NamedOutput, ReducedOutput, Vector,
 )
 from ..memory import check_compile
 from ..plugins.contract import REQUIRED, ArgError, ConstraintType
@@ -34,7 +34,7 @@ from .sparse import Pattern
 from . import dynamics as dyn
 from .system import (
     Constraint, DriveFunction, EnergyOutput, ExprOutput, Group, OutputSpec, ReactionOutput,
-    Sketch, System,
+    ReductionOutput, Sketch, System,
 )
 from .variants import Overrides, evaluate, time_grid
 
@@ -171,6 +171,7 @@ class _Compiler:
             time_unit=dict(self.model.units).get("time", ""),
             dynamics=self._dynamics(force_groups, elements, outputs),
             tolerances=self._tolerances(),
+            reductions=tuple(self.reductions),
         )
 
     # -- dynamics ------------------------------------------------------------------------------
@@ -516,6 +517,10 @@ class _Compiler:
     def _outputs(self) -> list[OutputSpec | ExprOutput]:
         refs = self.model.outputs
         out: list[OutputSpec | ExprOutput] = []
+        self.reductions: list[ReductionOutput] = []
+        reduced = [r for r in refs if isinstance(r, ReducedOutput)]
+        if reduced:
+            return self._reduced(refs, reduced)
         if not refs:
             for b in self.bodies:
                 out.extend(self._body_quantities(b.name, BODY_QUANTITIES))
@@ -530,6 +535,49 @@ class _Compiler:
                 seen.add(s.label)
             out.extend(specs)
         return out
+
+    def _reduced(self, refs, reduced: list[ReducedOutput]) -> list[OutputSpec | ExprOutput]:
+        """The columns the reductions read (a quantity, or an expression named by its text
+        in brackets), each once; the reductions themselves in ``self.reductions``."""
+        other = next((r for r in refs if not isinstance(r, ReducedOutput)), None)
+        if other is not None:
+            raise MechError(
+                f"output '{cut(getattr(other, 'name', '.'.join(getattr(other, 'parts', ()))))}'"
+                " is a history, and this run's other outputs have one value per variant "
+                f"('{cut(reduced[0].name)}'); a run gives one or the other: reduce it (max, "
+                "min, mean, final, ...) or write the histories in a run of their own",
+                other.span)
+        columns: dict[str, OutputSpec | ExprOutput] = {}
+        seen: set[str] = set()
+        for r in reduced:
+            if r.name in seen:
+                raise MechError(f"output '{cut(r.name)}' is requested twice", r.span)
+            seen.add(r.name)
+            parts = []
+            for k, red in enumerate(r.reductions):
+                e = red.expr
+                if isinstance(e, E.Name) and "." in e.id:
+                    spec = self._quantity(e.id, e.span or red.span, r.name)
+                else:
+                    text = f"[{E.to_text(e)}]"
+                    spec = columns.get(text) or self._expr_column(text, e, red.span, r.name)
+                columns.setdefault(spec.label, spec)
+                parts.append((f"@{k}", red.func, spec.label))
+            unit = ""
+            if isinstance(r.expr, E.Name) and len(parts) == 1:
+                func, label = parts[0][1:]
+                unit = (dict(self.model.units).get("time", "") if func.startswith("arg")
+                        else columns[label].unit)
+            self.reductions.append(ReductionOutput(r.name, E.compile_expr(r.expr), tuple(parts),
+                                                   r.expr, unit))
+        return list(columns.values())
+
+    def _expr_column(self, label: str, e: E.Expr, span: Span, owner: str) -> ExprOutput:
+        """A column computed by the expression ``e`` of params, ``t`` and quantities."""
+        names = {n.id: n.span for n in E.walk(e) if isinstance(n, E.Name) and "." in n.id}
+        inputs = tuple((n, self._quantity(n, names[n] or span, owner)) for n in sorted(names))
+        return ExprOutput(label, E.compile_expr(e), inputs,
+                          max((s.order for _, s in inputs), default=0), e)
 
     def _named(self, out: NamedOutput) -> list[ExprOutput]:
         """The columns of ``output NAME = EXPR``: NAME, and its exact time derivatives

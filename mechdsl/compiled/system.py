@@ -85,6 +85,20 @@ class ExprOutput:
 
 
 @dataclass(frozen=True)
+class ReductionOutput:
+    """One value per variant (``output peak = max(abs(slider.ax))``): ``function`` evaluated
+    on the params and on ``parts``, ``(name in the expression, reduction, output column)``:
+    each a reduction (:data:`mechdsl.grammar.model.REDUCTIONS`) of a column of the run's
+    ``outputs`` over its instants."""
+
+    label: str
+    function: Callable
+    parts: tuple[tuple[str, str, str], ...]
+    expr: E.Expr
+    unit: str = ""
+
+
+@dataclass(frozen=True)
 class ReactionOutput:
     """A load of constraint ``constraint`` from its Lagrange multipliers: a joint's reaction
     (``fx``, ``fy``, ``torque``) on moving body ``body`` (the torque about ``point`` (V, 1,
@@ -162,6 +176,8 @@ class System:
     dynamics: object | None = None
     #: the simulate statement's options (rtol, atol)
     tolerances: Mapping[str, float] = field(default_factory=dict)
+    #: per-variant reductions of the ``outputs`` (which are then their inputs only)
+    reductions: tuple[ReductionOutput, ...] = ()
 
     @functools.cached_property
     def lu(self) -> LUPlan | None:

@@ -7,7 +7,6 @@ within its limit, and the time grid to be the same for all variants.
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -42,6 +41,12 @@ class Overrides:
     step: E.Expr | float | None = None
     max_memory: int = MAX_MEMORY
     max_variants: int = MAX_VARIANTS
+    #: (start, stop): compile only the variants start .. stop-1 of the sweep (a chunk of a
+    #: study, :mod:`mechdsl.study`), None for all
+    variant_range: tuple[int, int] | None = None
+    #: the variants as rows of given values, {param: (V,)} (an optimiser's population)
+    #: instead of every combination of ``sweeps``
+    table: dict[str, np.ndarray] | None = None
 
 
 def as_expr(v: E.Expr | float) -> E.Expr:
@@ -74,6 +79,11 @@ class Variants:
 
 def evaluate(model: Model, ov: Overrides) -> Variants:
     """Every param for every combination of the sweeps (after overrides)."""
+    sweep = sweep_table(model, ov)
+    return Variants(sweep, _params(model, ov, sweep))
+
+
+def _check_overrides(model: Model, ov: Overrides) -> None:
     names = [p.name for p in model.params]
     for name in ov.params:
         _known(name, names, "cannot set")
@@ -83,8 +93,34 @@ def evaluate(model: Model, ov: Overrides) -> Variants:
             raise MechError(f"param '{name}' is given both a value and a sweep; give one")
         if len(ov.sweeps[name]) == 0:
             raise MechError(f"the sweep of '{name}' has no values")
-    sweep = _sweep_table(model, ov)
-    return Variants(sweep, _params(model, ov, sweep))
+
+
+def _given_table(model: Model, ov: Overrides) -> dict[str, np.ndarray]:
+    """``ov.table``'s rows (of ``ov.variant_range``), checked: known params, finite values,
+    columns of one length; the file's sweeps do not apply."""
+    names = [p.name for p in model.params]
+    columns = {k: np.asarray(v, dtype=float).ravel() for k, v in ov.table.items()}
+    for name, values in columns.items():
+        _known(name, names, "cannot vary")
+        if name in ov.params or name in ov.sweeps:
+            raise MechError(f"param '{name}' is given both a value and a table of values")
+        if not np.all(np.isfinite(values)):
+            raise MechError(f"a value of '{name}' is {_first_bad(values)}")
+    lengths = {len(v) for v in columns.values()}
+    if len(lengths) != 1 or 0 in lengths:
+        raise MechError("the table of variants needs columns of one, non-zero length")
+    total = lengths.pop()
+    start, stop = ov.variant_range or (0, total)
+    if not 0 <= start < stop <= total:
+        raise MechError(f"variants {start} .. {stop - 1} are not among the table's {total:,}")
+    return {k: v[start:stop].copy() for k, v in columns.items()}
+
+
+def sweep_table(model: Model, ov: Overrides) -> dict[str, np.ndarray]:
+    """The swept params' values of every variant (of ``ov.variant_range`` if given), each
+    (V,), without evaluating the other params: what a study's store records."""
+    _check_overrides(model, ov)
+    return _given_table(model, ov) if ov.table is not None else _sweep_table(model, ov)
 
 
 def _known(name: str, names: list[str], what: str) -> None:
@@ -111,9 +147,13 @@ def _sweep_table(model: Model, ov: Overrides) -> dict[str, np.ndarray]:
     if total > ov.max_variants:
         raise MechError(f"the sweeps make {total:,} variants, more than the limit of "
                         f"{ov.max_variants:,}")
-    table = np.array(list(itertools.product(*lists.values())), dtype=float)
-    table = table.reshape(total, len(lists))
-    return {name: table[:, i].copy() for i, name in enumerate(lists)}
+    start, stop = ov.variant_range or (0, total)
+    if not 0 <= start < stop <= total:
+        raise MechError(f"variants {start} .. {stop - 1} are not among the sweep's {total:,}")
+    # variant i is the i-th combination in row-major order (the first sweep varies slowest),
+    # found from its index so that a chunk never builds the whole table
+    digits = np.unravel_index(np.arange(start, stop), [len(v) for v in lists.values()])
+    return {name: values[d].astype(float) for (name, values), d in zip(lists.items(), digits)}
 
 
 def _dependents(model: Model, ov: Overrides, swept: set[str]) -> set[str]:

@@ -8,6 +8,6 @@ named, and read by :mod:`mechdsl.compiled`) and imports nothing from the later s
 """
 
 from .model import Model
-from .parser import normalise, parse, parse_expr, parse_expr_list
+from .parser import normalise, parse, parse_expr, parse_expr_list, parse_reductions
 
-__all__ = ["Model", "normalise", "parse", "parse_expr", "parse_expr_list"]
+__all__ = ["Model", "normalise", "parse", "parse_expr", "parse_expr_list", "parse_reductions"]

@@ -10,7 +10,8 @@ from __future__ import annotations
 from ..errors import MechError, Source, Span, cut, suggest
 from . import expr as E
 from .model import (
-    BODY_QUANTITIES, GROUND, ORIGIN, Body, Drive, Force, Joint, Model, NamedOutput, OutputRef, Param,
+    BODY_QUANTITIES, GROUND, ORIGIN, REDUCTIONS, Body, Drive, Force, Joint, Model, NamedOutput,
+    Optimization, OutputRef, Param, Reduction, ReducedOutput,
     Point, Polygon, Simulate, Sweep, Vector,
 )
 
@@ -194,6 +195,7 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
     plugins: list[tuple[str, Span]] = []
     forces: list[Force] = []
     gravity: Vector | None = None
+    optimizing: dict[str, tuple] = {}
 
     for st in statements:
         if isinstance(st, tuple) and isinstance(st[0], Param):
@@ -266,10 +268,16 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
         elif isinstance(st, tuple) and st[0] == "output":
             for item in st[1]:
                 if isinstance(item, NamedOutput):
-                    item = _named_output(item, defined)
+                    item = named_output(item, defined)
                 outputs.append(item)
         elif isinstance(st, tuple) and st[0] == "trace":
             traces.extend(st[1])
+        elif isinstance(st, tuple) and st[0] in ("optimize", "objective", "requirement"):
+            if st[0] in optimizing:
+                first = optimizing[st[0]][-1]
+                raise MechError(f"a second '{_OPT_WORDS[st[0]]}' statement; give all in one",
+                                st[-1], notes=[f"the first is at line {first.line}"])
+            optimizing[st[0]] = st
         elif isinstance(st, tuple) and st[0] == "units":
             for dim, text, span in st[1]:
                 if dim in units:
@@ -291,12 +299,68 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
                             + suggest(sw.name, param_names.seen), nspan)
     if ground is None:
         ground = Body(GROUND, (), None, Span(1, 1, 1, 1), True)
+    optimization = _optimization(optimizing, defined) if optimizing else None
     return Model(source, tuple(params), ground, tuple(bodies), tuple(joints), tuple(drives),
                  simulate, tuple(outputs), tuple(sweeps), tuple(plugins), tuple(traces),
-                 tuple(units.items()), tuple(files), tuple(forces), gravity)
+                 tuple(units.items()), tuple(files), tuple(forces), gravity, optimization)
 
 
-def _named_output(out: NamedOutput, params: set[str]) -> NamedOutput:
+_OPT_WORDS = {"optimize": "optimize", "objective": "minimize/maximize",
+              "requirement": "subject to"}
+_SLACK = {">=": lambda a, b: E.sub(a, b), ">": lambda a, b: E.sub(a, b),
+          "<=": lambda a, b: E.sub(b, a), "<": lambda a, b: E.sub(b, a)}
+
+
+def _optimization(found: dict[str, tuple], params: set[str]) -> Optimization:
+    """The ``optimize``, ``minimize``/``maximize`` and ``subject to`` statements, checked:
+    the varied names are params, each once, with bounds of the params; the objective and each
+    requirement's slack are reductions."""
+    if "optimize" not in found:
+        st = found.get("objective") or found["requirement"]
+        raise MechError(f"'{_OPT_WORDS[st[0]]}' without an 'optimize' statement naming the "
+                        "params to vary (optimize l in 2.5 .. 4)", st[-1])
+    _, ranges, span = found["optimize"]
+    if "objective" not in found:
+        raise MechError("'optimize' without an objective: add 'minimize EXPR' (or "
+                        "'maximize'), EXPR a reduction such as max(abs(slider.ax))", span)
+    seen: set[str] = set()
+    varied = {name for name, *_ in ranges}
+    for name, lo, hi, nspan in ranges:
+        if name not in params:
+            raise MechError(f"'{cut(name)}' is not a param; only params can be optimised"
+                            + suggest(name, params), nspan)
+        if name in seen:
+            raise MechError(f"'{cut(name)}' is varied twice", nspan)
+        seen.add(name)
+        for e in (lo, hi):  # fixed while the params vary
+            check_expr(e, params - varied, f"the bounds of '{cut(name)}'")
+    _, sense, expr, ospan = found["objective"]
+    objective = named_output(NamedOutput("objective", expr, ospan, ospan), params)
+    if not isinstance(objective, ReducedOutput):
+        raise MechError(f"{sense} takes one value per variant: a reduction of the motion such "
+                        "as max(abs(slider.ax)) or mean(rod.omega^2)", expr.span or ospan)
+    requirements = []
+    if "requirement" in found:
+        for k, e in enumerate(found["requirement"][1], start=1):
+            if not isinstance(e, E.Compare) or e.op not in _SLACK:
+                raise MechError("a requirement is a comparison with >=, >, <= or <, such as "
+                                "range(slider.x) >= 4", e.span or found["requirement"][-1])
+            slack = _SLACK[e.op](e.left, e.right)
+            out = named_output(NamedOutput(f"requirement_{k}", slack, e.span, e.span), params)
+            if not isinstance(out, ReducedOutput):  # of the params alone
+                quantity = next((n for n in E.walk(out.expr) if isinstance(n, E.Name)
+                                 and ("." in n.id or n.id == TIME)), None)
+                if quantity is not None:
+                    raise MechError(f"'{cut(quantity.id)}' is outside a reduction: a "
+                                    "requirement holds for the whole run; reduce it (max, min, "
+                                    "range, ...)", quantity.span or e.span)
+                out = ReducedOutput(out.name, out.expr, (), e.span, e.span)
+            requirements.append(out)
+    return Optimization(tuple(ranges), "max" if sense == "maximize" else "min", objective,
+                        tuple(requirements), span)
+
+
+def named_output(out: NamedOutput, params: set[str]) -> NamedOutput | ReducedOutput:
     """``output NAME = EXPR`` with its references to output quantities (``rod.phi``,
     ``lever.O.x``) as names (``Name("rod.phi")``) that the compiler resolves, and
     ``distance(P, Q)`` written out as sqrt((P.x - Q.x)^2 + (P.y - Q.y)^2); checked as any
@@ -323,9 +387,59 @@ def _named_output(out: NamedOutput, params: set[str]) -> NamedOutput:
         return e
 
     expr = E.rewrite(out.expr, rule)
+    if not out.name.isidentifier() and not _is_reduction(expr):  # output FUNC(EXPR)
+        raise MechError(f"{cut(out.name)}: only a reduction ({', '.join(REDUCTIONS)}) of one "
+                        "expression may stand unnamed in an output; name it: output NAME = "
+                        "...", out.span)
+    if not out.name.isidentifier() and "," in out.name:  # a column name of the CSV
+        raise MechError(f"{cut(out.name)}: name this output (output NAME = ...); its text "
+                        "has a comma, which a CSV column name cannot", out.span)
+    if any(_is_reduction(n) for n in E.walk(expr)):
+        return _reduced_output(out.name, expr, params, out)
     quantities = {n.id for n in E.walk(expr) if isinstance(n, E.Name) and "." in n.id}
     check_expr(expr, params | quantities | {TIME}, f"output '{cut(out.name)}'")
     return NamedOutput(out.name, expr, out.span, out.name_span)
+
+
+def _is_reduction(e: E.Expr) -> bool:
+    """A call of one of :data:`REDUCTIONS` with one argument (``max(a, b)`` is elementwise)."""
+    return isinstance(e, E.Call) and e.func in REDUCTIONS and (
+        len(e.args) == 1 or e.func not in E.FUNCTIONS)
+
+
+def _reduced_output(name: str, expr: E.Expr, params: set[str],
+                    out: NamedOutput) -> ReducedOutput:
+    """An output with reductions: each reduction's argument checked as an expression of the
+    params, ``t`` and quantities; the expression around them as one of the params and the
+    reductions alone (a quantity outside every reduction has no single value)."""
+    context = f"output '{cut(name)}'"
+    found: list[Reduction] = []
+
+    def rule(e: E.Expr) -> E.Expr:
+        if not _is_reduction(e):
+            return e
+        if len(e.args) != 1:
+            raise MechError(f"{e.func}() takes one expression (the value to reduce over the "
+                            f"run), not {len(e.args)}", e.span)
+        (arg,) = e.args
+        inner = next((n for n in E.walk(arg) if isinstance(n, E.Name) and n.id.startswith("@")),
+                     None)
+        if inner is not None:
+            raise MechError(f"a reduction inside {e.func}(): reduce a history once", e.span)
+        quantities = {n.id for n in E.walk(arg) if isinstance(n, E.Name) and "." in n.id}
+        check_expr(arg, params | quantities | {TIME}, context)
+        found.append(Reduction(e.func, arg, e.span or out.span))
+        return E.Name(f"@{len(found) - 1}", e.span)
+
+    outer = E.rewrite(expr, rule)
+    for n in E.walk(outer):
+        if isinstance(n, E.Name) and ("." in n.id or n.id == TIME):
+            raise MechError(f"'{cut(n.id)}' is outside a reduction: an output with "
+                            f"{found[0].func}() has one value per variant; reduce "
+                            f"'{cut(n.id)}' too (max, min, mean, final, ...)",
+                            n.span or out.span)
+    check_expr(outer, params | {f"@{k}" for k in range(len(found))}, context)
+    return ReducedOutput(name, outer, tuple(found), out.span, out.name_span)
 
 
 def _sweep_exprs(sw: Sweep) -> list[E.Expr]:

@@ -8,7 +8,8 @@ after ``,`` and ``:``, none around ``*``, ``/``, ``^`` and ``.``, inside bracket
 unary sign. Comments are all kept: a comment on a line of its own stays on a line of its
 own, a comment after code stays after it, and the trailing comments of consecutive lines
 are aligned two spaces after the longest of those lines. A statement the author broke over
-several lines after commas keeps those breaks (the continuation indented by four spaces).
+several lines after commas, or before the + or - of a sum, keeps those breaks (the
+continuation indented by four spaces).
 
 Only whitespace changes and ``;`` separators go: the tokens, and so the model, are those of
 the input, and that is checked on every call (:func:`format_text` refuses to return text
@@ -166,12 +167,13 @@ def _lines_of(tokens: list[Token]) -> list[tuple[list[Token], Token | None]]:
     each piece with the comment that ends it."""
     pieces: list[tuple[list[Token], Token | None]] = []
     current: list[Token] = []
-    for t in tokens:
+    for i, t in enumerate(tokens):
         if t.type == "COMMENT":
             pieces.append((current, t))
             current = []
         elif t.type == "WS":
-            if "\n" in t and current and str(current[-1]) == ",":
+            if "\n" in t and current and (str(current[-1]) == ","
+                                          or _before_binary(current[-1], tokens, i)):
                 pieces.append((current, None))
                 current = []
         elif str(t) != ";":
@@ -181,13 +183,25 @@ def _lines_of(tokens: list[Token]) -> list[tuple[list[Token], Token | None]]:
     return [(code, c) for code, c in pieces if code or c is not None]
 
 
+def _before_binary(last: Token, tokens: list[Token], i: int) -> bool:
+    """Whether the break at ``tokens[i]`` comes before a binary ``+`` or ``-`` (the line before
+    ends an operand): a long sum may be written a term per line."""
+    after = next((u for u in tokens[i + 1:] if u.type != "WS"), None)
+    return (after is not None and str(after) in ("+", "-")
+            and (str(last) in (")", "]") or last.type in ("NAME", "NUMBER")))
+
+
 def _statement(layout: _Layout, tokens: list[Token], trailing: Token | None,
                indent: str = "") -> None:
     pieces = _lines_of(tokens)
     for k, (code, comment) in enumerate(pieces):
         if k == len(pieces) - 1 and comment is None and trailing is not None:
             comment = trailing
-        line = (indent if k == 0 else indent + _INDENT) + _join(code)
+        text = _join(code)
+        before = pieces[k - 1][0] if k else []
+        if k and code and str(code[0]) in ("+", "-") and before and str(before[-1]) != ",":
+            text = f"{code[0]} {_join(code[1:])}"  # a binary sign that opens the line
+        line = (indent if k == 0 else indent + _INDENT) + text
         layout.add(line if code else "", None if comment is None else str(comment).rstrip())
 
 

@@ -166,6 +166,61 @@ class NamedOutput:
     name_span: Span
 
 
+#: The reductions over the instants of a run, by name: what each gives per variant. A call
+#: of one with one argument in an output makes it a per-variant value (``max(abs(slider.ax))``)
+#: instead of a history; ``min``/``max`` with two or more arguments stay elementwise.
+REDUCTIONS: dict[str, str] = {
+    "max": "the largest value over the run",
+    "min": "the smallest value over the run",
+    "mean": "the time average over the run (trapezoidal rule)",
+    "rms": "the root mean square over the run (trapezoidal rule)",
+    "range": "the largest value minus the smallest",
+    "initial": "the value at the first instant",
+    "final": "the value at the last instant",
+    "argmax": "the first instant at which the largest value is reached",
+    "argmin": "the first instant at which the smallest value is reached",
+}
+
+
+@dataclass(frozen=True)
+class Reduction:
+    """``FUNC(EXPR)``: one of :data:`REDUCTIONS` of an expression of params, ``t`` and output
+    quantities (names such as ``Name("slider.ax")``), over the instants of the run."""
+
+    func: str
+    expr: Expr
+    span: Span
+
+
+@dataclass(frozen=True)
+class ReducedOutput:
+    """An output with one value per variant: ``output NAME = EXPR`` or ``output
+    max(abs(slider.ax))`` (named by its text), where ``expr`` is an expression of params and
+    of the reductions, written there as ``Name("@0")``, ``Name("@1")``, ... for
+    ``reductions[0]``, ``reductions[1]``, ..."""
+
+    name: str
+    expr: Expr
+    reductions: tuple[Reduction, ...]
+    span: Span
+    name_span: Span
+
+
+@dataclass(frozen=True)
+class Optimization:
+    """``optimize NAME in A .. B, ...``, ``minimize EXPR`` (or ``maximize``) and ``subject to
+    EXPR >= EXPR, ...``: the params varied within their bounds (expressions of the params
+    before them), the objective and each requirement's slack as reductions
+    (:class:`ReducedOutput`; a requirement ``g >= h`` holds where its slack g - h >= 0,
+    ``g <= h`` where h - g >= 0)."""
+
+    ranges: tuple[tuple[str, Expr, Expr, Span], ...]
+    sense: str
+    objective: "ReducedOutput | None"
+    requirements: tuple["ReducedOutput", ...]
+    span: Span
+
+
 @dataclass(frozen=True)
 class Sweep:
     """``sweep NAME = [v1, v2, ...]`` or ``sweep NAME = a .. b step h | count n``."""
@@ -192,7 +247,7 @@ class Model:
     simulate: Simulate | None
     #: the outputs in the order written: references (``B.x``, ``B``, ``B.P``) and named
     #: expressions
-    outputs: tuple[OutputRef | NamedOutput, ...]
+    outputs: tuple[OutputRef | NamedOutput | ReducedOutput, ...]
     sweeps: tuple[Sweep, ...]
     #: ``plugin "module"`` statements: modules to load as plugins, with where they are named.
     plugins: tuple[tuple[str, Span], ...] = ()
@@ -208,3 +263,5 @@ class Model:
     forces: tuple[Force, ...] = ()
     #: ``gravity = (gx, gy)``
     gravity: Vector | None = None
+    #: ``optimize``, ``minimize``/``maximize`` and ``subject to`` statements, if any
+    optimization: Optimization | None = None

@@ -33,19 +33,19 @@ from .cache import cached_tables
 from .checks import TIME, build_model, check_expr
 from .model import SIMULATE_OPTIONS
 from .model import (
-    Arg, Drive, Force, Joint, MeshFile, Model, NamedOutput, OutputRef, Param, Point, Polygon, Simulate,
-    Sweep, Vector,
+    Arg, Drive, Force, Joint, MeshFile, Model, NamedOutput, OutputRef, Param, Point, Polygon,
+    ReducedOutput, Simulate, Sweep, Vector,
 )
 from .tables import PointList, make_table
 
-__all__ = ["parse", "parse_expr", "parse_expr_list", "check_expr", "TIME", "MAX_DEPTH"]
+__all__ = ["parse", "parse_expr", "parse_expr_list", "parse_reductions", "check_expr", "TIME", "MAX_DEPTH"]
 
 #: The deepest nesting of an expression (a level per operation: a sum of n terms nests n
 #: deep, as does ``sin(sin(...))`` n times). A 2,000-term Fourier series is well within it;
 #: an expression beyond it is an error located where it goes too deep.
 MAX_DEPTH = 10_000
 
-_OPTIONS = dict(parser="lalr", start=["start", "expr_only", "expr_list"],
+_OPTIONS = dict(parser="lalr", start=["start", "expr_only", "expr_list", "output_list"],
                 propagate_positions=True, maybe_placeholders=False)
 
 
@@ -240,6 +240,9 @@ class _ToModel(Transformer_NonRecursive):
     def expr_list(self, meta, items):
         return list(items)
 
+    def output_list(self, meta, items):
+        return list(items)
+
     # -- statements ----------------------------------------------------------------------------
     def param(self, meta, items):
         name, value = items
@@ -336,6 +339,11 @@ class _ToModel(Transformer_NonRecursive):
         name, expr = items
         return NamedOutput(str(name), expr, _span(meta), _tspan(name))
 
+    def reduced_output(self, meta, items):
+        func, expr = items
+        call = E.Call(str(func), (expr,), _span(meta))
+        return NamedOutput(E.to_text(call), call, _span(meta), _span(meta))
+
     def output(self, meta, items):
         return ("output", tuple(items))
 
@@ -348,6 +356,22 @@ class _ToModel(Transformer_NonRecursive):
             raise MechError(f"units are given for 'length' and 'time', not '{cut(name)}' (angles "
                             "are in radians)", _tspan(name))
         return str(name), str(text)[1:-1], _tspan(name)
+
+    def opt_range(self, meta, items):
+        name, lo, hi = items
+        return str(name), lo, hi, _tspan(name)
+
+    def optimize(self, meta, items):
+        return ("optimize", tuple(items), _span(meta))
+
+    def minimize(self, meta, items):
+        return ("objective", "minimize", items[0], _span(meta))
+
+    def maximize(self, meta, items):
+        return ("objective", "maximize", items[0], _span(meta))
+
+    def requirement(self, meta, items):
+        return ("requirement", tuple(items), _span(meta))
 
     def units(self, meta, items):
         return ("units", tuple(items), _span(meta))
@@ -478,3 +502,25 @@ def parse_expr_list(text: str, name: str, params: Iterable[str]) -> list[E.Expr]
     except MechError as err:
         raise err.with_source(source) from None
     return items
+
+
+def parse_reductions(text: str, name: str, params: Iterable[str]) -> tuple[ReducedOutput, ...]:
+    """Parse the outputs given on the command line (``--reduce "max(abs(slider.ax)), stroke =
+    range(slider.x)"``) against ``params``: every item must be a reduction."""
+    from .checks import named_output
+
+    source = Source(name, normalise(text))
+    items, _ = _lark_parse(source, "output_list")
+    out = []
+    try:
+        for item in items:
+            checked = named_output(item, set(params)) if isinstance(item, NamedOutput) else item
+            if not isinstance(checked, ReducedOutput):
+                what = getattr(checked, "name", None) or ".".join(checked.parts)
+                raise MechError(f"'{cut(what)}' is not a reduction: {name} takes outputs with "
+                                "one value per variant, such as max(abs(slider.ax)) or stroke "
+                                "= range(slider.x)", checked.span)
+            out.append(checked)
+    except MechError as err:
+        raise err.with_source(source) from None
+    return tuple(out)

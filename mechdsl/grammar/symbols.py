@@ -19,23 +19,30 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from . import expr as E
+from .model import REDUCTIONS
 
 #: Keywords that start a statement and name nothing else: a statement starts here
 RESERVED_STARTS = {"param", "body", "joint", "drive", "simulate", "output", "sweep", "plugin"}
 #: Keywords that start a statement unless a name or a value is expected where they stand
-SOFT_STARTS = {"force", "gravity", "trace", "units", "ground"}
+SOFT_STARTS = {"force", "gravity", "trace", "units", "ground", "optimize", "minimize",
+               "maximize", "subject"}
 #: After these, a word is a name or a value, not the start of a statement
 EXPECTS_VALUE = {"param", "body", "joint", "drive", "force", "sweep", "point", "trace", ":",
                  ".", "=", ",", "(", "[", "+", "-", "*", "/", "^", "..", "<", "<=", ">",
-                 ">=", "if", "then", "else", "and", "or", "not", "step", "count"}
+                 ">=", "if", "then", "else", "and", "or", "not", "step", "count", "in", "to",
+                 "optimize", "minimize", "maximize"}
+#: Words that are keywords inside one kind of statement only: ``optimize c in 1 .. 2``,
+#: ``subject to ...``
+INNER_KEYWORDS = {"optimize": "in", "subject": "to"}
 
 #: The kinds of names that are declared in a file, and so can be renamed
 DECLARED_KINDS = ("param", "body", "point", "joint", "drive", "force", "output")
 #: The body every file has, whether or not it writes ``ground { }``, and every body's point
 GROUND, ORIGIN = "ground", "origin"
 TIME = "t"
-#: Functions of the output expressions beside those of every expression
-OUTPUT_FUNCTIONS = ("distance",)
+#: Functions of the output expressions beside those of every expression: distance and the
+#: reductions over the run
+OUTPUT_FUNCTIONS = ("distance", *REDUCTIONS)
 
 
 @dataclass(frozen=True)
@@ -186,7 +193,7 @@ def index(text: str) -> SymbolIndex:
             in_args.add(i)
         if w == "ground" and i in starts and nxt(i) == "{":
             role[i] = sym("body", i, declaration=True)
-        if not _is_word(tok) or i in starts:
+        if not _is_word(tok) or i in starts or INNER_KEYWORDS.get(statement) == w:
             continue
         prev = words[i - 1] if i else None
         if statement in ("param", "body", "joint", "drive", "force") and prev == statement:
@@ -220,6 +227,9 @@ def index(text: str) -> SymbolIndex:
         tok = toks[i]
         if i in role:
             out.append(role[i])
+            i += 1
+            continue
+        if tok.text in INNER_KEYWORDS.values() and i > 1 and _inner_keyword(toks, starts, i):
             i += 1
             continue
         if not _is_word(tok) or (i in starts and not (tok.text == "ground" and nxt(i) == ".")):
@@ -258,6 +268,12 @@ def index(text: str) -> SymbolIndex:
             out.append(sym("unknown", i))
         i += 1
     return SymbolIndex(tuple(out), tuple(toks))
+
+
+def _inner_keyword(toks: list[Token], starts: set[int], i: int) -> bool:
+    """Whether ``toks[i]`` (``in``, ``to``) is the keyword of the statement it stands in."""
+    start = max((s for s in starts if s < i), default=None)
+    return start is not None and INNER_KEYWORDS.get(toks[start].text) == toks[i].text
 
 
 def _chain(chain: list[int], toks: list[Token], bodies: set[str],

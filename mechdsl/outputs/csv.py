@@ -26,6 +26,15 @@ def row_blocks(results: Results, size: int | None = None) -> Iterator[np.ndarray
     :attr:`~mechdsl.results.Results.header`) as arrays of at most ``size`` rows (None: a
     variant's at once)."""
     ncols = len(results.header)
+    if results.reduced:  # one row per variant: the swept params, then the reductions
+        step = size or results.n_variants
+        for start in range(0, results.n_variants, step):
+            stop = min(results.n_variants, start + step)
+            block = np.empty((stop - start, ncols))
+            for j, column in enumerate((*results.sweep.values(), *results.reduced.values())):
+                block[:, j] = np.asarray(column)[start:stop]
+            yield block
+        return
     for v in range(results.n_variants):
         k = int(results.n_solved[v])
         step = size or max(k, 1)
@@ -79,6 +88,8 @@ def write_rows(results: Results, f: IO[str]) -> None:
     the same double, as Python's ``repr`` writes it (``0.1``, ``0.30000000000000004``,
     ``2.0``, ``1e-05``, ``nan``, ``inf``, ``-inf``)."""
     header = results.header
+    if results.reduced:  # before the header: the reader knows at once there is no 't'
+        f.write(f"# one row per variant; swept params: {', '.join(results.sweep)}\n")
     f.write(",".join(header) + "\n")
     units = units_line(results)
     if units is not None:
@@ -99,7 +110,7 @@ def units_line(results: Results) -> str | None:
     ``genfromtxt`` by default, pandas with ``comment="#"``). In a unit, a comma, a backslash
     and any character that is not printable (a line break) are written ``\\xNN``,
     ``\\uNNNN`` or ``\\UNNNNNNNN``, so that the line stays one line and one field per column."""
-    units = {"t": results.time_unit, **{k: results.units.get(k, "") for k in results.data}}
+    units = {"t": results.time_unit, **{k: results.units.get(k, "") for k in results.labels}}
     if not any(units.values()):
         return None
     return "# units: " + ", ".join(f"{name} [{_escape(units[name])}]" if units.get(name)
@@ -115,6 +126,7 @@ def _escape(unit: str) -> str:
 
 _ESCAPE = re.compile(r"\\(?:x([0-9a-fA-F]{2})|u([0-9a-fA-F]{4})|U([0-9a-fA-F]{8}))")
 _UNITS = re.compile(r"#\s*units\s*:")
+_PER_VARIANT = re.compile(r"#\s*one row per variant; swept params:(.*)")
 
 
 def _unescape(text: str) -> str:
@@ -155,6 +167,8 @@ class _CsvReader:
         text = self._decode(raw)
         self.header: list[str] = []
         self.units: dict[str, str] = {}
+        #: the swept params of a table of reductions (one row per variant), else None
+        self.swept: list[str] | None = None
         units_at: tuple[int, int, str] | None = None
         blocks: list[np.ndarray] = []
         chunk: list[str] = []
@@ -174,6 +188,10 @@ class _CsvReader:
                 if not stripped:
                     continue
                 if stripped.startswith("#"):
+                    per_variant = _PER_VARIANT.match(stripped)
+                    if per_variant and not self.header:
+                        self.swept = [n.strip() for n in per_variant.group(1).split(",")
+                                      if n.strip()]
                     if _UNITS.match(stripped):
                         if units_at is not None:
                             raise self.error(f"a second units line (the first is line "
@@ -242,7 +260,12 @@ class _CsvReader:
                                  f"column {names.index(name) + 1} is", number, at, len(name))
             names.append(name)
             column += len(field) + 1
-        if "t" not in names:
+        if self.swept is not None:
+            missing = [s for s in self.swept if s not in names[:len(self.swept)]]
+            if missing:
+                raise self.error(f"the swept param {excerpt(missing[0])} is not a column "
+                                 "before the reductions", number)
+        elif "t" not in names:
             raise self.error("the header names no column 't' (a CSV written by mechdsl run "
                              "names the swept params, then 't', then the outputs)", number)
         self.header = names
@@ -307,6 +330,16 @@ class _CsvReader:
 
     def results(self) -> Results:
         rows, header = self.rows, self.header
+        if self.swept is not None:  # a table of reductions
+            k = len(self.swept)
+            units = {label: self.units[label] for label in header[k:] if self.units.get(label)}
+            return Results(times=np.zeros(0), data={},
+                           sweep={s: rows[:, j].copy() for j, s in enumerate(self.swept)},
+                           reduced={label: rows[:, k + j].copy()
+                                    for j, label in enumerate(header[k:])},
+                           n_solved=np.zeros(len(rows), dtype=int), status="ok", messages=(),
+                           solve_time=0.0, residual=float("nan"), source_name=self.path,
+                           units=units, time_unit=self.units.get("t", ""))
         it = header.index("t")
         swept, labels = header[:it], header[it + 1:]
         if it:  # one variant per combination of the swept values, in the order met

@@ -43,6 +43,8 @@ def plot_results(results: Results, path: str | os.PathLike, title: str | None = 
     from matplotlib.figure import Figure
 
     labels = list(labels or results.labels)
+    if results.reduced:
+        return plot_reduced(results, path, title, labels)
     n = max(1, len(labels))
     ncols = 1 if n <= 4 else 3
     nrows = math.ceil(n / ncols)
@@ -72,6 +74,35 @@ def plot_results(results: Results, path: str | os.PathLike, title: str | None = 
                               parse_math=False)
             bottom.xaxis.set_tick_params(labelbottom=True)
     if results.sweep:
+        literal(axes[0].legend(fontsize="small", loc="best"))
+    fig.suptitle(title or os.path.basename(results.source_name), parse_math=False)
+    save_figure(fig, path)
+
+
+def plot_reduced(results: Results, path: str | os.PathLike, title: str | None,
+                 labels: list[str]) -> None:
+    """One panel per reduction against the first swept param; with a second swept param, a
+    curve per value of it (a study of more params is a table: read its CSV or store)."""
+    params = list(results.sweep)
+    fig = new_figure(figsize=(7.0, 1.1 + 2.1 * len(labels)), layout="constrained")
+    axes = fig.subplots(len(labels), 1, sharex=True, squeeze=False).ravel()
+    x = np.asarray(results.sweep[params[0]])
+    groups = [np.ones(len(x), bool)]
+    if len(params) > 1:
+        y = np.asarray(results.sweep[params[1]])
+        groups = [(y == value) for value in dict.fromkeys(y.tolist())]
+    for ax, label in zip(axes, labels):
+        values = np.asarray(results.reduced[label])
+        for members in groups:
+            legend = (f"{params[1]} = {results.sweep[params[1]][members][0]:g}"
+                      if len(params) > 1 else None)
+            ax.plot(x[members], values[members], marker="." if members.sum() < 60 else None,
+                    lw=1.4, label=legend)
+        unit = results.units.get(label)
+        ax.set_ylabel(f"{label} [{unit}]" if unit else label, parse_math=False)
+        ax.grid(True, alpha=0.3)
+    axes[-1].set_xlabel(params[0], parse_math=False)
+    if len(params) > 1 and len(groups) <= 12:
         literal(axes[0].legend(fontsize="small", loc="best"))
     fig.suptitle(title or os.path.basename(results.source_name), parse_math=False)
     save_figure(fig, path)

@@ -54,6 +54,7 @@ from .linalg import Factor, factor
 from .mobility import count_check, redundancy_warning
 from .newton import correction_ratio, newton, use_sparse
 from .options import SolverOptions
+from .reduce import reduce_results
 from .singular import singular_step
 
 __all__ = ["KinematicRun", "METHODS", "SolverOptions", "simulate"]
@@ -731,7 +732,7 @@ def simulate(system: System, options: SolverOptions | None = None, *,
     """
     run = METHODS[method_for(system)](system, options, poses=poses, rates=rates,
                                       progress=progress, extra_memory=extra_memory)
-    return run.run()
+    return reduce_results(run.run(), system)
 
 
 def method_for(system: System) -> str:
