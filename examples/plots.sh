@@ -25,3 +25,6 @@ done
 "$M" run examples/andrews.mech -q -o /dev/null --plot "$out/andrews.png"
 "$M" run examples/andrews.mech -q -o /dev/null --trace triangle.D --snapshot "$out/andrews_snapshot.png" \
     --at 0,0.01,0.02,0.03
+# a design study: the brute-force sweep's objective and the optimum of mechdsl optimize
+P=${PYTHON:-$( [ -x .venv/bin/python ] && echo .venv/bin/python || echo python3 )}
+"$P" examples/coupler_synthesis_figure.py "$out/coupler_synthesis.png"

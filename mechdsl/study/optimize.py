@@ -79,6 +79,8 @@ class Evaluator:
         """(S, 1 + M): the signed objective (minimised) and the M slacks of each row of
         ``rows`` (S, N); a variant that fails has objective inf and slacks -inf."""
         rows = np.atleast_2d(np.asarray(rows, dtype=float))
+        if not len(rows):  # the evolution asks for none when no member meets the requirements
+            return np.empty((0, len(self.labels)))
         new = {r.tobytes(): r for r in rows if r.tobytes() not in self.seen}
         if new:
             table = np.array(list(new.values()))
@@ -177,8 +179,11 @@ def _grid_search(evaluate: Evaluator, bounds, n: int) -> tuple[np.ndarray, str]:
     axes = [np.linspace(a, b, n) for a, b in bounds]
     rows = np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=-1)
     values = evaluate(rows)
-    objective = np.where(np.all(values[:, 1:] >= 0, axis=1), values[:, 0], np.inf)
-    k = int(np.argmin(objective))
+    feasible = np.all(values[:, 1:] >= 0, axis=1)
+    if feasible.any():
+        k = int(np.argmin(np.where(feasible, values[:, 0], np.inf)))
+    else:  # none: the point that violates the requirements least
+        k = int(np.argmin(np.sum(np.minimum(values[:, 1:], 0.0), axis=1) * -1.0))
     return rows[k], f"the best of a grid of {len(rows)} points"
 
 
