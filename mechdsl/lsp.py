@@ -224,6 +224,14 @@ def hover_text(text: str, path: str, line: int, character: int, registry) -> str
         if ctype is None:
             return None
         return f"```\n{sym.owner} type {ctype.describe()}\n```\n{ctype.doc}"
+    if sym.kind == "function":
+        from .grammar.model import REDUCTIONS
+
+        if sym.name in REDUCTIONS:
+            return (f"reduction **{sym.name}**(E): {REDUCTIONS[sym.name]}, one value per "
+                    "variant" + (" (with two or more arguments, elementwise)"
+                                 if sym.name in ("max", "min") else ""))
+        return None
     lines = text.split("\n")
     decl = table.declaration(sym)
     written = lines[decl.line - 1].split("#")[0].strip() if decl else None
@@ -304,7 +312,8 @@ def rename_problem(text: str, line: int, character: int, new_name: str) -> str |
 
 
 _STATEMENTS = ("param", "ground", "body", "joint", "drive", "force", "gravity", "simulate",
-               "output", "trace", "units", "sweep", "plugin")
+               "output", "trace", "units", "sweep", "plugin", "optimize", "minimize",
+               "maximize", "subject to")
 _ITEMS = ("point", "guess", "shape", "density", "mass", "inertia", "centroid", "v0")
 _FUNCTIONS = ("sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sqrt", "exp", "log",
               "abs", "sign", "min", "max", "table", "distance")
@@ -345,9 +354,14 @@ def completions(text: str, line: int, character: int, registry) -> list[tuple[st
         if depth > 0:
             return [(w, "keyword", "body item") for w in _ITEMS]
         return [(w, "keyword", "statement") for w in _STATEMENTS]
+    from .grammar.model import REDUCTIONS
+
+    reductions = ([(name, "function", f"reduction: {what}") for name, what in REDUCTIONS.items()
+                   if name not in _FUNCTIONS]
+                  if statement in ("output", "minimize", "maximize", "subject") else [])
     return ([(p, "param", "param") for p in params]
             + [(b, "body", "body") for b in bodies if b != "ground"] + [("ground", "body", "")]
-            + [(f, "function", "function") for f in _FUNCTIONS]
+            + [(f, "function", "function") for f in _FUNCTIONS] + reductions
             + [(c, "constant", "") for c in ("pi", "t")])
 
 

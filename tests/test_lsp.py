@@ -389,3 +389,19 @@ async def test_the_readme_capture_is_what_the_server_says(client: LanguageClient
     for number, shown in captured:
         assert any(n == number and message.startswith(shown) for n, message in published), \
             (number, shown, published)
+
+
+def test_reductions_and_the_optimize_statements_are_known_to_the_editor():
+    from mechdsl.lsp import completions, hover_text
+    from mechdsl.plugins.manager import build_registry
+
+    registry = build_registry()
+    text = (EXAMPLES / "coupler_synthesis.mech").read_text()
+    lines = text.split("\n")
+    at = next(k for k, line in enumerate(lines) if line.startswith("minimize"))
+    hover = hover_text(text, "c.mech", at, lines[at].index("min(") + 1, registry)
+    assert hover.startswith("reduction **min**(E): the smallest value over the run")
+    offered = {label for label, _, _ in completions(text, at, len("minimize "), registry)}
+    assert {"mean", "rms", "range", "argmax", "final"} <= offered
+    statements = {label for label, _, _ in completions("", 0, 0, registry)}
+    assert {"optimize", "minimize", "maximize", "subject to"} <= statements
