@@ -355,8 +355,10 @@ def optimize_command(args, signals: SignalGuard | None = None) -> int:
     lines = [f"{args.file}: {'minimum' if opt.sense == 'min' else 'maximum'} found at"]
     lines += [f"  {k:<{width}} = {v!r}" for k, v in best.params.items()]
     lines.append(f"objective: {best.objective!r}")
+    from .study.optimize import REQUIRE_TOL
+
     for text, slack in best.requirements.items():
-        lines.append(f"requirement {text}: {'holds' if slack >= 0 else 'VIOLATED'} "
+        lines.append(f"requirement {text}: {'holds' if slack >= -REQUIRE_TOL else 'VIOLATED'} "
                      f"(slack {slack:.6g})")
     lines.append(f"{best.variants} variants solved in {best.sweeps} sweeps, "
                  f"{best.seconds:.2f} s ({best.message})")

@@ -205,3 +205,26 @@ def test_a_store_is_read_back_lazily_by_plot(tmp_path):
     r = run_cli("plot", store, "-o", png)
     assert r.returncode == 0, r.stderr
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_an_optimisation_on_the_cluster_finds_what_it_finds_here(client):
+    # every population and stencil is one sweep, cut into the same chunks here and there:
+    # the same numbers, so the same search, step for step, and the same design
+    import mechdsl
+    from mechdsl.study.optimize import optimize
+
+    text = (EXAMPLES / "slider_crank.mech").read_text().replace(
+        "simulate t = 0 .. 1 step 0.001", "simulate t = 0 .. 0.5 step 1/64") + (
+        "optimize l in 2.5 .. 6, r in 1 .. 3\nminimize max(abs(slider.ax))\n"
+        "subject to range(slider.x) >= 4, l >= 2*r\n")
+    mech = mechdsl.loads(text, "opt.mech")
+    here = optimize(mech, chunk=8, popsize=6, maxiter=30, run=False)
+    there = optimize(mech, chunk=8, popsize=6, maxiter=30, run=False, client=client)
+    assert there.params == here.params and there.objective == here.objective
+    assert there.variants == here.variants and there.sweeps == here.sweeps
+    # the closed form: r = 2 (the stroke 2r >= 4), l = 6 (the longest rod),
+    # peak r omega^2 (1 + r/l) at theta = 0, an instant of this grid
+    omega = 4 * np.pi
+    assert there.params["l"] == pytest.approx(6.0, rel=1e-6)
+    assert there.params["r"] == pytest.approx(2.0, rel=1e-6)
+    assert there.objective == pytest.approx(2 * omega**2 * (1 + 2 / 6), rel=1e-6)

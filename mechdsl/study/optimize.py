@@ -30,6 +30,10 @@ from ..solve.options import SolverOptions
 
 #: Central-difference step of the local refinement, relative to each param's range
 REL_STEP = 1e-6
+#: A requirement holds where its slack is at least -REQUIRE_TOL (in its own units): the
+#: round-off of a comparison at its bound, such as range(slider.x) >= 4 where the stroke is
+#: 2r and r = 2 exactly, is not a violation
+REQUIRE_TOL = 1e-12
 #: Defaults of the evolution: population per varied param, generations at most, the relative
 #: spread of the population's objectives at which it stops, and its random seed
 POPSIZE = 15
@@ -41,9 +45,10 @@ SEED = 0
 @dataclass(frozen=True)
 class Optimum:
     """What :func:`optimize` found: the ``params`` (the varied ones, at their best), the
-    ``objective`` there, each requirement's text and slack (>= 0 where it holds), whether
-    all hold (``feasible``), the variants solved in how many sweeps, the time taken, how the
-    search ended (``message``), and ``run``, the model's own outputs at the best params."""
+    ``objective`` there, each requirement's text and slack (>= -REQUIRE_TOL where it
+    holds), whether all hold (``feasible``), the variants solved in how many sweeps, the time
+    taken, how the search ended (``message``), and ``run``, the model's own outputs at the
+    best params."""
 
     params: dict[str, float]
     objective: float
@@ -141,7 +146,7 @@ def optimize(mech, ov: Overrides | None = None, options: SolverOptions | None = 
     constraints = ()
     if M:
         constraints = (NonlinearConstraint(
-            lambda x: evaluate(np.asarray(x).T)[:, 1:].T, 0.0, np.inf),)
+            lambda x: evaluate(np.asarray(x).T)[:, 1:].T, -REQUIRE_TOL, np.inf),)
     if grid is not None:
         best, message = _grid_search(evaluate, bounds, grid)
         refine = False
@@ -168,7 +173,7 @@ def optimize(mech, ov: Overrides | None = None, options: SolverOptions | None = 
                                 options=options)
     return Optimum(params, float(evaluate.sign * values[0]),
                    dict(zip(_requirement_texts(mech, texts), values[1:].tolist())),
-                   bool(np.all(values[1:] >= 0)), evaluate.variants, evaluate.sweeps,
+                   bool(np.all(values[1:] >= -REQUIRE_TOL)), evaluate.variants, evaluate.sweeps,
                    time.perf_counter() - start, message, at_best)
 
 
@@ -179,7 +184,7 @@ def _grid_search(evaluate: Evaluator, bounds, n: int) -> tuple[np.ndarray, str]:
     axes = [np.linspace(a, b, n) for a, b in bounds]
     rows = np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=-1)
     values = evaluate(rows)
-    feasible = np.all(values[:, 1:] >= 0, axis=1)
+    feasible = np.all(values[:, 1:] >= -REQUIRE_TOL, axis=1)
     if feasible.any():
         k = int(np.argmin(np.where(feasible, values[:, 0], np.inf)))
     else:  # none: the point that violates the requirements least
@@ -202,41 +207,39 @@ def _requirement_texts(mech, fallback: list[str]) -> list[str]:
 
 def _refine(evaluate: Evaluator, x0: np.ndarray, bounds, M: int, minimize) -> np.ndarray | None:
     """SLSQP from ``x0``, gradients by central differences, each stencil one sweep; the
-    point it ends at if it satisfies the requirements and improves on ``x0``, else None."""
-    lo, hi = np.array(bounds).T
-    h = REL_STEP * (hi - lo)
-
-    def stencil(x: np.ndarray) -> np.ndarray:
-        x = np.clip(x, lo, hi)
-        up, down = x + np.diag(h), x - np.diag(h)
-        up, down = np.minimum(up, hi), np.maximum(down, lo)  # one-sided at a bound
-        return x, up, down
-
-    def values(x: np.ndarray):
-        x, up, down = stencil(np.asarray(x, dtype=float))
-        v = evaluate(np.vstack([x[None], up, down]))
-        n = len(x)
-        width = (np.diag(up) - np.diag(down))[:, None]
-        return v[0], (v[1:n + 1] - v[n + 1:]) / width  # (1+M,), (N, 1+M)
-
-    def fun(x):
-        return values(x)[0][0]
-
-    def jac(x):
-        return values(x)[1][:, 0]
-
-    cons = [{"type": "ineq", "fun": lambda x, k=k: values(x)[0][1 + k],
-             "jac": lambda x, k=k: values(x)[1][:, 1 + k]} for k in range(M)]
+    point it ends at if it satisfies the requirements and improves on ``x0``, else None.
+    SLSQP works on the params scaled to [0, 1] over their ranges and on the objective divided
+    by its size at ``x0``: unscaled, its quadratic model stalls where the params' ranges or the
+    objective's size are far from 1."""
+    lo, hi = np.array(bounds, dtype=float).T
+    width = hi - lo
+    h = REL_STEP * width
     start = evaluate(x0[None])[0]
     if not np.all(np.isfinite(start)):
         return None
+    size = max(abs(start[0]), np.finfo(float).tiny)
+
+    def values(u):
+        """(1+M,) and their gradients (N, 1+M) at the scaled point u."""
+        x = np.clip(lo + np.asarray(u, dtype=float) * width, lo, hi)
+        up = np.minimum(x + np.diag(h), hi)  # one-sided at a bound
+        down = np.maximum(x - np.diag(h), lo)
+        v = evaluate(np.vstack([x[None], up, down]))
+        n = len(x)
+        step = (np.diag(up) - np.diag(down))[:, None]
+        return v[0], (v[1:n + 1] - v[n + 1:]) / step * width[:, None]
+
+    cons = [{"type": "ineq", "fun": lambda u, k=k: values(u)[0][1 + k],
+             "jac": lambda u, k=k: values(u)[1][:, 1 + k]} for k in range(M)]
     try:
-        res = minimize(fun, x0, jac=jac, bounds=list(bounds), constraints=cons,
-                       method="SLSQP", options={"maxiter": 100, "ftol": 1e-14})
+        res = minimize(lambda u: values(u)[0][0] / size, (x0 - lo) / width,
+                       jac=lambda u: values(u)[1][:, 0] / size, bounds=[(0.0, 1.0)] * len(x0),
+                       constraints=cons, method="SLSQP",
+                       options={"maxiter": 100, "ftol": 1e-15})
     except (ValueError, np.linalg.LinAlgError):
         return None
-    x = np.clip(np.asarray(res.x, dtype=float), lo, hi)
+    x = np.clip(lo + np.asarray(res.x, dtype=float) * width, lo, hi)
     end = evaluate(x[None])[0]
-    if np.all(end[1:] >= 0) and end[0] < start[0] and np.isfinite(end[0]):
+    if np.all(end[1:] >= -REQUIRE_TOL) and end[0] < start[0] and np.isfinite(end[0]):
         return x
     return None
