@@ -185,9 +185,16 @@ def local_client(workers: int):
     distributed = import_distributed("--workers")
     import logging
 
-    cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1,
-                                       processes=True, host="127.0.0.1",
-                                       dashboard_address=None, silence_logs=logging.ERROR)
+    import dask
+
+    # distributed's nannies set MALLOC_TRIM_THRESHOLD_=65536 in their workers by default,
+    # which pins glibc's mmap threshold at 128 KiB: every large temporary of the numpy path is
+    # then mapped and page-faulted afresh, and a chunk takes 1.7 times as long (measured on
+    # the slider-crank's sweep): the workers here keep glibc's own adaptive threshold
+    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+        cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1,
+                                           processes=True, host="127.0.0.1",
+                                           dashboard_address=None, silence_logs=logging.ERROR)
     return distributed.Client(cluster)
 
 
