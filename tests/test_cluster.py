@@ -228,3 +228,22 @@ def test_an_optimisation_on_the_cluster_finds_what_it_finds_here(client):
     assert there.params["l"] == pytest.approx(6.0, rel=1e-6)
     assert there.params["r"] == pytest.approx(2.0, rel=1e-6)
     assert there.objective == pytest.approx(2 * omega**2 * (1 + 2 / 6), rel=1e-6)
+
+
+def test_the_local_cluster_keeps_the_workers_allocator_and_this_process_environment():
+    # distributed's nannies set MALLOC_TRIM_THRESHOLD_=65536 in their workers (which halves
+    # the speed of the numpy path) and write their workers' variables into this process
+    from mechdsl.study.run import local_client
+
+    before = dict(os.environ)
+    client = local_client(1)
+    try:
+        assert dict(os.environ) == before
+        (trim,) = client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_")).values()
+        (threads,) = client.run(lambda: os.environ.get("OMP_NUM_THREADS")).values()
+        assert trim is None and threads == "1"
+        assert client.cluster.scheduler.http_server.port != 8787
+    finally:
+        cluster = client.cluster
+        client.close()
+        cluster.close()

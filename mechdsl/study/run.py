@@ -11,6 +11,7 @@ dask is imported here only when a client is given.
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field, replace
 from typing import Callable
@@ -191,10 +192,22 @@ def local_client(workers: int):
     # which pins glibc's mmap threshold at 128 KiB: every large temporary of the numpy path is
     # then mapped and page-faulted afresh, and a chunk takes 1.7 times as long (measured on
     # the slider-crank's sweep): the workers here keep glibc's own adaptive threshold
-    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
-        cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1,
-                                           processes=True, host="127.0.0.1",
-                                           dashboard_address=None, silence_logs=logging.ERROR)
+    #
+    # The nannies also write their workers' environment into this process's os.environ
+    # (OMP_NUM_THREADS=1, ...), where it would outlive the cluster: it is put back. The
+    # scheduler's HTTP server (health checks) takes a free port, not 8787, which another
+    # cluster may hold.
+    saved = dict(os.environ)
+    try:
+        with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_":
+                              None}):
+            cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1,
+                                               processes=True, host="127.0.0.1",
+                                               dashboard_address="127.0.0.1:0",
+                                               silence_logs=logging.ERROR)
+    finally:
+        os.environ.clear()
+        os.environ.update(saved)
     return distributed.Client(cluster)
 
 
