@@ -23,10 +23,14 @@ LS = list(np.linspace(2.2, 4.0, 48))
 
 @pytest.fixture(scope="module")
 def client():
-    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                       host="127.0.0.1", dashboard_address=None)
-    with distributed.Client(cluster) as c:
-        yield c
+    # the LocalCluster of `--workers 2`: 2 processes of one thread on 127.0.0.1
+    from mechdsl.study.run import local_client
+
+    c = local_client(2)
+    assert isinstance(c.cluster, distributed.LocalCluster)
+    yield c
+    cluster = c.cluster
+    c.close()
     cluster.close()
 
 

@@ -198,6 +198,7 @@ def local_client(workers: int):
     # scheduler's HTTP server (health checks) takes a free port, not 8787, which another
     # cluster may hold.
     saved = dict(os.environ)
+    os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)  # nor inherited (an earlier cluster's)
     try:
         with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_":
                               None}):
