@@ -251,3 +251,26 @@ def test_the_local_cluster_keeps_the_workers_allocator_and_this_process_environm
         cluster = client.cluster
         client.close()
         cluster.close()
+
+
+def test_an_interrupt_keeps_the_chunks_solved_before_it(client, rods):
+    # Ctrl-C (or SIGTERM, made one) while the cluster works: the chunks that came back are
+    # kept whole, the others cancelled, the status says interrupted
+    from mechdsl.compiled.variants import Overrides
+    from mechdsl.study import solve_sweep
+
+    ov = Overrides(sweeps={"l": LS}, t1=0.5)
+
+    def interrupt(done: int, total: int) -> None:
+        raise KeyboardInterrupt
+
+    there = solve_sweep(rods, ov, chunk=4, client=client, progress=interrupt)
+    here = solve_sweep(rods, ov, chunk=4)
+    assert there.status == "interrupted"
+    K = len(here.times)
+    whole = there.n_solved == K
+    assert 1 <= whole.sum() < len(LS) and set(there.n_solved) <= {0, K}
+    assert whole.sum() % 4 == 0  # whole chunks
+    for label in here.labels:
+        assert same(there.data[label][whole], here.data[label][whole])
+        assert np.isnan(there.data[label][~whole]).all()
