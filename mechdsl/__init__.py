@@ -9,7 +9,8 @@ command line.
 
 from .api import CheckReport, Mechanism, load, loads
 from .errors import MechError, NumericalError
+from .outputs.store import open_store
 
 __version__ = "0.1.0"
 __all__ = ["CheckReport", "Mechanism", "MechError", "NumericalError", "load", "loads",
-           "__version__"]
+           "open_store", "__version__"]

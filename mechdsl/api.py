@@ -268,19 +268,7 @@ class Mechanism:
         chunk is written there where it was solved, nothing is held whole, and the stored
         results are returned, read lazily (:class:`mechdsl.outputs.store.StoredResults`).
         """
-        names = [p.name for p in self.model.params]
-
-        def value(v, what: str):
-            return parse_value(v, what, names) if isinstance(v, str) else v
-
-        values = {k: value(v, k) for k, v in {**(params or {}), **param_values}.items()}
-        sweeps = {k: [value(x, k) for x in ([vs] if isinstance(vs, str) else vs)]
-                  for k, vs in (sweep or {}).items()}
-        t0, t1 = span if span is not None else (None, None)
-        ov = Overrides(params=values, sweeps=sweeps, t0=value(t0, "span"),
-                       t1=value(t1, "span"), step=value(step, "step"))
-        if options is not None:  # one memory limit for the time grid and the run
-            ov.max_memory = options.max_memory
+        ov = self._overrides(span, step, sweep, {**(params or {}), **param_values}, options)
         mech = self.reducing(reduce) if reduce is not None else self
         from .study import plan, solve_sweep
 
@@ -297,6 +285,39 @@ class Mechanism:
         results = solve_sweep(mech, ov, options, client=client, store=store, poses=poses,
                               planned=planned)
         return results if store is None else open_store(store)
+
+    def optimize(self, *, span: tuple[float, float] | None = None, step: float | None = None,
+                 params: Mapping[str, float] | None = None,
+                 options: SolverOptions | None = None, client=None, chunk: int | None = None,
+                 popsize: int = 15, maxiter: int = 200, tol: float = 1e-6, seed: int = 0,
+                 refine: bool = True, grid: int | None = None, **param_values: float):
+        """The best design of the model's ``optimize``, ``minimize``/``maximize`` and
+        ``subject to`` statements, as ``mechdsl optimize`` finds it
+        (:func:`mechdsl.study.optimize.optimize`; the options are that command's): an
+        :class:`~mechdsl.study.optimize.Optimum`, with the run at the best params in
+        ``.run``. The other arguments are those of :meth:`simulate`."""
+        from .study.optimize import optimize
+
+        ov = self._overrides(span, step, None, {**(params or {}), **param_values}, options)
+        return optimize(self, ov, options, client=client, chunk=chunk, popsize=popsize,
+                        maxiter=maxiter, tol=tol, seed=seed, refine=refine, grid=grid)
+
+    def _overrides(self, span, step, sweep, values, options) -> Overrides:
+        """The overrides of :meth:`simulate`'s arguments: numbers, or texts of expressions of
+        the params before them, as on the command line."""
+        names = [p.name for p in self.model.params]
+
+        def value(v, what: str):
+            return parse_value(v, what, names) if isinstance(v, str) else v
+
+        sweeps = {k: [value(x, k) for x in ([vs] if isinstance(vs, str) else vs)]
+                  for k, vs in (sweep or {}).items()}
+        t0, t1 = span if span is not None else (None, None)
+        ov = Overrides(params={k: value(v, k) for k, v in values.items()}, sweeps=sweeps,
+                       t0=value(t0, "span"), t1=value(t1, "span"), step=value(step, "step"))
+        if options is not None:  # one memory limit for the time grid and the run
+            ov.max_memory = options.max_memory
+        return ov
 
     def reducing(self, reduce: str | Sequence[str]) -> "Mechanism":
         """This mechanism with its outputs replaced by the reductions of ``reduce`` (the text

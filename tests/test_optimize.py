@@ -497,3 +497,15 @@ def test_fmt_keeps_a_continued_objective_on_its_lines():
 def test_the_example_is_in_the_canonical_layout():
     text = (EXAMPLES / "coupler_synthesis.mech").read_text()
     assert format_text(text, "coupler_synthesis.mech") == text
+
+
+def test_the_api_method_is_the_command(slider_best):
+    # Mechanism.optimize takes simulate's overrides and gives the same search as optimize()
+    mech, best = slider_best
+    again = mech.optimize()
+    assert again.params == best.params and again.objective == best.objective
+    # an override reaches the search: a slower crank (omega = 2 pi) quarters the peak
+    slow = mech.optimize(omega=2 * np.pi, span=(0, 1), step=1 / 64)
+    assert slow.params["r"] == pytest.approx(R_BEST, rel=REL)
+    assert slow.objective == pytest.approx(peak_ax(R_BEST, L_BEST) / 4, rel=REL)
+    assert slow.run is not None and len(slow.run["t"]) == 65
