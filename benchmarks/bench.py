@@ -55,6 +55,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import mechdsl  # noqa: E402
 import models  # noqa: E402
 import peers  # noqa: E402
+from report import Report  # noqa: E402
 from closed_forms import angle_error, four_bar  # noqa: E402
 from mechdsl.compiled import equations as mechdsl_equations  # noqa: E402
 from mechdsl.compiled.fused import fuse  # noqa: E402
@@ -87,28 +88,6 @@ def median_time(fn: Callable[[], object], repeat: int) -> tuple[float, object]:
 
 def rel(value: np.ndarray, exact: np.ndarray) -> float:
     return float(np.abs(value - exact).max() / np.abs(exact).max())
-
-
-class Report:
-    """Tables printed as they come and collected as Markdown for the README."""
-
-    def __init__(self, out: Path) -> None:
-        self.out = out
-        self.lines: list[str] = []
-
-    def table(self, title: str, head: list[str], rows: list[list[str]]) -> None:
-        print(f"\n{title}")
-        widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(head)]
-        print("  ".join(h.rjust(w) for h, w in zip(head, widths)))
-        for r in rows:
-            print("  ".join(c.rjust(w) for c, w in zip(r, widths)))
-        self.lines += [f"**{title}**", "", "| " + " | ".join(head) + " |",
-                       "|" + "|".join("---:" for _ in head) + "|"]
-        self.lines += ["| " + " | ".join(r) + " |" for r in rows]
-        self.lines.append("")
-
-    def save(self, name: str = "results.md") -> None:
-        (self.out / name).write_text("\n".join(self.lines) + "\n")
 
 
 # -- the mechanisms, compiled, with their closed forms ---------------------------------------

@@ -57,12 +57,13 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import mechdsl  # noqa: E402
-import mechdsl.study.run as study_run  # noqa: E402
 from mechdsl.outputs.store import open_store  # noqa: E402
 from mechdsl.solve import SolverOptions  # noqa: E402
 from mechdsl.study.run import local_client  # noqa: E402
+from report import Report  # noqa: E402
 
 MODEL = ROOT / "examples" / "slider_crank.mech"
 SPAN, STEP = (0.0, 1.0), 0.01                 # 101 instants
@@ -70,45 +71,12 @@ REDUCE = "peak = max(abs(slider.ax))"
 CHUNK = 1000                                  # variants per chunk, every mode alike
 BACKENDS = {"numpy": SolverOptions(backend="numpy"), "auto": SolverOptions()}
 
-#: The CLI run through a wrapper that prints its own peak resident memory on stderr; the
-#: placeholder is replaced by a workaround line (or nothing), see ``poll_workaround``.
-WRAPPER = ("import sys{patch}; from mechdsl.cli import main; code = main(sys.argv[1:]); "
+#: The CLI run through a wrapper that prints its own peak resident memory on stderr
+WRAPPER = ("import sys; from mechdsl.cli import main; code = main(sys.argv[1:]); "
            "print('VmHWM', open('/proc/self/status').read().split('VmHWM:')[1].split()[0], "
            "file=sys.stderr); sys.exit(code)")
-PATCH = "; import mechdsl.study.run as r; r.POLL = 1e6"
 
 NOTES: list[str] = []
-
-
-# -- reporting, as benchmarks/bench.py ------------------------------------------------------
-
-class Report:
-    """Tables printed as they come and collected as Markdown."""
-
-    def __init__(self, out: Path) -> None:
-        self.out = out
-        self.lines: list[str] = []
-
-    def text(self, line: str) -> None:
-        print(line)
-        self.lines += [line, ""]
-
-    def table(self, title: str, head: list[str], rows: list[list[str]]) -> None:
-        print(f"\n{title}")
-        widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(head)]
-        print("  ".join(h.rjust(w) for h, w in zip(head, widths)))
-        for r in rows:
-            print("  ".join(c.rjust(w) for c, w in zip(r, widths)))
-        self.lines += [f"**{title}**", "", "| " + " | ".join(head) + " |",
-                       "|" + "|".join("---:" for _ in head) + "|"]
-        self.lines += ["| " + " | ".join(r) + " |" for r in rows]
-        self.lines.append("")
-
-    def save(self, name: str = "cluster.md") -> Path:
-        self.out.mkdir(parents=True, exist_ok=True)
-        path = self.out / name
-        path.write_text("\n".join(self.lines) + "\n")
-        return path
 
 
 def median_time(fn: Callable[[], object], repeat: int) -> tuple[float, list[float], object]:
@@ -164,31 +132,6 @@ def cluster(workers: int, trim: bool = False):
         c = client.cluster
         client.close()
         c.close()
-
-
-def poll_workaround(run: Callable[[], object]) -> object:
-    """``run()``; if the library's cluster loop dies of distributed.wait's TimeoutError
-    (mechdsl/study/run.py: ``wait(pending, timeout=POLL, return_when="FIRST_COMPLETED")``
-    raises when no chunk finished within POLL seconds instead of returning), note it, make
-    POLL huge (the wait then returns at the first finished chunk) and run again."""
-    try:
-        return run()
-    except TimeoutError:
-        if study_run.POLL >= 1e6:
-            raise
-        NOTES.append(
-            "LIBRARY BUG (mechdsl/study/run.py, StudyRun.on_cluster, the line `finished, "
-            "pending = wait(pending, timeout=POLL, return_when=\"FIRST_COMPLETED\")`): "
-            "distributed.wait raises TimeoutError when no future finishes within the "
-            f"timeout (POLL = {study_run.POLL} s) instead of returning the sets as "
-            "concurrent.futures.wait does, so every cluster run whose first chunk takes "
-            "longer than POLL fails with 'internal error: TimeoutError'. The figures here "
-            "were taken with mechdsl.study.run.POLL set to 1e6 in the benchmark's "
-            "processes (the wait then returns at the first finished chunk; lost workers "
-            "are noted later).")
-        print(f"\n!! {NOTES[-1]}\n")
-        study_run.POLL = 1e6
-        return run()
 
 
 # -- 1. throughput -----------------------------------------------------------------------------
@@ -250,7 +193,7 @@ def throughput(report: Report, quick: bool) -> None:
             for name, options in BACKENDS.items():
                 # warm-up: imports, numba's JIT and the study's first compile in every process
                 start = time.perf_counter()
-                poll_workaround(lambda: solve(options, client, warm))
+                solve(options, client, warm)
                 firsts[name] = time.perf_counter() - start
                 runs = [timed(options, client) for _ in range(repeat)]
                 walls = [r[0] for r in runs]
@@ -322,7 +265,7 @@ def throughput(report: Report, quick: bool) -> None:
         walls = [timed(numpy, None, few, size)[0] for _ in range(rep)]
         cost["in process", size] = statistics.median(walls), statistics.median(walls)
     with cluster(1) as (client, _):
-        poll_workaround(lambda: solve(numpy, client, few, m_var))  # warm-up
+        solve(numpy, client, few, m_var)  # warm-up
         for size in (small, m_var):
             runs = [timed(numpy, client, few, size) for _ in range(rep)]
             cost["1 worker", size] = (statistics.median(r[0] for r in runs),
@@ -382,12 +325,12 @@ def throughput(report: Report, quick: bool) -> None:
 
 # -- 2. flat memory --------------------------------------------------------------------------
 
-def run_cli(args: list[str], cwd: Path, patch: bool) -> dict:
+def run_cli(args: list[str], cwd: Path) -> dict:
     """``mechdsl run ARGS`` as a process through the wrapper: its wall time, return code,
     its own VmHWM (printed by the wrapper) and its children's (polled from /proc)."""
     import psutil
 
-    cmd = [sys.executable, "-c", WRAPPER.format(patch=PATCH if patch else ""), "run", *args]
+    cmd = [sys.executable, "-c", WRAPPER, "run", *args]
     env = {**os.environ, "PYTHONWARNINGS": "ignore"}
     start = time.perf_counter()
     p = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
@@ -421,7 +364,6 @@ def memory(report: Report, quick: bool) -> None:
     text = MODEL.read_text()
     rows, checks = [], []
     peaks: dict[str, list[tuple[int, int, list[int]]]] = {"in process": [], "--workers 2": []}
-    patch = study_run.POLL >= 1e6  # the workaround, if section 1 found the bug
     with tempfile.TemporaryDirectory(prefix="mechdsl-cluster-") as tmp:
         tmp = Path(tmp)
         for n in sizes:
@@ -431,19 +373,7 @@ def memory(report: Report, quick: bool) -> None:
                 out = tmp / "out.zarr"
                 shutil.rmtree(out, ignore_errors=True)
                 args = [model.name, "--step", str(STEP), "-o", out.name, "-q", *extra]
-                r = run_cli(args, tmp, patch)
-                if r["rc"] != 0 and extra and not patch and "TimeoutError" in r["stderr"]:
-                    NOTES.append(
-                        "LIBRARY BUG (mechdsl/study/run.py, StudyRun.on_cluster: "
-                        "distributed.wait(..., timeout=POLL, return_when='FIRST_COMPLETED') "
-                        "raises TimeoutError instead of returning when no chunk is done "
-                        f"within POLL): `mechdsl run ... --workers 2` of {n:,} variants "
-                        "failed with 'internal error: TimeoutError'; run again with "
-                        "mechdsl.study.run.POLL = 1e6 set in the wrapper.")
-                    print(f"\n!! {NOTES[-1]}\n")
-                    patch = True
-                    shutil.rmtree(out, ignore_errors=True)
-                    r = run_cli(args, tmp, patch)
+                r = run_cli(args, tmp)
                 if r["rc"] != 0:
                     raise RuntimeError(f"mechdsl run {' '.join(args)} failed:\n{r['stderr'][-2000:]}")
                 size = du_bytes(out)
@@ -529,7 +459,7 @@ def main() -> None:
                 + ", ".join(f"{x:.2f}" for x in os.getloadavg()) + ".")
     for note in NOTES:
         report.text(f"Note: {note}")
-    print(f"\nwrote {report.save()}")
+    print(f"\nwrote {report.save('cluster.md')}")
 
 
 if __name__ == "__main__":

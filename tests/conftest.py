@@ -61,3 +61,20 @@ def load_example(registry):
         return mechdsl.load(EXAMPLES / name, registry=registry)
 
     return _load
+
+
+def model_meaning(obj):
+    """A parsed model without where its parts were written (spans, the source text): two
+    texts mean the same model where these are equal."""
+    import dataclasses
+
+    from mechdsl.errors import Source, Span
+
+    if isinstance(obj, (Span, Source)):
+        return None
+    if dataclasses.is_dataclass(obj):
+        return (type(obj).__name__,) + tuple(model_meaning(getattr(obj, f.name))
+                                             for f in dataclasses.fields(obj))
+    if isinstance(obj, (list, tuple)):
+        return tuple(model_meaning(x) for x in obj)
+    return obj

@@ -2,31 +2,20 @@
 input's), is reached from any spacing, and formatting twice changes nothing; on every example
 (which are kept in it: fmt --check passes) and on the fuzzer's mutated and generated files."""
 
-import dataclasses
 import random
 import subprocess
 import sys
 
 import pytest
 
-from conftest import EXAMPLES, ROOT, load_fuzzer
-from mechdsl.errors import MechError, Source, Span
+from conftest import EXAMPLES, ROOT, load_fuzzer, model_meaning
+from mechdsl.errors import MechError
 from mechdsl.grammar import parse
 from mechdsl.grammar.format import format_text
 
 ALL = sorted(EXAMPLES.glob("*.mech")) + sorted((EXAMPLES / "plugins").glob("*/*.mech"))
 
 
-def meaning(obj):
-    """A model without where its parts were written (spans, the source text)."""
-    if isinstance(obj, (Span, Source)):
-        return None
-    if dataclasses.is_dataclass(obj):
-        return (type(obj).__name__,) + tuple(meaning(getattr(obj, f.name))
-                                             for f in dataclasses.fields(obj))
-    if isinstance(obj, (list, tuple)):
-        return tuple(meaning(x) for x in obj)
-    return obj
 
 
 def respaced(text: str, rng: random.Random) -> str:
@@ -60,10 +49,10 @@ def test_any_spacing_formats_to_the_same_model_and_stays(path):
     rng = random.Random(path.name)
     for _ in range(3):
         messy = respaced(text, rng)
-        assert meaning(parse(messy, "m.mech")) == meaning(parse(text, "t.mech"))
+        assert model_meaning(parse(messy, "m.mech")) == model_meaning(parse(text, "t.mech"))
         once = format_text(messy, "m.mech")
         assert format_text(once, "m.mech") == once
-        assert meaning(parse(once, "o.mech")) == meaning(parse(text, "t.mech"))
+        assert model_meaning(parse(once, "o.mech")) == model_meaning(parse(text, "t.mech"))
 
 
 def test_comments_stay_where_they_were_written():
@@ -145,5 +134,5 @@ def test_the_fuzzers_files_that_parse_format_to_the_same_model():
         tried += 1
         once = format_text(text, "f.mech")
         assert format_text(once, "f.mech") == once
-        assert meaning(parse(once, "f.mech")) == meaning(model)
+        assert model_meaning(parse(once, "f.mech")) == model_meaning(model)
     assert tried >= 50

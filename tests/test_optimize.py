@@ -29,7 +29,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import EXAMPLES, ROOT
+from conftest import EXAMPLES, ROOT, model_meaning
 from mechdsl.compiled.variants import Overrides
 from mechdsl.errors import MechError
 from mechdsl.grammar import parse
@@ -449,20 +449,6 @@ def test_a_file_without_optimize_is_refused(tmp_path, loads):
 
 # --- 6. fmt -------------------------------------------------------------------------------
 
-def meaning(obj):
-    """A model without where its parts were written (spans, the source text)."""
-    import dataclasses
-
-    from mechdsl.errors import Source, Span
-
-    if isinstance(obj, (Span, Source)):
-        return None
-    if dataclasses.is_dataclass(obj):
-        return (type(obj).__name__,) + tuple(meaning(getattr(obj, f.name))
-                                             for f in dataclasses.fields(obj))
-    if isinstance(obj, (list, tuple)):
-        return tuple(meaning(x) for x in obj)
-    return obj
 
 
 @pytest.mark.parametrize("statements", [
@@ -480,7 +466,7 @@ def test_fmt_keeps_the_optimize_block_and_is_idempotent(statements):
     assert format_text(once, "r.mech") == once
     before, after = parse(text, "t.mech"), parse(once, "o.mech")
     assert after.optimization is not None
-    assert meaning(after) == meaning(before)
+    assert model_meaning(after) == model_meaning(before)
 
 
 def test_fmt_keeps_a_continued_objective_on_its_lines():
@@ -491,7 +477,7 @@ def test_fmt_keeps_a_continued_objective_on_its_lines():
                          "    + range(slider.x)/100  # a sum\n")
     objective = parse(once, "o.mech").optimization.objective
     before = parse(text, "t.mech").optimization.objective
-    assert meaning(objective) == meaning(before)
+    assert model_meaning(objective) == model_meaning(before)
 
 
 def test_the_example_is_in_the_canonical_layout():

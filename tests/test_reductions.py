@@ -21,7 +21,7 @@ import pytest
 from scipy.integrate import quad
 from scipy.special import ellipe
 
-from conftest import EXAMPLES, ROOT
+from conftest import EXAMPLES, ROOT, model_meaning
 from mechdsl.errors import MechError
 from mechdsl.grammar import parse
 from mechdsl.grammar.format import format_text
@@ -509,20 +509,6 @@ def test_options_that_need_histories_are_refused(tmp_path, option, message):
 
 # --- fmt ----------------------------------------------------------------------------------
 
-def meaning(obj):
-    """A model without where its parts were written (spans, the source text)."""
-    import dataclasses
-
-    from mechdsl.errors import Source, Span
-
-    if isinstance(obj, (Span, Source)):
-        return None
-    if dataclasses.is_dataclass(obj):
-        return (type(obj).__name__,) + tuple(meaning(getattr(obj, f.name))
-                                             for f in dataclasses.fields(obj))
-    if isinstance(obj, (list, tuple)):
-        return tuple(meaning(x) for x in obj)
-    return obj
 
 
 @pytest.mark.parametrize("line", [
@@ -535,7 +521,7 @@ def test_fmt_keeps_reductions_and_is_idempotent(line):
     text = with_outputs(line)
     once = format_text(text, "r.mech")
     assert format_text(once, "r.mech") == once
-    assert meaning(parse(once, "o.mech")) == meaning(parse(text, "t.mech"))
+    assert model_meaning(parse(once, "o.mech")) == model_meaning(parse(text, "t.mech"))
     # the reductions are there, unchanged
     outputs = parse(once, "o.mech").outputs
     assert all(type(o).__name__ == "ReducedOutput" for o in outputs)
