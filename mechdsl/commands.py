@@ -17,7 +17,7 @@ from .compiled.variants import MAX_MEMORY, Overrides
 from .errors import MechError, NumericalError, Source, format_error, suggest
 from .outputs import FORMATS
 from .results import summary
-from .writing import Output, SignalGuard, check_distinct, emit
+from .writing import Interrupted, Output, SignalGuard, check_distinct, emit
 
 
 def _overrides(mech: Mechanism, args) -> Overrides:
@@ -416,12 +416,20 @@ def _write_outputs(args, system: System, results, at: list[float] | None,
         # the CSV is whole: a signal received meanwhile stops the rest now, and the next one
         # may interrupt the pictures and exports
         signals.release()
+        before = signals.count
         for fmt in FORMATS.values():
             path = getattr(args, fmt.arg)
             if fmt is csv or not path or (fmt.mechanism and not solved):
                 continue
-            with _writing(fmt.option, path):
-                fmt.write(results, system, path, **options.get(fmt.kind, {}))
+            try:
+                with _writing(fmt.option, path):
+                    fmt.write(results, system, path, **options.get(fmt.kind, {}))
+            except Exception:
+                # an interrupt that lands inside matplotlib's compiled code can come out as
+                # that code's own error (Agg's "Invalid bounding box"): it is the interrupt
+                if signals.count > before:
+                    raise Interrupted(signals.received) from None
+                raise
             written.append(path)
     except KeyboardInterrupt as err:
         return written, err

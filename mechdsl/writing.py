@@ -248,6 +248,8 @@ class SignalGuard:
     def __init__(self, signums: Sequence[int] = (signal.SIGINT, signal.SIGTERM)) -> None:
         self.signums = tuple(signums)
         self.received: int | None = None
+        #: how many signals were received
+        self.count = 0
         self._pending: int | None = None
         self._holding = False
         self._previous: dict[int, object] = {}
@@ -280,6 +282,7 @@ class SignalGuard:
 
     def _handle(self, signum: int, frame) -> None:
         self.received = signum
+        self.count += 1
         if self._holding:
             self._pending = signum
             return

@@ -660,3 +660,31 @@ def test_a_signal_at_an_awkward_moment_keeps_the_csv_and_leaves_no_temporary(tmp
     rows = csv_rows((tmp_path / "out.csv").read_text())[1]
     assert len(rows) == 1001
     assert_slider_crank(rows)
+
+
+def test_an_interrupt_that_a_drawing_library_turns_into_its_own_error_is_an_interrupt(
+        tmp_path, monkeypatch, capsys):
+    # an interrupt landing inside matplotlib's compiled code can come out as that code's
+    # error (Agg's "Invalid bounding box"): after a signal, the picture's failure is the
+    # interrupt (exit 130, the CSV whole, the picture not written), not an internal error
+    import mechdsl.outputs.plot as plot
+    from mechdsl.cli import main
+
+    def interrupted_plot(results, path, **options):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(5)  # the handler raises here
+        except KeyboardInterrupt:
+            raise ValueError("Invalid bounding box") from None
+
+    monkeypatch.setattr(plot, "plot_results", interrupted_plot)
+    out, png = tmp_path / "out.csv", tmp_path / "p.png"
+    code = main(["run", str(SLIDER), "--t1", "0.01", "-o", str(out), "--plot", str(png)])
+    assert code == 130
+    assert capsys.readouterr().err == (f"mechdsl: interrupted; the 11 instants solved so far "
+                                       f"are in {out}; not written: {png}\n")
+    assert len(csv_rows(out.read_text())[1]) == 11 and not png.exists()
+    # without a signal, the same error is what it is: a failure of the program
+    monkeypatch.setattr(plot, "plot_results", lambda *a, **k: (_ for _ in ()).throw(
+        ValueError("Invalid bounding box")))
+    assert main(["run", str(SLIDER), "--t1", "0.01", "-o", str(out), "--plot", str(png)]) == 3
