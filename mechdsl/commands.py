@@ -360,7 +360,8 @@ def optimize_command(args, signals: SignalGuard | None = None) -> int:
     for text, slack in best.requirements.items():
         lines.append(f"requirement {text}: {'holds' if slack >= -REQUIRE_TOL else 'VIOLATED'} "
                      f"(slack {slack:.6g})")
-    lines.append(f"{best.variants} variants solved in {best.sweeps} sweeps, "
+    lines.append(f"{best.variants} variants solved in {best.sweeps} "
+                 f"sweep{'s' if best.sweeps != 1 else ''}, "
                  f"{best.seconds:.2f} s ({best.message})")
     emit("\n".join(lines))
     if not best.feasible:
