@@ -195,6 +195,23 @@ class ProgressBar:
             self.stream.flush()
 
 
+class SearchStatus(ProgressBar):
+    """The state of an optimisation on one line of ``stream`` (a terminal only, after a
+    second): the best objective so far and the variants solved."""
+
+    def __call__(self, best: float, variants: int, sweeps: int) -> None:
+        if not self.live:
+            return
+        now = self.clock()
+        if now - self.start < self.delay or now - self.last < self.period:
+            return
+        self.last = now
+        self.stream.write(f"\rbest {best:.6g} after {variants} variants in {sweeps} sweep"
+                          f"{'s' if sweeps != 1 else ''}, {now - self.start:.0f} s ")
+        self.stream.flush()
+        self.shown = True
+
+
 def _trace_ref(model, ref: str) -> list[str]:
     """Check a --trace BODY.POINT against the model's bodies and points."""
     parts = ref.split(".")
@@ -342,12 +359,15 @@ def optimize_command(args, signals: SignalGuard | None = None) -> int:
                         "objective is its 'minimize' statement")
     ov = _overrides(mech, args)
     client = _client(args)
+    status = SearchStatus(sys.stderr) if not args.quiet else None
     try:
         best = optimize(mech, ov, _options(args), client=client, chunk=args.chunk,
                         popsize=args.popsize, maxiter=args.maxiter, tol=args.tol,
                         seed=args.seed, refine=not args.no_refine, run=False,
-                        grid=args.grid)
+                        grid=args.grid, progress=status)
     finally:
+        if status is not None:
+            status.close()
         if client is not None:
             _close(client)
     opt = mech.model.optimization

@@ -495,3 +495,15 @@ def test_the_api_method_is_the_command(slider_best):
     assert slow.params["r"] == pytest.approx(R_BEST, rel=REL)
     assert slow.objective == pytest.approx(peak_ax(R_BEST, L_BEST) / 4, rel=REL)
     assert slow.run is not None and len(slow.run["t"]) == 65
+
+
+def test_the_search_reports_its_progress_after_every_sweep(slider_best):
+    mech, best = slider_best
+    seen = []
+    again = optimize(mech, run=False, progress=lambda b, v, s: seen.append((b, v, s)))
+    assert again.params == best.params
+    assert [s for _, _, s in seen] == list(range(1, again.sweeps + 1))
+    assert seen[-1][1] == again.variants
+    bests = [b for b, _, _ in seen if np.isfinite(b)]
+    assert bests == sorted(bests, reverse=True)  # the best so far only improves
+    assert bests[-1] == pytest.approx(again.objective, rel=1e-12)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import inspect
 import time
 from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
 
@@ -79,6 +80,10 @@ class Evaluator:
         self.labels = [o.name for o in outputs]
         self.seen: dict[bytes, np.ndarray] = {}
         self.variants = self.sweeps = 0
+        #: the best objective (signed: minimised) of a variant meeting the requirements
+        self.best = np.inf
+        #: called as progress(best objective, variants, sweeps) after each sweep
+        self.progress: Callable[[float, int, int], None] | None = None
 
     def __call__(self, rows: np.ndarray) -> np.ndarray:
         """(S, 1 + M): the signed objective (minimised) and the M slacks of each row of
@@ -103,8 +108,13 @@ class Evaluator:
             values[:, 1:][bad[:, 1:]] = -np.inf
             for key, v in zip(new, values):
                 self.seen[key] = v
+            feasible = np.all(values[:, 1:] >= -REQUIRE_TOL, axis=1)
+            if feasible.any():
+                self.best = min(self.best, float(values[feasible, 0].min()))
             self.variants += len(table)
             self.sweeps += 1
+            if self.progress is not None:
+                self.progress(self.sign * self.best, self.variants, self.sweeps)
         return np.array([self.seen[r.tobytes()] for r in rows])
 
 
@@ -126,12 +136,14 @@ def bounds_of(mech, ov: Overrides) -> list[tuple[float, float]]:
 def optimize(mech, ov: Overrides | None = None, options: SolverOptions | None = None, *,
              client=None, chunk: int | None = None, popsize: int = POPSIZE,
              maxiter: int = MAXITER, tol: float = TOL, seed: int = SEED,
-             refine: bool = True, run: bool = True, grid: int | None = None) -> Optimum:
+             refine: bool = True, run: bool = True, grid: int | None = None,
+             progress: Callable[[float, int, int], None] | None = None) -> Optimum:
     """Minimise (or maximise) the model's objective over its ``optimize`` ranges, subject to
     its requirements: differential evolution, then SLSQP (see the module's docstring). With
     ``run``, the run at the best params, with the model's own outputs, is in ``Optimum.run``.
     With ``grid`` = n, a brute-force search instead: every point of the n x n x ... grid of
-    the ranges (ends included) solved as one sweep, the best feasible one taken."""
+    the ranges (ends included) solved as one sweep, the best feasible one taken.
+    ``progress(best objective so far, variants, sweeps)`` is called after every sweep."""
     from scipy.optimize import NonlinearConstraint, differential_evolution, minimize
 
     opt = mech.model.optimization
@@ -142,6 +154,7 @@ def optimize(mech, ov: Overrides | None = None, options: SolverOptions | None = 
     start = time.perf_counter()
     bounds = bounds_of(mech, ov)
     evaluate = Evaluator(mech, ov, options, client, chunk)
+    evaluate.progress = progress
     M = len(opt.requirements)
     constraints = ()
     if M:
