@@ -137,10 +137,11 @@ def _override_files(ov: Overrides) -> list[str]:
 
 
 def _check_outputs(args, mech: Mechanism, ov: Overrides, system: System,
-                   at: list[float] | None) -> None:
+                   at: list[float] | None, n_variants: int | None = None) -> None:
     """Once the model is read and the run known, before solving: refuse an output that is
     the model file, a file the model reads, or another output of the run (every file of an
-    --export series included); refuse --at instants outside the run."""
+    --export series included); refuse --at instants outside the run. ``system`` may be the
+    compiled model of the run's first chunk: ``n_variants`` is then the run's."""
     from .outputs.export import series
 
     inputs = [("the model file", args.file)]
@@ -149,7 +150,8 @@ def _check_outputs(args, mech: Mechanism, ov: Overrides, system: System,
     outputs = [Output(option, path) for option, path in _outputs(args) if option != "--export"]
     if args.export:
         outputs.append(Output("--export", args.export,
-                              series(args.export, system.n_variants, len(system.times))))
+                              series(args.export, n_variants or system.n_variants,
+                                     len(system.times))))
     check_distinct(inputs, outputs)
     if at:
         lo, hi = float(system.times[0]), float(system.times[-1])
@@ -268,7 +270,7 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
 
     planned = plan(mech, ov, args.chunk)
     system, total, chunk, _ = planned
-    _check_outputs(args, mech, ov, system, at)
+    _check_outputs(args, mech, ov, system, at, total)  # system: the first chunk's
     if system.reductions:
         _check_reduced(args, system)
     store = _store(args)

@@ -688,3 +688,20 @@ def test_an_interrupt_that_a_drawing_library_turns_into_its_own_error_is_an_inte
     monkeypatch.setattr(plot, "plot_results", lambda *a, **k: (_ for _ in ()).throw(
         ValueError("Invalid bounding box")))
     assert main(["run", str(SLIDER), "--t1", "0.01", "-o", str(out), "--plot", str(png)]) == 3
+
+
+def test_an_export_of_a_chunked_sweep_never_overwrites_a_later_variants_input(tmp_path):
+    # a sweep cut into chunks is checked against the files of every variant, not only those
+    # of the first chunk: variant 2's export would be the table the drive reads
+    table = tmp_path / "motion_v2.xdmf"
+    table.write_text("0, 0\n1, 0\n2, 0\n")
+    model = tmp_path / "m.mech"
+    model.write_text(SLIDER.read_text().replace(
+        "drive crank_angle: angle(crank) = pi/4 + omega*t",
+        'drive crank_angle: angle(crank) = pi/4 + omega*t + table("motion_v2.xdmf", t)'))
+    r = subprocess.run([sys.executable, "-m", "mechdsl", "run", "m.mech", "--t1", "0.01",
+                        "--sweep", "l=3,3.5,4", "--chunk", "1", "--export", "motion.xdmf"],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert r.returncode == 1
+    assert "--export motion.xdmf would overwrite the model's data file" in r.stderr
+    assert table.read_text() == "0, 0\n1, 0\n2, 0\n"
