@@ -300,6 +300,9 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
             _close(client)
     if store is not None:
         return _report(args, results, [store], None, signals)
+    if total > system.n_variants and (drawing or args.export):
+        # the drawings and exports need every variant's geometry, not the first chunk's
+        system = mech.compile(ov)
     written, stop = _write_outputs(args, system, results, at, signals)
     return _report(args, results, written, stop, signals)
 
