@@ -336,8 +336,16 @@ class Mechanism:
                 err.source = Source("--reduce", normalise(text))
                 raise
             outputs.extend(found)
-        return Mechanism(replace(self.model, outputs=tuple(outputs)), registry=self.registry,
-                         allow_plugins=self._allowed)
+        return self.sharing(replace(self.model, outputs=tuple(outputs)))
+
+    def sharing(self, model: Model) -> "Mechanism":
+        """``model``, this mechanism's model with other outputs or sweeps (the same plugin
+        lines), with this mechanism's plugins, the modules it allows and its registry, built
+        already: a study or an optimisation sends the plugins' names on to its workers."""
+        other = Mechanism(model, registry=self.registry, plugins=self._plugins,
+                          allow_plugins=self._allowed)
+        other._pending_model_plugins = False  # the registry has the model's plugin lines
+        return other
 
 
 def parse_value(text: str, what: str, params: Iterable[str], many: bool = False):

@@ -90,3 +90,20 @@ def test_autoload_off_means_only_what_is_asked_for():
     r = mechdsl("run", PACKAGE / "curve_slot.mech", env={"MECHDSL_DISABLE_PLUGIN_AUTOLOAD": "1"})
     assert r.returncode == 1
     assert "unknown joint type 'revolute'" in r.stderr
+
+
+def test_plugins_named_on_the_command_line_reach_every_chunk_of_a_reduced_sweep(tmp_path):
+    # --reduce replaces the outputs and --chunk 1 solves each variant on its own: the
+    # plugins given by name (no entry points) still load for every chunk
+    f = tmp_path / "no_line.mech"
+    f.write_text((PACKAGE / "curve_slot.mech").read_text().replace(
+        'plugin "mechdsl_curve_slot"', ""))
+    env = {"MECHDSL_DISABLE_PLUGIN_AUTOLOAD": "1", "PYTHONPATH": str(PACKAGE)}
+    r = mechdsl("run", f, "-o", "-", "--plugin", "mechdsl_curve_slot", "--plugin",
+                "mechdsl_revolute", "--plugin", "mechdsl_drives", "--sweep", "a=0.5,0.6",
+                "--chunk", "1", "--reduce", "m = max(pin.x)", env=env)
+    assert r.returncode == 0, r.stderr
+    rows = np.array([line.split(",") for line in r.stdout.splitlines()[2:]], dtype=float)
+    t = np.linspace(0, 2, 201)  # simulate t = 0 .. 2 step 0.01
+    for a, m in rows:
+        assert m == pytest.approx(exact_pin(t, a)[0].max(), abs=1e-13)

@@ -71,11 +71,7 @@ class Evaluator:
         self.names = [name for name, *_ in opt.ranges]
         self.sign = -1.0 if opt.sense == "max" else 1.0
         outputs = (opt.objective, *opt.requirements)
-        from ..api import Mechanism
-
-        self.mech = Mechanism(replace(mech.model, outputs=outputs, sweeps=()),
-                              registry=mech.registry, allow_plugins=mech._allowed)
-        self.mech._plugins = mech._plugins
+        self.mech = mech.sharing(replace(mech.model, outputs=outputs, sweeps=()))
         self.ov, self.options, self.client, self.chunk = ov, options, client, chunk
         self.labels = [o.name for o in outputs]
         self.seen: dict[bytes, np.ndarray] = {}
