@@ -177,17 +177,28 @@ class ProgressBar:
         self.live = hasattr(stream, "isatty") and stream.isatty()
 
     def __call__(self, done: int, total: int) -> None:
-        if not self.live:
+        now = self._due()
+        if now is None:
             return
-        now = self.clock()
-        if now - self.start < self.delay or now - self.last < self.period:
-            return
-        self.last = now
         frac = done / max(total, 1)
         filled = int(round(frac * self.width))
         eta = (now - self.start) * (1 - frac) / frac if frac > 0 else float("nan")
-        self.stream.write(f"\r[{'#' * filled}{'.' * (self.width - filled)}] {100 * frac:5.1f} % "
-                          f"{done}/{total} instants, {eta:.0f} s left ")
+        self._show(f"[{'#' * filled}{'.' * (self.width - filled)}] {100 * frac:5.1f} % "
+                   f"{done}/{total} instants, {eta:.0f} s left ")
+
+    def _due(self) -> float | None:
+        """The time now if a line is to be drawn now (a terminal, past the delay, not
+        sooner than the rate allows), else None."""
+        if not self.live:
+            return None
+        now = self.clock()
+        if now - self.start < self.delay or now - self.last < self.period:
+            return None
+        self.last = now
+        return now
+
+    def _show(self, text: str) -> None:
+        self.stream.write("\r" + text)
         self.stream.flush()
         self.shown = True
 
@@ -202,16 +213,10 @@ class SearchStatus(ProgressBar):
     second): the best objective so far and the variants solved."""
 
     def __call__(self, best: float, variants: int, sweeps: int) -> None:
-        if not self.live:
-            return
-        now = self.clock()
-        if now - self.start < self.delay or now - self.last < self.period:
-            return
-        self.last = now
-        self.stream.write(f"\rbest {best:.6g} after {variants} variants in {sweeps} sweep"
-                          f"{'s' if sweeps != 1 else ''}, {now - self.start:.0f} s ")
-        self.stream.flush()
-        self.shown = True
+        now = self._due()
+        if now is not None:
+            self._show(f"best {best:.6g} after {variants} variants in {sweeps} sweep"
+                       f"{'s' if sweeps != 1 else ''}, {now - self.start:.0f} s ")
 
 
 def _trace_ref(model, ref: str) -> list[str]:

@@ -575,7 +575,9 @@ class _Compiler:
     def _expr_column(self, label: str, e: E.Expr, span: Span, owner: str) -> ExprOutput:
         """A column computed by the expression ``e`` of params, ``t`` and quantities."""
         names = {n.id: n.span for n in E.walk(e) if isinstance(n, E.Name) and "." in n.id}
-        inputs = tuple((n, self._quantity(n, names[n] or span, owner)) for n in sorted(names))
+        # resolved in reading order: the first wrong quantity is the one reported
+        specs = {n: self._quantity(n, at or span, owner) for n, at in names.items()}
+        inputs = tuple((n, specs[n]) for n in sorted(specs))
         return ExprOutput(label, E.compile_expr(e), inputs,
                           max((s.order for _, s in inputs), default=0), e)
 
@@ -583,20 +585,15 @@ class _Compiler:
         """The columns of ``output NAME = EXPR``: NAME, and its exact time derivatives
         NAME.vel and NAME.acc (by the chain rule through the quantities it reads: x -> vx ->
         ax, phi -> omega -> alpha), as far as the quantities read have derivatives."""
-        specs: dict[str, OutputSpec] = {}
         columns = []
         e = out.expr
         for suffix in ("", ".vel", ".acc"):
-            names = {n.id: n.span for n in E.walk(e) if isinstance(n, E.Name) and "." in n.id}
-            for name, span in names.items():
-                if name not in specs:
-                    specs[name] = self._quantity(name, span or out.span, out.name)
-            inputs = tuple((n, specs[n]) for n in sorted(names))
-            columns.append(ExprOutput(out.name + suffix, E.compile_expr(e), inputs,
-                                      max((s.order for _, s in inputs), default=0), e))
-            rates = {n: n[: n.rfind(".") + 1] + RATE[specs[n].quantity] for n in names
-                     if specs[n].quantity in RATE}
-            e = total_derivative(e, set(names), rates)
+            column = self._expr_column(out.name + suffix, e, out.span, out.name)
+            columns.append(column)
+            specs = dict(column.inputs)
+            rates = {n: n[: n.rfind(".") + 1] + RATE[s.quantity] for n, s in specs.items()
+                     if s.quantity in RATE}
+            e = total_derivative(e, set(specs), rates)
             if e is None:
                 break
         return columns

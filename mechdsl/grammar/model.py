@@ -210,7 +210,7 @@ class ReducedOutput:
 class Optimization:
     """``optimize NAME in A .. B, ...``, ``minimize EXPR`` (or ``maximize``) and ``subject to
     EXPR >= EXPR, ...``: the params varied within their bounds (expressions of the params
-    before them), the objective and each requirement's slack as reductions
+    that are not varied), the objective and each requirement's slack as reductions
     (:class:`ReducedOutput`; a requirement ``g >= h`` holds where its slack g - h >= 0,
     ``g <= h`` where h - g >= 0)."""
 

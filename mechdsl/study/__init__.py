@@ -29,8 +29,10 @@ def study_of(mech, ov: Overrides, options: SolverOptions | None = None, *,
     if objects:
         raise MechError(f"a plugin given as a Python object ({objects[0]!r}) cannot be sent "
                         "to another process; give its module name")
-    return Study(mech.model, ov, options, tuple(mech._plugins), tuple(mech._allowed),
-                 poses, rates)
+    study = Study(mech.model, ov, options, tuple(mech._plugins), tuple(mech._allowed),
+                  poses, rates)
+    study.__dict__["mechanism"] = mech  # here, its registry is built: not again (not pickled)
+    return study
 
 
 def plan(mech, ov: Overrides, chunk: int | None = None) -> tuple[System, int, int, dict]:
@@ -57,8 +59,8 @@ def solve_sweep(mech, ov: Overrides, options: SolverOptions | None = None, *,
     """Solve ``mech`` with overrides ``ov`` chunk by chunk (:mod:`mechdsl.study.run`): on the
     Dask ``client``'s cluster if given, else here; ``planned`` is :func:`plan`'s answer if
     the caller has it, ``extra_memory`` what the caller's drawings of the first chunk's
-    variants will take (scaled to all of them). Returns the merged :class:`~mechdsl.results.Results` (the same, bit
-    for bit, wherever the chunks ran). With ``store`` (a ``.zarr`` or ``.parquet`` path),
+    variants will take (scaled to all of them). Returns the merged
+    :class:`~mechdsl.results.Results` (the same, bit for bit, wherever the chunks ran). With ``store`` (a ``.zarr`` or ``.parquet`` path),
     each chunk is written there where it was solved, and the results returned hold no
     arrays (read them with :func:`mechdsl.outputs.store.open_store`)."""
     probe, total, size, sweep = planned or plan(mech, ov, chunk)

@@ -113,7 +113,7 @@ def merge(parts: list[Results], solve_time: float | None = None,
         return None if any(a is None for a in arrays) else np.concatenate(arrays)
 
     statuses = {p.status for p in parts}
-    worst = next(s for s in ("interrupted", "failed", "ok") if s in statuses or s == "ok")
+    worst = next((s for s in ("interrupted", "failed") if s in statuses), "ok")
     return replace(
         first,
         data={k: joined(lambda p, k=k: p.data[k]) for k in first.data},

@@ -123,14 +123,11 @@ class StudyRun:
                                       f"chunks ({what}) were solved again on another worker")
                 workers = now
                 held = client.processing() if pending else held
-        except KeyboardInterrupt:
-            self.status = "interrupted"
-        except BaseException:
+        except BaseException as err:
             client.cancel(list(pending))
-            raise
-        finally:
-            if self.status == "interrupted":
-                client.cancel(list(pending))
+            if not isinstance(err, KeyboardInterrupt):
+                raise
+            self.status = "interrupted"
 
     def results(self, template: Results, elapsed: float) -> Results:
         """The chunks' results merged in variant order; chunks never solved are empty."""
