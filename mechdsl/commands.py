@@ -147,7 +147,8 @@ def _check_outputs(args, mech: Mechanism, ov: Overrides, system: System,
     inputs = [("the model file", args.file)]
     inputs += [("the model's data file", f) for f in mech.model.files]
     inputs += [("a table file of --set or --sweep", f) for f in _override_files(ov)]
-    outputs = [Output(option, path) for option, path in _outputs(args) if option != "--export"]
+    outputs = [Output(option, path, folder=option == "-o" and _is_store_path(path))
+               for option, path in _outputs(args) if option != "--export"]
     if args.export:
         outputs.append(Output("--export", args.export,
                               series(args.export, n_variants or system.n_variants,

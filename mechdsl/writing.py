@@ -146,11 +146,13 @@ def write_text(path: str | os.PathLike, write: Callable[[IO[str]], None]) -> Non
 class Output:
     """A file a run writes, named ``path`` on the command line after ``option``; or, with
     ``member``, a family of files in the folder of ``path`` (an export's files), ``member``
-    telling whether a file name is one of them."""
+    telling whether a file name is one of them; with ``folder``, the folder ``path`` and all
+    it holds (a store, replaced whole)."""
 
     option: str
     path: str
     member: Callable[[str], bool] | None = None
+    folder: bool = False
 
     def describe(self) -> str:
         return f"{'a file of ' if self.member else 'the output of '}{self.option} {self.path}"
@@ -165,6 +167,11 @@ def _same(a: str, b: str) -> bool:
         return os.path.samefile(a, b)
     except OSError:  # one of them does not exist (yet)
         return False
+
+
+def _inside(path: str, folder: str) -> bool:
+    """Whether ``path`` lies somewhere below ``folder`` (links resolved)."""
+    return os.path.realpath(path).startswith(os.path.realpath(folder) + os.sep)
 
 
 def _series_hit(path: str, series: Output) -> str | None:
@@ -193,11 +200,11 @@ def check_distinct(inputs: Sequence[tuple[str, str]], outputs: Sequence[Output])
     """Refuse (MechError) an output that is one of the ``inputs`` ((what, path): the model
     file, the files it reads) or another output of the same run. Outputs written in place
     (:func:`is_direct`, /dev/null for instance) replace nothing and are not compared."""
-    outs = [o for o in outputs if not is_direct(o.path)]
+    outs = [o for o in outputs if o.folder or not is_direct(o.path)]  # a store is a folder
     for i, out in enumerate(outs):
         if out.member is None:
             for what, path in inputs:
-                if _same(out.path, path):
+                if _same(out.path, path) or (out.folder and _inside(path, out.path)):
                     raise MechError(f"{out.option} {out.path} would overwrite {what} {path}; "
                                     "choose another file name")
         else:

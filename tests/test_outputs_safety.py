@@ -705,3 +705,24 @@ def test_an_export_of_a_chunked_sweep_never_overwrites_a_later_variants_input(tm
     assert r.returncode == 1
     assert "--export motion.xdmf would overwrite the model's data file" in r.stderr
     assert table.read_text() == "0, 0\n1, 0\n2, 0\n"
+
+
+def test_a_store_is_never_replaced_over_a_file_the_model_reads_inside_it(tmp_path):
+    # -o out.zarr replaces the whole folder of an earlier store: a table kept inside it
+    # that the model reads is an input, and the run is refused before anything is written
+    store = tmp_path / "out.zarr"
+    r = subprocess.run([sys.executable, "-m", "mechdsl", "run", str(SLIDER), "--t1", "0.01",
+                        "-o", str(store)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    table = store / "motion.csv"
+    table.write_text("0, 0\n1, 0\n")
+    model = tmp_path / "m.mech"
+    model.write_text(SLIDER.read_text().replace(
+        "drive crank_angle: angle(crank) = pi/4 + omega*t",
+        'drive crank_angle: angle(crank) = pi/4 + omega*t + table("out.zarr/motion.csv", t)'))
+    r = subprocess.run([sys.executable, "-m", "mechdsl", "run", "m.mech", "--t1", "0.01",
+                        "-o", "out.zarr"], capture_output=True, text=True, cwd=tmp_path,
+                       timeout=120)
+    assert r.returncode == 1
+    assert "-o out.zarr would overwrite the model's data file" in r.stderr
+    assert table.read_text() == "0, 0\n1, 0\n"
