@@ -199,6 +199,17 @@ class System:
         return native.load(self)
 
     @functools.cached_property
+    def one_state(self):
+        """A single mechanism's model as code on Python floats, for the steps of a solve that
+        see one state at a time (:mod:`mechdsl.compiled.scalar`); None for a sweep, or where
+        it does not apply."""
+        if self.n_variants != 1:
+            return None
+        from .scalar import one_state
+
+        return one_state(self)
+
+    @functools.cached_property
     def scalar_kernels(self):
         """The forward dynamics' one-state kernels on floats
         (:func:`mechdsl.symbolic.codegen.scalar_kernel`): ``(phi_jac, motion)``, Phi and

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -255,6 +256,14 @@ def _continue_drives(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray
     ok = active.copy()
     if system.drive_rows.size == 0 or not ok.any():
         return q, ok, 0
+    if system.one_state is not None and len(rows) == system.n:
+        from .single import OneState
+
+        done = _continue_one(OneState(system, system.one_state, D[0, 0], opts), q[0, 0],
+                             float(t[0, 0]), opts)
+        if done is not None:
+            qn, good, it = done
+            return np.array(qn).reshape(q.shape), np.array([good]), it
     with np.errstate(all="ignore"):
         delta = np.zeros(q.shape[:-1] + (system.m,))
         delta[..., system.drive_rows] = -eq.constraint_values(system, q, t)[..., system.drive_rows]
@@ -285,3 +294,49 @@ def _continue_drives(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray
         if it <= 3:
             ds = min(1.0, 2 * ds)
     return q, ok, iterations
+
+
+def _continue_one(one, q: np.ndarray, t0: float, opts: SolverOptions
+                  ) -> tuple[list, bool, int] | None:
+    """:func:`_continue_drives` for a single mechanism, on floats
+    (:mod:`mechdsl.solve.single`): the same steps and checks; None where the fixed-order
+    LU does not apply (the batched continuation decides)."""
+    x = q.tolist()
+    f = [c[0] for c in one.drives(np.array([t0]))[0]]
+    try:
+        phi, _ = one.residual(x, [0.0] * len(f))
+    except (ArithmeticError, ValueError):
+        return None
+    # Phi(q, t0) + (1 - s) delta = 0 on the drive rows: a drive's target moves from g(q1)
+    # at s = 0 to f(t0) at s = 1
+    g = [phi[r] for r in one.drive_rows]
+    fac = one.factor(x)
+    if fac is None:
+        return None
+    delta = [0.0] * one.m
+    for r, gi, fi in zip(one.drive_rows, g, f):
+        delta[r] = fi - gi if math.isfinite(fi - gi) else 0.0
+    floor = math.sqrt(opts.newton_tol)
+    s, ds, iterations = 0.0, 1.0, 0
+    while s < 1.0:
+        s_new = min(1.0, s + ds)
+        tangent = fac.solve(delta)  # Phi_q dq/ds = delta
+        pred = [xi + (s_new - s) * ti if math.isfinite(ti) else xi
+                for xi, ti in zip(x, tangent)]
+        target = [gi - (gi - fi) * s_new for gi, fi in zip(g, f)]
+        xn, conv, it = one.newton(pred, target, opts.newton_tol)
+        iterations += it
+        fn = one.factor(xn)
+        if fn is None:
+            return None
+        good = (conv and fn.rcond >= opts.singular_rcond and fn.sign == fac.sign
+                and one.correction_ratio(xn, pred, x, floor) <= opts.branch_ratio)
+        if not good:
+            if ds > 2.0 ** -opts.max_bisections:
+                ds /= 2
+                continue
+            return x, False, iterations
+        x, fac, s = xn, fn, s_new
+        if it <= 3:
+            ds = min(1.0, 2 * ds)
+    return x, True, iterations

@@ -21,6 +21,7 @@ from ..compiled import equations as eq
 from ..compiled.system import System
 from .linalg import solve
 from .options import SolverOptions
+from .rowwise import absmax
 
 
 def polish(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
@@ -47,7 +48,7 @@ def polish(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
                 phi[..., system.drive_rows] -= f
             jac = eq.jacobian_for(system, vals, rows)
             dq, solved = solve(jac, -phi if len(rows) == system.m else -phi[..., rows])
-            step = np.abs(dq / D).max(axis=-1)
+            step = absmax(dq / D)
             left = np.where((step < 0.25 * prev) & (prev < np.inf), step**3 / prev**2, np.inf)
             live = ~done & solved
             # a live state's step is finite (solved); where() keeps the others' NaN out
@@ -64,7 +65,7 @@ def polish(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
 def coarse_march(system: System, start: tuple[np.ndarray, ...], sign: np.ndarray,
                  times: np.ndarray, gap: int, D: np.ndarray, opts: SolverOptions,
                  rows: np.ndarray, min_gap: int, active: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray] | None:
+                 ) -> tuple[np.ndarray, tuple[np.ndarray, ...], bool] | None:
     """March from the state ``start`` = (t (V,), q, qd, qdd (V, n)) at ``times[0]`` to
     ``times[-1]`` over every ``gap``-th instant, adapting the gap to the motion: each step
     is predicted by the Taylor polynomial q + tau qd + tau^2/2 qdd + tau^3/6 qddd (qddd from
@@ -73,11 +74,23 @@ def coarse_march(system: System, start: tuple[np.ndarray, ...], sign: np.ndarray
     ``branch_ratio``) or whose det(Phi_q) changed sign is halved, down to ``min_gap``
     instants (past that the march gives up and returns None: the careful march then takes
     over and reports what happened); a step whose correction is small (under a tenth of
-    ``branch_ratio``) doubles the next gap. Returns the indices into ``times`` reached and
-    the states there (q, qd, qdd (V, c, n)); the variants not ``active`` stay where they
-    are."""
+    ``branch_ratio``) doubles the next gap. Returns the indices into ``times`` reached,
+    the states there (q, qd, qdd (V, c, n)) and whether they are settled (solved to the
+    full tolerance and checked as a level checks its states: a single mechanism, marched
+    on floats by :func:`mechdsl.solve.single.coarse_march_one`); the variants not
+    ``active`` stay where they are."""
     from .newton import correction_ratio
 
+    if system.one_state is not None and active[0]:
+        # a single mechanism: one state per step, on floats (numpy's per-call overhead
+        # would be nearly all of its cost)
+        from .single import UNDECIDED, OneState, coarse_march_one
+
+        one = OneState(system, system.one_state, D[0, 0], opts)
+        out = coarse_march_one(one, (start[0][0], *(a[0] for a in start[1:])), sign[0],
+                               times, gap, opts, min_gap)
+        if out is not UNDECIDED:
+            return None if out is None else (*out, True)
     loose = max(opts.newton_tol, opts.coarse_newton_tol)
     t, q, qd, qdd = (np.array(a, dtype=float) for a in start)
     V = len(q)
@@ -127,5 +140,5 @@ def coarse_march(system: System, start: tuple[np.ndarray, ...], sign: np.ndarray
             gap *= 2
     if not out:
         return None
-    return np.array(reached, np.intp), tuple(np.concatenate([o[i] for o in out], axis=1)
-                                             for i in range(3))
+    return (np.array(reached, np.intp),
+            tuple(np.concatenate([o[i] for o in out], axis=1) for i in range(3)), False)

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..compiled.lu import LUPlan
 from ..compiled.sparse import LUJac, SparseJac, lu_one, sparse_lu
+from .rowwise import allfinite
 
 def solve(a: np.ndarray | SparseJac, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Batched a x = b; ``ok`` is False (and x NaN) where a is singular or x not finite.
@@ -33,7 +34,7 @@ def solve(a: np.ndarray | SparseJac, b: np.ndarray) -> tuple[np.ndarray, np.ndar
             x = np.linalg.solve(a, b[..., None])[..., 0]
         except np.linalg.LinAlgError:  # one singular matrix fails the whole batch
             x = _each(lambda i: np.linalg.solve(a[i], b[i]), b.shape, core=1)
-    return x, np.isfinite(x).all(axis=-1)
+    return x, allfinite(x)
 
 
 def _solve_lu(a: LUJac, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -42,7 +43,7 @@ def _solve_lu(a: LUJac, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     redo = ~ok.T
     if redo.any():  # a pivot of the fixed order became small: LAPACK's pivoting there
         x[redo] = solve(a.dense()[redo], b[redo])[0]
-    return x, np.isfinite(x).all(axis=-1)
+    return x, allfinite(x)
 
 
 def _solve_sparse(a: SparseJac, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -53,7 +54,7 @@ def _solve_sparse(a: SparseJac, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
                 x[i] = sparse_lu(a.values[i], a.pattern).solve(b[i])
         except (RuntimeError, ValueError):  # singular, or not finite
             pass
-    return x, np.isfinite(x).all(axis=-1)
+    return x, allfinite(x)
 
 
 def inverse(a: np.ndarray) -> np.ndarray:

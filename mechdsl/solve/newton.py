@@ -8,6 +8,7 @@ from ..compiled import equations as eq
 from ..compiled.system import System
 from .linalg import Factor, solve
 from .options import SolverOptions
+from .rowwise import absmax, allfinite
 
 
 def use_sparse(system: System, opts: SolverOptions, rows: np.ndarray) -> bool:
@@ -62,7 +63,7 @@ def newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray, active: 
         rhs = -phi if len(rows) == system.m else -phi[..., rows]
         if stale:
             dqc = _solve_stale(reuse, rhs)
-            solvedc = np.isfinite(dqc).all(axis=-1)
+            solvedc = allfinite(dqc)
         else:
             dqc, solvedc = solve(jac, rhs)
         if part:
@@ -73,7 +74,7 @@ def newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray, active: 
         else:
             dq, solved = dqc, solvedc
         with np.errstate(invalid="ignore"):
-            step = np.abs(dq / D).max(axis=-1)
+            step = absmax(dq / D)
         failed |= ~solved & ~done
         live = ~done & ~failed
         q += np.where(live[..., None], dq, 0.0)  # a live state's step is finite (solved)
@@ -121,6 +122,5 @@ def correction_ratio(q: np.ndarray, pred: np.ndarray, base: np.ndarray, D: np.nd
     to a predictor against the motion from the ``base`` state. Of the order of the step
     squared on a smooth path; of order one where the solution jumped to another branch."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        moved = np.maximum(np.abs((q - base) / D).max(axis=-1),
-                           np.abs((pred - base) / D).max(axis=-1))
-        return np.abs((q - pred) / D).max(axis=-1) / np.maximum(moved, floor)
+        moved = np.maximum(absmax((q - base) / D), absmax((pred - base) / D))
+        return absmax((q - pred) / D) / np.maximum(moved, floor)

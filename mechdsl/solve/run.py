@@ -55,6 +55,8 @@ from .mobility import count_check, redundancy_warning
 from .newton import correction_ratio, newton, use_sparse
 from .options import SolverOptions
 from .reduce import reduce_results
+from .rowwise import allfinite
+from .single import OneState
 from .singular import singular_step
 
 __all__ = ["KinematicRun", "METHODS", "SolverOptions", "simulate"]
@@ -187,8 +189,14 @@ class KinematicRun(Run):
         system, opts, times = self.system, self.opts, self.times
         V, rows = system.n_variants, self.rows
         q0, t0 = asm.q[:, None], np.full((V, 1), times[0])
-        fac = factor(eq.solver_jacobian(system, q0, rows, use_sparse(system, opts, rows)),
-                     self.D)
+        fac = None
+        if system.one_state is not None and len(rows) == system.n:
+            one = OneState(system, system.one_state, self.D[0, 0], opts).factor(
+                asm.q[0].tolist())
+            fac = None if one is None else one.batched()
+        if fac is None:
+            fac = factor(eq.solver_jacobian(system, q0, rows, use_sparse(system, opts, rows)),
+                         self.D)
         singular = self.active & ~(fac.rcond[:, 0] >= opts.singular_rcond)
         for v in np.flatnonzero(singular):
             self.failures.append(failure(system, self.q[v], float(times[0]), int(v),
@@ -392,11 +400,12 @@ class KinematicRun(Run):
                               min_gap=split, active=self.active)
         if coarse is None:
             return k
-        # the coarse states, corrected to the full tolerance: the first nodes
-        idx, (qc, _, _) = coarse[0] + k - 1, coarse[1]
+        # the coarse states, corrected to the full tolerance (unless the march on floats
+        # solved them so, with their checks and rates): the first nodes
+        idx, states, settled = coarse[0] + k - 1, coarse[1], coarse[2]
         Tc = np.where(act, times[idx][None, :], self.t[:, None])
         start = (self.t[:, None], self.q[:, None], self.qd[:, None], self.qdd[:, None])
-        level = self.level(qc, Tc)
+        level = (Tc, *states) if settled else self.level(states[0], Tc)
         if level is None:
             return k
         node = np.concatenate(([k - 1], idx))
@@ -762,10 +771,10 @@ def _nonfinite(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, need: int) -> np.
     is their highest time derivative), are not all finite. Rates solved at the last column
     only (for the predictor) are not results and are not checked."""
     c = q.shape[1]
-    bad = ~np.isfinite(q).all(axis=-1)
+    bad = ~allfinite(q)
     for order, a in ((1, qd), (2, qdd)):
         if need >= order and a.shape[1] == c:
-            bad |= ~np.isfinite(a).all(axis=-1)
+            bad |= ~allfinite(a)
     return bad
 
 

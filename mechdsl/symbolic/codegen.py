@@ -171,7 +171,7 @@ def _read_scalar(key: tuple) -> str:
 
 
 def _sign(x: float) -> float:
-    return float((x > 0) - (x < 0))
+    return float(bool(x > 0)) - float(bool(x < 0))
 
 
 #: the scalar kernels' functions: the math module's, on Python floats (a numpy call on a

@@ -1,0 +1,281 @@
+"""The steps of a solve that see one state at a time, on Python floats.
+
+The coarse march of the parallel-in-time solver (:func:`mechdsl.solve.levels.coarse_march`)
+steps through a few instants one after the other, and the assembly carries a single
+mechanism's drives to their values at t0 in a few Newton solves: each is one state, and as
+batched numpy calls it costs a microsecond per operation, some hundred per Newton step.
+:class:`OneState` runs the same steps on the model's float code
+(:mod:`mechdsl.compiled.scalar`): Newton-Raphson, Phi_q dq = -Phi, with the convergence
+rules of the batched solver, the factorisation in the generated LU's fixed pivot order
+(LAPACK's partial pivoting where a pivot of that order became small), the determinant's sign
+from the pivots, and the rates Phi_q qd = nu, Phi_q qdd = gamma. A step the float code
+cannot take (a square root of a negative number, an overflow) is not converged: the caller
+then does what the batched solver does with a state that failed.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..compiled import equations as eq
+from ..compiled.lu import THRESHOLD
+from ..compiled.scalar import OneState as Code
+from ..compiled.system import System
+from .linalg import Factor
+from .options import SolverOptions
+
+#: what the float code cannot evaluate (numpy's nan and inf)
+FLOAT_ERRORS = (ArithmeticError, ValueError)
+
+
+class OneState:
+    """Newton, factorisation and rates for the single variant of ``system`` (see the module
+    documentation); ``D`` its column scale (n,) (L for lengths, 1 for angles)."""
+
+    def __init__(self, system: System, code: Code, D: np.ndarray, opts: SolverOptions) -> None:
+        self.system, self.code, self.opts = system, code, opts
+        self.D = [float(d) for d in D]
+        self.m, self.n = code.m, code.n
+        self.drive_rows = [int(r) for r in system.drive_rows]
+
+    def drives(self, times: np.ndarray) -> tuple[list, list, list]:
+        """f, f', f'' of every drive at ``times``: three lists (one per derivative) of the
+        drives' lists of values, one per instant."""
+        t = np.asarray(times, dtype=float)[None, :]
+        if not self.system.drive_functions:
+            return [], [], []
+        # one list per drive (a list per instant costs fifty times more to build)
+        return tuple([col.tolist() for col in
+                      np.array(eq.drive_values(self.system, t, w, t.shape)[0]).T]
+                     for w in ("f", "fd", "fdd"))
+
+    def residual(self, x: list, f: list) -> tuple[list, list]:
+        """Phi(x, t) (the drives' f(t) given) and Phi_q's entries."""
+        c = self.code
+        out = c.phi_jac(x, (), 0.0, c.params, c.functions)
+        phi = out[: self.m]
+        for row, value in zip(self.drive_rows, f):
+            phi[row] -= value
+        return phi, out[self.m :]
+
+    def _solve_values(self, vals: list, b: list) -> list | None:
+        """x with Phi_q x = b, Phi_q from its entries: the fixed-order LU, or LAPACK."""
+        fac = self.code.factor(vals, THRESHOLD)
+        if fac is not None:
+            return self.code.solve(fac, b)
+        dense = self.system.fused.dense(np.array(vals))
+        with np.errstate(all="ignore"):
+            try:
+                x = np.linalg.solve(dense, np.array(b))
+            except np.linalg.LinAlgError:
+                return None
+        return x.tolist() if np.isfinite(x).all() else None
+
+    def newton(self, x: list, f: list, tol: float) -> tuple[list, bool, int]:
+        """Newton-Raphson from ``x`` to the scaled step ``tol`` (or the error left, from the
+        quadratic contraction |dq_k|^3 / |dq_(k-1)|^2, below ``newton_error``), abandoned
+        where the step stops contracting: :func:`mechdsl.solve.levels.polish` on one state.
+        Returns the iterate, whether it converged and the iterations taken."""
+        opts, D = self.opts, self.D
+        x = list(x)
+        prev = math.inf
+        it = 0
+        try:
+            for it in range(1, opts.max_iterations + 1):
+                phi, vals = self.residual(x, f)
+                dq = self._solve_values(vals, [-p for p in phi])
+                if dq is None:
+                    return x, False, it
+                if not math.isfinite(math.fsum(dq)):
+                    return x, False, it
+                step = 0.0
+                for di, d in zip(dq, D):
+                    step = max(step, abs(di / d))
+                x = [xi + di for xi, di in zip(x, dq)]
+                left = (step**3 / prev**2 if step < 0.25 * prev and prev < math.inf
+                        else math.inf)
+                if step <= tol or left <= opts.newton_error:
+                    return x, True, it
+                if it >= 3 and not step <= 0.5 * prev:
+                    return x, False, it
+                prev = step
+        except FLOAT_ERRORS:
+            return x, False, it
+        return x, False, it
+
+    def sign(self, fac: tuple) -> float:
+        """The sign of det Phi_q: the permutations' parity times the pivots' signs."""
+        s = self.code.parity
+        for k in self.code.pivots:
+            p = fac[k]
+            s = s if p > 0 else -s if p < 0 else 0.0
+        return s
+
+    def rates(self, fac: "OneFactor", x: list, fd: list, fdd: list
+              ) -> tuple[list, list] | None:
+        """qd and qdd at the solved position ``x``: Phi_q qd = nu, Phi_q qdd = gamma."""
+        nu = [0.0] * self.m
+        for row, value in zip(self.drive_rows, fd):
+            nu[row] = value
+        try:
+            qd = fac.solve(nu)
+            g = self.code.gamma(x, qd, 0.0, self.code.params, self.code.functions)
+            for row, value in zip(self.drive_rows, fdd):
+                g[row] += value
+            qdd = fac.solve(g)
+        except FLOAT_ERRORS:
+            return None
+        if not all(math.isfinite(v) for v in qd + qdd):
+            return None
+        return qd, qdd
+
+    def correction_ratio(self, x: list, pred: list, base: list, floor: float) -> float:
+        """Newton's correction against the motion from ``base``, scaled by D
+        (:func:`mechdsl.solve.newton.correction_ratio` on one state)."""
+        moved = corr = 0.0
+        for xi, pi, bi, di in zip(x, pred, base, self.D):
+            moved = max(moved, abs(xi - bi) / di, abs(pi - bi) / di)
+            corr = max(corr, abs(xi - pi) / di)
+        return corr / max(moved, floor)
+
+    def factor(self, x: list, exact: bool = True) -> "OneFactor | None":
+        """Phi_q at ``x`` factorised as :func:`mechdsl.solve.linalg.factor` factorises one
+        dense state: A = R Phi_q D (R the reciprocal row norms of Phi_q D) in the fixed-order
+        LU, the exact reciprocal 1-norm condition number 1 / (||A||_1 ||A^-1||_1) (A^-1
+        from n solves; without ``exact``, ||A^-1||_1 estimated from four, as the batched
+        generated LU estimates it) and the sign of det Phi_q from the pivots. None where the fixed
+        order does not apply or an entry is not a number (the caller factorises with
+        LAPACK)."""
+        code, D, n = self.code, self.D, self.n
+        try:
+            out = code.phi_jac(x, (), 0.0, code.params, code.functions)
+        except FLOAT_ERRORS:
+            return None
+        a = [v * D[c] for v, c in zip(out[self.m :], code.cols)]
+        r = [0.0] * self.m
+        for v, row in zip(a, code.rows):
+            r[row] += v * v
+        if not all(math.isfinite(v) for v in r):
+            return None
+        r = [1.0 / math.sqrt(v) if v > 0 else 1.0 for v in r]
+        a = [v * r[row] for v, row in zip(a, code.rows)]
+        col = [0.0] * n
+        for v, c in zip(a, code.cols):
+            col[c] += abs(v)
+        fac = code.factor(a, THRESHOLD)
+        if fac is None:
+            return None
+        if exact:
+            inverse = []  # the columns of A^-1
+            for j in range(n):
+                e = [0.0] * n
+                e[j] = 1.0
+                inverse.append(code.solve(fac, e))
+            norm_inv = max(sum(abs(v) for v in column) for column in inverse)
+        else:
+            inverse, norm_inv = None, _inverse_norm1(code, fac, n)
+        rcond = 1.0 / (max(col) * norm_inv) if norm_inv > 0 else 0.0
+        if not math.isfinite(rcond):
+            rcond = 0.0
+        return OneFactor(code, fac, r, D, inverse, rcond, self.sign(fac) if rcond > 0 else 0.0)
+
+
+def _inverse_norm1(code: Code, fac: tuple, n: int) -> float:
+    """||A^-1||_1 estimated by one step of Hager's method with Higham's safeguard
+    (:meth:`mechdsl.compiled.lu.LUPlan.inverse_norm1` on one matrix)."""
+    x = code.solve(fac, [1.0 / n] * n)
+    est = sum(abs(v) for v in x)
+    z = code.solve_t(fac, [1.0 if v >= 0 else -1.0 for v in x])
+    az = [abs(v) for v in z]
+    big = max(az)
+    if big > sum(z) / n:  # Hager's test: e_j may give more
+        e = [0.0] * n
+        e[az.index(big)] = 1.0
+        est = max(est, sum(abs(v) for v in code.solve(fac, e)))
+    alt = [(1.0 if i % 2 == 0 else -1.0) * (1 + i / max(n - 1, 1)) for i in range(n)]
+    return max(est, 2 * sum(abs(v) for v in code.solve(fac, alt)) / (3 * n))
+
+
+class OneFactor:
+    """Phi_q of one state factorised (:meth:`OneState.factor`): the fixed-order LU of
+    A = R Phi_q D, the columns of A^-1, ``rcond`` and ``sign``."""
+
+    def __init__(self, code: Code, fac: tuple, r: list, D: list, inverse: list,
+                 rcond: float, sign: float) -> None:
+        self.code, self.fac, self.r, self.D = code, fac, r, D
+        self.inverse, self.rcond, self.sign = inverse, rcond, sign
+
+    def solve(self, b: list) -> list:
+        """Phi_q^-1 b = D A^-1 (R b)."""
+        x = self.code.solve(self.fac, [bi * ri for bi, ri in zip(b, self.r)])
+        return [xi * di for xi, di in zip(x, self.D)]
+
+    def batched(self) -> Factor:
+        """As the batched solver's factorisation of a (1, 1) batch: Phi_q^-1 = D A^-1 R
+        (of an exact factorisation)."""
+        n, D, r, inv = len(self.D), self.D, self.r, self.inverse
+        phi_q_inv = np.array([[D[i] * inv[j][i] * r[j] for j in range(n)] for i in range(n)])
+        return Factor(phi_q_inv[None, None], np.array([[self.rcond]]),
+                      np.array([[self.sign]]))
+
+
+#: coarse_march_one's answer where the float code cannot decide: the batched march decides
+UNDECIDED = object()
+
+
+def coarse_march_one(solver: OneState, start: tuple, sign: float, times: np.ndarray,
+                     gap: int, opts: SolverOptions, min_gap: int):
+    """:func:`mechdsl.solve.levels.coarse_march` for one variant on floats: the same
+    predictor, checks and gap control, the indices reached and the states there as
+    (1, c, n) arrays (None where the march gives up), or :data:`UNDECIDED` where a pivot of
+    the fixed order became small. Each state is solved to the full tolerance at once (a
+    Newton step on floats costs a few microseconds: the loose tolerance and the batched
+    polish after it would cost more than they save), and checked as the first level of
+    the batched march checks its nodes: regular (``singular_rcond``), else the march
+    gives up."""
+    t = float(start[0])
+    q, qd, qdd = (np.asarray(a, dtype=float).tolist() for a in start[1:])
+    n = solver.n
+    floor = math.sqrt(opts.newton_tol)
+    f, fd, fdd = solver.drives(times)
+    jerk = [0.0] * n
+    reached: list[int] = []
+    states: list[tuple[list, list, list]] = []
+    at, last = 0, len(times) - 1
+    while at < last:
+        j = min(at + gap, last)
+        tau = float(times[j]) - t
+        pred = [q[i] + tau * (qd[i] + tau / 2 * (qdd[i] + tau / 3 * jerk[i])) for i in range(n)]
+        x, ok, _ = solver.newton(pred, [c[j] for c in f], opts.newton_tol)
+        fac = solver.factor(x, exact=False)
+        if fac is None:
+            return UNDECIDED
+        try:
+            ratio = solver.correction_ratio(x, pred, q, floor)
+        except FLOAT_ERRORS:
+            ratio = math.inf
+        if not (ok and fac.sign == sign and ratio <= opts.branch_ratio):
+            if (j - at) // 2 < min_gap:
+                return None
+            gap = (j - at) // 2
+            continue
+        if not fac.rcond >= opts.singular_rcond:
+            return None
+        rates = solver.rates(fac, x, [c[j] for c in fd], [c[j] for c in fdd])
+        if rates is None:
+            return None
+        qd_new, qdd_new = rates
+        jerk = [(a - b) / tau for a, b in zip(qdd_new, qdd)]
+        jerk = [v if math.isfinite(v) else 0.0 for v in jerk]
+        q, qd, qdd, t = x, qd_new, qdd_new, float(times[j])
+        states.append((x, qd_new, qdd_new))
+        reached.append(j)
+        at = j
+        if ratio < 0.1 * opts.branch_ratio:
+            gap *= 2
+    if not states:
+        return None
+    return (np.array(reached, np.intp),
+            tuple(np.array([[s[i] for s in states]]) for i in range(3)))
