@@ -9,6 +9,7 @@ instead of as N^2 and N^3.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -47,6 +48,16 @@ class Pattern:
         from scipy.sparse import csc_matrix
         return csc_matrix((values[self.by_row], self.indices, self.indptr),
                           shape=self.shape[::-1])
+
+    @functools.cached_property
+    def row_indicator(self) -> np.ndarray:
+        """(nnz, m): 1 where entry k lies in row k (row sums of the entries by one matmul)."""
+        return _indicator(self.rows, self.shape[0])
+
+    @functools.cached_property
+    def col_indicator(self) -> np.ndarray:
+        """(nnz, n): 1 where entry k lies in column k."""
+        return _indicator(self.cols, self.shape[1])
 
     def parity(self, perm: np.ndarray) -> float:
         key = perm.tobytes()
@@ -138,6 +149,12 @@ class LUJac:
         out = np.zeros(self.values.shape[:-1] + (p.shape[0] * p.shape[1],))
         out[..., p.rows * p.shape[1] + p.cols] = self.values
         return out.reshape(self.shape)
+
+
+def _indicator(index: np.ndarray, size: int) -> np.ndarray:
+    out = np.zeros((len(index), size))
+    out[np.arange(len(index)), index] = 1.0
+    return out
 
 
 def permutation_sign(perm: np.ndarray) -> float:

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..compiled.lu import LUPlan
 from ..compiled.sparse import LUJac, SparseJac, lu_one, sparse_lu
-from .rowwise import allfinite
+from .rowwise import absmax, allfinite
 
 def solve(a: np.ndarray | SparseJac, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Batched a x = b; ``ok`` is False (and x NaN) where a is singular or x not finite.
@@ -180,29 +180,24 @@ def _factor_lu(jac: LUJac, col_scale: np.ndarray) -> Factor:
     m, n = p.shape
     with np.errstate(all="ignore"):
         d = np.broadcast_to(col_scale, batch + (n,))
-        a = jac.values * d[..., p.cols]
-        norms = np.sqrt((a * a) @ _indicator(p.rows, m))  # BLAS, not einsum's loop
+        # (the column scale gathered before it is broadcast: a gather over every state of a
+        # large batch costs more than the product)
+        a = jac.values * np.asarray(col_scale)[..., p.cols]
+        norms = np.sqrt((a * a) @ p.row_indicator)  # BLAS, not einsum's loop
         r = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
         a *= r[..., p.rows]
         f, ok = lu.factor(a)
     if not ok.all() or not np.isfinite(a).all():
         return factor(jac.dense(), col_scale)
     with np.errstate(all="ignore"):
-        norm_a = (np.abs(a) @ _indicator(p.cols, n)).max(axis=-1)
+        norm_a = absmax(np.abs(a) @ p.col_indicator)
         rcond = _clean(1.0 / (norm_a * lu.inverse_norm1(f)), norms)
     sign = np.where(rcond > 0, lu.sign(f), 0.0)
     return Factor(None, rcond, sign, gen=GeneratedLU(lu, f, r, d))
 
 
 def _clean(rcond: np.ndarray, norms: np.ndarray) -> np.ndarray:
-    return np.where(np.isfinite(rcond) & np.isfinite(norms).all(axis=-1), rcond, 0.0)
-
-
-def _indicator(index: np.ndarray, size: int) -> np.ndarray:
-    """(nnz, size): 1 where entry k lies in row (or column) index[k]."""
-    out = np.zeros((len(index), size))
-    out[np.arange(len(index)), index] = 1.0
-    return out
+    return np.where(np.isfinite(rcond) & allfinite(norms), rcond, 0.0)
 
 
 def _factor_sparse(jac: SparseJac, col_scale: np.ndarray) -> Factor:

@@ -48,6 +48,7 @@ from .diagnose import (
     constraint_names, failure, jacobian_defects, nonfinite_message, passages_warning,
     too_coarse_message, undefined_drive_message, variant_label,
 )
+from . import large
 from .hermite import quintic_hermite
 from .levels import coarse_march, polish
 from .linalg import Factor, factor
@@ -219,12 +220,20 @@ class KinematicRun(Run):
         march = self._native()
         if march is not None:
             k = self.native_march(march)
+        lean = large.applies(self)
         while k < K and self.active.any():
             end = min(K, k + max(opts.window, 2 * stride))
             if parallel and end - k >= 2 * stride:
                 k = self.parallel(k, end)
                 if progress is not None:
                     progress(k, K)
+            while lean and k < end and self.active.any():
+                # a large mechanism instant by instant, lean; an instant it does not settle
+                # goes to the careful march, and the lean march goes on after it
+                k = large.march_large(self, k, end)
+                if k < end and self.active.any():
+                    self.march(np.arange(k, k + 1))
+                    k += 1
             if k < end and self.active.any():
                 self.march(np.arange(k, end))
             k = end

@@ -1,0 +1,241 @@
+"""The march of a single large mechanism: one instant after another, with no more than each
+instant needs.
+
+A mechanism of thousands of coordinates is solved one instant at a time with LAPACK's band
+LU (:mod:`mechdsl.compiled.band`); what costs there is the number of factorisations and
+solves per instant, and the Python around them. The careful march
+(:meth:`mechdsl.solve.run.KinematicRun.march`) is general (blocks, sweeps, substeps,
+bisection, passing singular positions) and spends about two factorisations, eight solves and
+a millisecond of bookkeeping per instant on a row of 1001 bodies. :func:`march_large` takes
+each instant as the compiled backend's march does (:mod:`mechdsl.compiled.native`):
+
+1. predict by the quintic through the last two states (q, qd, qdd at both: error O(h^6));
+2. correct by simplified Newton, Phi_q(q_prev) dq = -Phi, with the last instant's
+   factorisation, down to round-off: a step at most ``settled_step``, or an error left after
+   it, theta |dq| / (1 - theta) with theta the contraction, at most ``newton_error``;
+3. factorise Phi_q once, at that converged position: the final Jacobian, which gives the
+   condition number (Hager and Higham's estimate), the sign of det(Phi_q), the velocities and
+   the accelerations exactly (Phi_q qd = nu, Phi_q qdd = gamma), and the next instant's
+   Newton matrix;
+4. check as the careful march checks: converged, regular (``singular_rcond``), det(Phi_q) of
+   the same sign (no singular position crossed), Newton's correction small against the
+   motion (``branch_ratio``), finite rates.
+
+An instant that fails a check, or whose simplified Newton does not contract by
+``reuse_ratio``, is handed to the careful march, which solves it or reports exactly what
+happened there; the instants before it are recorded in blocks, and on an interrupt the
+block in hand is recorded first.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..compiled import equations as eq
+from ..compiled.band import BandLU
+from ..compiled.sparse import band_of
+from .linalg import Factor
+from .newton import use_sparse
+from .rowwise import allfinite
+
+#: Instants recorded together (outputs are computed for a block at once).
+BLOCK = 32
+#: Where simplified Newton stalls at the noise of the equations (steps below newton_tol that
+#: stop contracting), the step the final Jacobian gives must be noise too: at most this
+#: multiple of the larger of the last two steps (measured on a row of 1001 bodies, noise
+#: steps of one instant scatter within a factor of 3).
+NOISE_SCATTER = 4.0
+EPS = float(np.finfo(float).eps)
+
+
+def _extrapolate(a: tuple, b: tuple, t: float) -> np.ndarray:
+    """q at ``t`` from the quintic through the states a and b = (t, q, qd, qdd), the last two
+    solved: the Hermite basis of :mod:`mechdsl.solve.hermite` beyond its interval, error
+    O(h^6) against the cubic Taylor polynomial's O(h^4)."""
+    h = b[0] - a[0]
+    s = (t - a[0]) / h
+    s2 = s * s
+    s3 = s2 * s
+    h3 = s3 * (10.0 + s * (-15.0 + 6.0 * s))
+    h1 = s + s3 * (-6.0 + s * (8.0 - 3.0 * s))
+    h2 = 0.5 * (s2 + s3 * (-3.0 + s * (3.0 - s)))
+    h4 = s3 * (-4.0 + s * (7.0 - 3.0 * s))
+    h5 = 0.5 * s3 * (1.0 + s * (-2.0 + s))
+    return ((1.0 - h3) * a[1] + h3 * b[1] + h * (h1 * a[2] + h4 * b[2])
+            + h * h * (h2 * a[3] + h5 * b[3]))
+
+
+def applies(run) -> bool:
+    """Whether :func:`march_large` takes the run's instants: a single mechanism solved with the
+    band LU (a square system, large enough for the sparse path, narrow-banded)."""
+    system = run.system
+    return (system.n_variants == 1 and use_sparse(system, run.opts, run.rows)
+            and band_of(system.pattern) is not None)
+
+
+def march_large(run, k: int, end: int) -> int:
+    """Solve the instants k .. end-1 of ``run`` (see the module documentation); return the
+    first instant not solved (``end`` when all are)."""
+    fac = run.fac
+    if fac is None or fac.lus is None or fac.lus[0, 0] is None or not run.active[0]:
+        return k
+    system, opts, times = run.system, run.opts, run.times
+    fused, pattern = system.fused, system.pattern
+    n, m = system.n, system.m
+    D = run.D[0, 0]
+    drive_rows = system.drive_rows
+    T = times[k:end]
+    shape = (1, len(T))
+    if system.drive_functions:
+        f, fd, fdd = (np.array(eq.drive_values(system, T[None, :], w, shape)[0])
+                      for w in ("f", "fd", "fdd"))
+        defined = allfinite(f) & allfinite(fd) & allfinite(fdd)
+    else:
+        f = fd = fdd = np.zeros((len(T), 0))
+        defined = np.ones(len(T), bool)
+    lu, r, d = fac.lus[0, 0]
+    plan = band_of(pattern)
+    i = np.arange(n)
+    alt = (-1.0) ** i * (1 + i / max(n - 1, 1))  # Higham's safeguard vector
+    q, qd, qdd = run.q[0].copy(), run.qd[0].copy(), run.qdd[0].copy()
+    t, sign = float(run.t[0]), float(run.sign[0])
+    before = None  # the state before the last, for the predictor
+    block: list[tuple] = []
+    residual = 0.0
+
+    def record() -> None:
+        nonlocal residual
+        if not block:
+            return
+        j0 = block[0][0]
+        c = len(block)
+        lus = np.empty((1, c), dtype=object)
+        lus[0, -1] = block[-1][6]
+        states = [np.array([[b[i] for b in block]]) for i in (1, 2, 3)]
+        rec = np.arange(k + j0, k + j0 + c)
+        run.residual = max(run.residual, residual)
+        run.accept(states[0], T[None, j0 : j0 + c], rec,
+                   Factor(None, np.array([[b[4] for b in block]]),
+                          np.array([[b[5] for b in block]]), lus),
+                   run.active.copy(), (states[1], states[2]), checked=True)
+        block.clear()
+        if run.progress is not None:
+            run.progress(int(rec[-1]) + 1, len(times))
+
+    j = 0
+    try:
+        for j in range(len(T)):
+            if not defined[j]:
+                break
+            tau = float(T[j]) - t
+            if before is None:
+                pred = q + tau * (qd + tau / 2 * qdd)
+            else:
+                pred = _extrapolate(before, (t, q, qd, qdd), float(T[j]))
+            x = pred.copy()
+            converged, prev, noise = False, math.inf, 0.0
+            ulp = EPS * max(1.0, float(np.abs(pred / D).max()))
+            with np.errstate(all="ignore"):
+                for _ in range(opts.max_iterations):
+                    phi = fused.evaluate_phi(x[None, None])[0, 0]
+                    phi[drive_rows] -= f[j]
+                    dx = d * lu.solve(-(r * phi))
+                    step = float(np.abs(dx / D).max())
+                    if not math.isfinite(step):
+                        break
+                    x += dx
+                    if step <= opts.settled_step:
+                        converged = True
+                        break
+                    if prev < math.inf:
+                        theta = step / prev
+                        if theta >= opts.reuse_ratio:
+                            # no longer contracting: round-off, if the steps are below the
+                            # tolerance already (their size is then the noise of this
+                            # mechanism's equations); else too slow, for the careful march
+                            converged = prev <= opts.newton_tol
+                            noise = max(step, prev)
+                            break
+                        # the error left, below newton_error or below what floating point
+                        # resolves in the largest coordinate (one ulp of it, scaled)
+                        if theta * step / (1 - theta) <= max(opts.newton_error, ulp):
+                            converged = True
+                            break
+                    prev = step
+                if not converged:
+                    break
+                # the final Jacobian, at the converged position
+                out = fused.evaluate_phi_jac(x[None, None])
+                phi, vals = out[0][0, 0].copy(), out[1][0, 0]
+                phi[drive_rows] -= f[j]
+                res = float(np.abs(phi).max())
+                a = vals * D[pattern.cols]
+                norms = np.sqrt(np.bincount(pattern.rows, a * a, minlength=m))
+                r_new = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
+                if not (np.isfinite(a).all() and math.isfinite(res)):
+                    break
+                lu_new = BandLU(plan, vals * r_new[pattern.rows] * D[pattern.cols])
+                if not lu_new.ok:
+                    break
+                sgn = lu_new.sign()
+                if sgn != sign:
+                    break
+                # one solve for three right-hand sides: Hager's and Higham's vectors of the
+                # condition estimate (as sparse.inverse_norm1), nu; and, where the equations
+                # converged to their noise, -Phi (the check that this Jacobian is final)
+                nu = np.zeros(m)
+                nu[drive_rows] = fd[j]
+                cols = [np.full(n, 1.0 / n), alt, r_new * nu]
+                if noise > opts.settled_step:
+                    cols.append(-(r_new * phi))
+                y = lu_new.solve(np.stack(cols, axis=1))
+                if noise > opts.settled_step:
+                    # converged to the noise of the equations, above settled_step: the
+                    # Jacobian is the final one if the Newton step it gives is noise too
+                    # (within the scatter of the last steps, a factor of NOISE_SCATTER)
+                    dx = D * y[:, 3]
+                    if not float(np.abs(y[:, 3]).max()) <= NOISE_SCATTER * noise:
+                        break
+                    x += dx
+                moved = max(float(np.abs((x - q) / D).max()), float(np.abs((pred - q) / D).max()))
+                ratio = float(np.abs((x - pred) / D).max()) / max(moved, run.floor)
+                if not ratio <= opts.branch_ratio:
+                    break
+                qd_new = D * y[:, 2]
+                gamma = fused.evaluate_gamma(x[None, None], qd_new[None, None])[0, 0]
+                gamma[drive_rows] += fdd[j]
+                inv_norm = max(float(np.abs(y[:, 0]).sum()), 2 * float(np.abs(y[:, 1]).sum()) / (3 * n))
+                z = lu_new.solve_transposed(np.where(y[:, 0] >= 0, 1.0, -1.0))
+                big = int(np.argmax(np.abs(z)))
+                rhs = [r_new * gamma]
+                if abs(z[big]) > z.sum() / n:  # Hager's test: e_j may give a larger column
+                    e = np.zeros(n)
+                    e[big] = 1.0
+                    rhs.append(e)
+                y = lu_new.solve(np.stack(rhs, axis=1))
+                if len(rhs) > 1:
+                    inv_norm = max(inv_norm, float(np.abs(y[:, 1]).sum()))
+                norm_a = float(np.bincount(pattern.cols, np.abs(a * r_new[pattern.rows]),
+                                           minlength=n).max())
+                rcond = 1.0 / (norm_a * inv_norm)
+                if not rcond >= opts.singular_rcond:
+                    break
+                qdd_new = D * y[:, 0]
+                if not (np.isfinite(qd_new).all() and np.isfinite(qdd_new).all()):
+                    break
+            residual = max(residual, res)
+            before = (t, q, qd, qdd)
+            q, qd, qdd, t = x, qd_new, qdd_new, float(T[j])
+            lu, r, d = lu_new, r_new, D
+            block.append((j, x, qd_new, qdd_new, rcond, sgn, (lu_new, r_new, D)))
+            if len(block) == BLOCK:
+                record()
+        else:
+            j = len(T)
+    except KeyboardInterrupt:
+        record()
+        raise
+    record()
+    return k + j
