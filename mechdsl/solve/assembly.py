@@ -94,6 +94,8 @@ def assemble(system: System, t0: float, options: SolverOptions | None = None) ->
             it2 += it3
     messages = []
     reported: set[int] = set()
+    if ok.all() and (mob is None or not mob.dropped.size):
+        return Assembly(q[:, 0], ok, (), it1 + it2, mob)  # nothing to check or to report
     with np.errstate(all="ignore"):
         phi = eq.constraint_values(system, np.where(ok1[:, None, None], q, q1), t)[:, 0]
         weights = _row_weights(system, q, D, opts)[:, 0]
@@ -194,6 +196,14 @@ def gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
     V = q.shape[0]
     if rows.size == 0:
         return q.copy(), np.ones(V, bool), 0
+    if system.one_state is not None:
+        from .single import OneState
+
+        one = OneState(system, system.one_state, D[0, 0], opts)
+        out = _gauss_newton_one(one, q[0, 0], float(t[0, 0]), rows, opts)
+        if out is not None:
+            qn, ok, it = out
+            return np.array(qn).reshape(q.shape), np.array([ok]), it
     large = _large(system, opts)
     W = _row_weights(system, q, D, opts)[..., rows]
     with np.errstate(all="ignore"):
@@ -302,7 +312,7 @@ def _continue_one(one, q: np.ndarray, t0: float, opts: SolverOptions
     (:mod:`mechdsl.solve.single`): the same steps and checks; None where the fixed-order
     LU does not apply (the batched continuation decides)."""
     x = q.tolist()
-    f = [c[0] for c in one.drives(np.array([t0]))[0]]
+    f = [c[0] for c in one.drives(np.array([t0]), ("f",))[0]]
     try:
         phi, _ = one.residual(x, [0.0] * len(f))
     except (ArithmeticError, ValueError):
@@ -340,3 +350,59 @@ def _continue_one(one, q: np.ndarray, t0: float, opts: SolverOptions
         if it <= 3:
             ds = min(1.0, 2 * ds)
     return x, True, iterations
+
+
+def _gauss_newton_one(one, q: np.ndarray, t: float, rows: np.ndarray, opts: SolverOptions
+                      ) -> tuple[list, bool, int] | None:
+    """:func:`gauss_newton` for a single mechanism, Phi and Phi_q from its float code
+    (:mod:`mechdsl.solve.single`): the same weights, steps, trust region and line search;
+    None where the float code meets what numpy would make a NaN (the batched Gauss-Newton
+    then decides)."""
+    f = [c[0] for c in one.drives(np.array([t]), ("f",))[0]]
+    D = np.array(one.D)
+    dense = one.system.fused.dense
+
+    def evaluate(x: list) -> tuple[np.ndarray, np.ndarray]:
+        phi, vals = one.residual(x, f)
+        return np.array(phi)[rows], dense(np.array(vals))[rows]
+
+    try:
+        x = q.tolist()
+        phi, jac = evaluate(x)
+        with np.errstate(all="ignore"):
+            norms = np.sqrt(np.einsum("ij,ij->i", jac * D, jac * D))
+        W = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
+        merit = 0.5 * float(np.sum((W * phi) ** 2))
+        if not math.isfinite(merit):
+            return None
+        done, it = False, 0
+        for it in range(1, opts.assembly_max_iterations + 1):
+            dz = _lm_step((jac * D * W[:, None])[None], (W * phi)[None])[0]
+            size = float(np.abs(dz).max(initial=0.0))
+            dz = dz * min(1.0, opts.assembly_max_step / max(size, 1e-300))
+            if (float(np.abs(W * phi).max(initial=0.0)) <= opts.assembly_residual
+                    and size <= opts.assembly_tol):
+                return x, True, it
+            alpha, accepted = 1.0, False
+            for _ in range(30):
+                x_try = (np.array(x) + alpha * D * dz).tolist()
+                phi_try, jac_try = evaluate(x_try)
+                merit_try = 0.5 * float(np.sum((W * phi_try) ** 2))
+                if merit_try < merit:
+                    x, phi, jac, merit = x_try, phi_try, jac_try, merit_try
+                    accepted = True
+                    done = (float(np.abs(alpha * dz).max(initial=0.0)) <= opts.assembly_tol
+                            and float(np.abs(W * phi).max(initial=0.0))
+                            <= opts.assembly_residual)
+                    break
+                alpha *= 0.5
+            if done:
+                break
+            if not accepted:
+                # no decrease along the Gauss-Newton direction: converged if the residual is
+                # nil
+                done = float(np.abs(W * phi).max(initial=0.0)) <= opts.assembly_residual
+                break
+    except (ArithmeticError, ValueError):
+        return None
+    return x, done, it

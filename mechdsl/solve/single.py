@@ -40,16 +40,17 @@ class OneState:
         self.m, self.n = code.m, code.n
         self.drive_rows = [int(r) for r in system.drive_rows]
 
-    def drives(self, times: np.ndarray) -> tuple[list, list, list]:
-        """f, f', f'' of every drive at ``times``: three lists (one per derivative) of the
-        drives' lists of values, one per instant."""
+    def drives(self, times: np.ndarray, which: tuple[str, ...] = ("f", "fd", "fdd")
+               ) -> tuple[list, ...]:
+        """f, f', f'' (``which``) of every drive at ``times``: a list per derivative asked
+        for, of the drives' lists of values, one per instant."""
         t = np.asarray(times, dtype=float)[None, :]
         if not self.system.drive_functions:
-            return [], [], []
+            return tuple([] for _ in which)
         # one list per drive (a list per instant costs fifty times more to build)
         return tuple([col.tolist() for col in
                       np.array(eq.drive_values(self.system, t, w, t.shape)[0]).T]
-                     for w in ("f", "fd", "fdd"))
+                     for w in which)
 
     def residual(self, x: list, f: list) -> tuple[list, list]:
         """Phi(x, t) (the drives' f(t) given) and Phi_q's entries."""
