@@ -48,7 +48,7 @@ from .diagnose import (
     constraint_names, failure, jacobian_defects, nonfinite_message, passages_warning,
     too_coarse_message, undefined_drive_message, variant_label,
 )
-from . import large
+from . import batch, large
 from .hermite import quintic_hermite
 from .levels import coarse_march, polish
 from .linalg import Factor, factor
@@ -448,8 +448,16 @@ class KinematicRun(Run):
                 return j0
             with np.errstate(all="ignore"):
                 pred = quintic_hermite(tn, qn, qdn, qddn, times[idx])
-            q, ok, _ = newton(system, pred, T, D, self.active, opts, rows)
-            fac = factor(eq.solver_jacobian(system, q, rows, False), D)
+            rates = None
+            done = batch.settle(system, pred, T, D, self.active, opts,
+                                rates=self.pose_rates is not None or system.order >= 1)
+            if done is not None:
+                q, ok, fac = done.q, done.converged, done.fac
+                if done.qd is not None:
+                    rates = (done.qd, done.qdd)
+            else:
+                q, ok, _ = newton(system, pred, T, D, self.active, opts, rows)
+                fac = factor(eq.solver_jacobian(system, q, rows, False), D)
             previous = np.concatenate((self.q[:, None], q[:, :-1]), axis=1)
             ratio = correction_ratio(q, pred, previous, D, self.floor)
             good = (ok & (fac.rcond >= opts.singular_rcond) & (fac.sign == self._signs_before(fac))
@@ -457,7 +465,8 @@ class KinematicRun(Run):
             nacc = _good_prefix(good)
             if nacc:
                 self.accept(q[:, :nacc], T[:, :nacc], idx[:nacc], fac.columns(slice(0, nacc)),
-                            self.active.copy())
+                            self.active.copy(),
+                            None if rates is None else tuple(x[:, :nacc] for x in rates))
             if nacc < len(idx) or not self.active.any():
                 return j0 + nacc
         return end
@@ -473,14 +482,20 @@ class KinematicRun(Run):
         act = self.active[:, None]
         if (_undefined_drives(system, T) & act).any():
             return None
-        q, ok = polish(system, pred, T, D, opts, rows, self.active)
-        fac = factor(eq.solver_jacobian(system, q, rows, False), D)
+        done = batch.settle(system, pred, T, D, self.active, opts, rates=True)
+        if done is not None:
+            q, ok, fac = done.q, done.converged, done.fac
+        else:
+            q, ok = polish(system, pred, T, D, opts, rows, self.active)
+            fac = factor(eq.solver_jacobian(system, q, rows, False), D)
         ratio = (correction_ratio(q, pred, base, D, self.floor) if base is not None
                  else np.zeros(q.shape[:-1]))
         good = (ok & (fac.rcond >= opts.singular_rcond) & (fac.sign == self.sign[:, None])
                 & (ratio <= opts.branch_ratio)) | ~act
         if not good.all():
             return None
+        if done is not None:
+            return T, q, done.qd, done.qdd
         with np.errstate(all="ignore"):
             qd = fac.solve(eq.velocity_rhs(system, T, q.shape[:-1])[..., rows])
             qdd = fac.solve(eq.acceleration_rhs(system, q, qd, T)[..., rows])
