@@ -97,6 +97,8 @@ def march_large(run, k: int, end: int) -> int:
         defined = np.ones(len(T), bool)
     lu, r, d = fac.lus[0, 0]
     plan = band_of(pattern)
+    prow, pcol = pattern.rows, pattern.cols
+    dcols = D[pcol]
     i = np.arange(n)
     alt = (-1.0) ** i * (1 + i / max(n - 1, 1))  # Higham's safeguard vector
     q, qd, qdd = run.q[0].copy(), run.qd[0].copy(), run.qdd[0].copy()
@@ -171,12 +173,13 @@ def march_large(run, k: int, end: int) -> int:
                 phi, vals = out[0][0, 0].copy(), out[1][0, 0]
                 phi[drive_rows] -= f[j]
                 res = float(np.abs(phi).max())
-                a = vals * D[pattern.cols]
-                norms = np.sqrt(np.bincount(pattern.rows, a * a, minlength=m))
-                r_new = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
-                if not (np.isfinite(a).all() and math.isfinite(res)):
+                a = vals * dcols
+                norms = np.sqrt(np.bincount(prow, a * a, minlength=m))
+                if not (math.isfinite(float(norms.sum())) and math.isfinite(res)):
                     break
-                lu_new = BandLU(plan, vals * r_new[pattern.rows] * D[pattern.cols])
+                r_new = 1.0 / np.where(norms > 0, norms, 1.0)  # (an empty row: 1)
+                a *= r_new[prow]  # A = R Phi_q D
+                lu_new = BandLU(plan, a)
                 if not lu_new.ok:
                     break
                 sgn = lu_new.sign()
@@ -217,8 +220,7 @@ def march_large(run, k: int, end: int) -> int:
                 y = lu_new.solve(np.stack(rhs, axis=1))
                 if len(rhs) > 1:
                     inv_norm = max(inv_norm, float(np.abs(y[:, 1]).sum()))
-                norm_a = float(np.bincount(pattern.cols, np.abs(a * r_new[pattern.rows]),
-                                           minlength=n).max())
+                norm_a = float(np.bincount(pcol, np.abs(a), minlength=n).max())
                 rcond = 1.0 / (norm_a * inv_norm)
                 if not rcond >= opts.singular_rcond:
                     break
