@@ -42,11 +42,6 @@ from .rowwise import allfinite
 
 #: Instants recorded together (outputs are computed for a block at once).
 BLOCK = 32
-#: Where simplified Newton stalls at the noise of the equations (steps below newton_tol that
-#: stop contracting), the step the final Jacobian gives must be noise too: at most this
-#: multiple of the larger of the last two steps (measured on a row of 1001 bodies, noise
-#: steps of one instant scatter within a factor of 3).
-NOISE_SCATTER = 4.0
 EPS = float(np.finfo(float).eps)
 
 
@@ -197,9 +192,9 @@ def march_large(run, k: int, end: int) -> int:
                 if noise > opts.settled_step:
                     # converged to the noise of the equations, above settled_step: the
                     # Jacobian is the final one if the Newton step it gives is noise too
-                    # (within the scatter of the last steps, a factor of NOISE_SCATTER)
+                    # (within the scatter of the last steps, ``noise_scatter``)
                     dx = D * y[:, 3]
-                    if not float(np.abs(y[:, 3]).max()) <= NOISE_SCATTER * noise:
+                    if not float(np.abs(y[:, 3]).max()) <= opts.noise_scatter * noise:
                         break
                     x += dx
                 moved = max(float(np.abs((x - q) / D).max()), float(np.abs((pred - q) / D).max()))

@@ -22,6 +22,13 @@ class SolverOptions:
     #: factorisation the step was computed with as the final ones (the rates solved with it
     #: are exact) instead of evaluating and factorising the Jacobian once more.
     settled_step: float = 1e-15
+    #: A large mechanism's simplified Newton (:mod:`mechdsl.solve.large`) may stall at the
+    #: noise of its equations, above settled_step (steps below newton_tol that stop
+    #: contracting); its position then counts as solved if the Newton step of the Jacobian
+    #: factorised there is noise too: at most this multiple of the larger of the last two
+    #: steps (noise steps of one instant scatter within a factor of 3 on a row of 1001
+    #: bodies). Else the careful march solves the instant.
+    noise_scatter: float = 4.0
     #: Forward dynamics: the integrator's relative and absolute error tolerances per step (the
     #: absolute one scaled as newton_tol: lengths by L, velocities by L per unit time). None:
     #: the ``simulate`` statement's ``rtol = ..., atol = ...``, else 1e-8 and 1e-10; a value
@@ -78,7 +85,9 @@ class SolverOptions:
     #: many parts.
     level_split: int = 16
     #: Newton's tolerance (scaled as newton_tol) in the coarse march of the parallel-in-time
-    #: march; its states are only starting points, corrected to newton_tol all at once.
+    #: march of a sweep; its states are only starting points, corrected to newton_tol all at
+    #: once. (A single mechanism's coarse march runs on floats and solves each of its few
+    #: states to newton_tol at once: :mod:`mechdsl.solve.single`.)
     coarse_newton_tol: float = 1e-2
     #: Instants handled per window of the parallel-in-time march (the granularity at which a run
     #: that is interrupted keeps its results).
@@ -129,6 +138,8 @@ class SolverOptions:
                 raise ValueError(f"{name} must be in (0, 1), not {getattr(self, name)!r}")
         if not 0 <= self.settled_step <= 1e-13:
             raise ValueError(f"settled_step must be in [0, 1e-13], not {self.settled_step!r}")
+        if not 1 <= self.noise_scatter <= 100:
+            raise ValueError(f"noise_scatter must be in [1, 100], not {self.noise_scatter!r}")
         if not 0 < self.coarse_newton_tol <= 1e-1:
             raise ValueError("coarse_newton_tol must be in (0, 0.1], not "
                              f"{self.coarse_newton_tol!r}")
