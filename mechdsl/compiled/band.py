@@ -28,7 +28,7 @@ MAX_BAND_FRACTION = 0.1
 class BandPlan:
     """Row order ``prow`` and column order ``pcol`` (A' = A[prow][:, pcol]), band widths
     ``kl`` below and ``ku`` above the diagonal, and ``where``: each entry's flat index in the
-    (2 kl + ku + 1, n) band storage of A'."""
+    (2 kl + ku + 1, n) band storage of A', column-major (LAPACK's order)."""
 
     n: int
     kl: int
@@ -74,7 +74,9 @@ def band_plan(rows: np.ndarray, cols: np.ndarray, n: int) -> BandPlan | None:
     if kl + ku + 1 > MAX_BAND_FRACTION * n:
         return None
     ldab = 2 * kl + ku + 1
-    where = (kl + ku + pi - pj) * n + pj
+    # LAPACK's band storage is column-major: entry (row in band, column) at column * ldab +
+    # row, so that the array handed to dgbtrf is Fortran-ordered already (no copy)
+    where = pj * ldab + (kl + ku + pi - pj)
     return BandPlan(n, kl, ku, prow, pcol, where.astype(np.intp),
                     permutation_sign(prow) * permutation_sign(pcol))
 
@@ -88,7 +90,7 @@ class BandLU:
         self.plan = plan
         ab = np.zeros(plan.ldab * plan.n)
         ab[plan.where] = values
-        ab = ab.reshape(plan.ldab, plan.n)
+        ab = ab.reshape(plan.n, plan.ldab).T  # (ldab, n), Fortran-ordered
         self.lu, self.ipiv, self.info = dgbtrf(ab, plan.kl, plan.ku, overwrite_ab=1)
 
     @property
