@@ -62,6 +62,16 @@ def _extrapolate(a: tuple, b: tuple, t: float) -> np.ndarray:
             + h * h * (h2 * a[3] + h5 * b[3]))
 
 
+def _solve(lu: BandLU, b: np.ndarray, trans: int = 0) -> np.ndarray:
+    """A' y = b (or A'^T y = b) for the band matrix A' of the plan's order, by LAPACK's dgbtrs
+    on ``lu``'s factors: no permutation (the caller's vectors are in that order already)."""
+    from scipy.linalg.lapack import dgbtrs  # (the band LU is scipy's: imported with it)
+
+    p = lu.plan
+    y, _ = dgbtrs(lu.lu, p.kl, p.ku, b, lu.ipiv, trans=trans, overwrite_b=1)
+    return y
+
+
 def applies(run) -> bool:
     """Whether :func:`march_large` takes the run's instants: a single mechanism solved with the
     band LU (a square system, large enough for the sparse path, narrow-banded)."""
@@ -96,6 +106,8 @@ def march_large(run, k: int, end: int) -> int:
     dcols = D[pcol]
     i = np.arange(n)
     alt = (-1.0) ** i * (1 + i / max(n - 1, 1))  # Higham's safeguard vector
+    invD = 1.0 / D
+    band_rows, band_cols = plan.prow, plan.pcol
     q, qd, qdd = run.q[0].copy(), run.qd[0].copy(), run.qdd[0].copy()
     t, sign = float(run.t[0]), float(run.sign[0])
     before = None  # the state before the last, for the predictor
@@ -139,7 +151,7 @@ def march_large(run, k: int, end: int) -> int:
                     phi = fused.evaluate_phi(x[None, None])[0, 0]
                     phi[drive_rows] -= f[j]
                     dx = d * lu.solve(-(r * phi))
-                    step = float(np.abs(dx / D).max())
+                    step = float(np.abs(dx * invD).max())
                     if not math.isfinite(step):
                         break
                     x += dx
@@ -175,51 +187,62 @@ def march_large(run, k: int, end: int) -> int:
                 r_new = 1.0 / np.where(norms > 0, norms, 1.0)  # (an empty row: 1)
                 a *= r_new[prow]  # A = R Phi_q D
                 lu_new = BandLU(plan, a)
-                if not lu_new.ok:
+                if lu_new.info != 0:
                     break
-                sgn = lu_new.sign()
+                sgn = lu_new.sign()  # (NaN where a factor is not a number: stops here)
                 if sgn != sign:
                     break
                 # one solve for three right-hand sides: Hager's and Higham's vectors of the
-                # condition estimate (as sparse.inverse_norm1), nu; and, where the equations
-                # converged to their noise, -Phi (the check that this Jacobian is final)
-                nu = np.zeros(m)
-                nu[drive_rows] = fd[j]
-                cols = [np.full(n, 1.0 / n), alt, r_new * nu]
-                if noise > opts.settled_step:
-                    cols.append(-(r_new * phi))
-                y = lu_new.solve(np.stack(cols, axis=1))
-                if noise > opts.settled_step:
+                # condition estimate (as sparse.inverse_norm1), R nu; and, where the equations
+                # converged to their noise, -R Phi (the check that this Jacobian is final).
+                # The solves work in the band plan's order (A' = A[prow][:, pcol]): the
+                # estimate's vectors need no permuting (the norms of A^-1 and of A'^-1 are
+                # the same, and Higham's vector in A''s order is as good a safeguard)
+                check = noise > opts.settled_step
+                B = np.empty((n, 4 if check else 3), order="F")
+                B[:, 0] = 1.0 / n
+                B[:, 1] = alt
+                rnu = np.zeros(m)  # R nu: f'(t) in the drive rows
+                rnu[drive_rows] = r_new[drive_rows] * fd[j]
+                B[:, 2] = rnu[band_rows]
+                if check:
+                    B[:, 3] = -(r_new * phi)[band_rows]
+                y = _solve(lu_new, B)
+                if check:
                     # converged to the noise of the equations, above settled_step: the
                     # Jacobian is the final one if the Newton step it gives is noise too
                     # (within the scatter of the last steps, ``noise_scatter``)
-                    dx = D * y[:, 3]
                     if not float(np.abs(y[:, 3]).max()) <= opts.noise_scatter * noise:
                         break
-                    x += dx
-                moved = max(float(np.abs((x - q) / D).max()), float(np.abs((pred - q) / D).max()))
-                ratio = float(np.abs((x - pred) / D).max()) / max(moved, run.floor)
+                    x[band_cols] += D[band_cols] * y[:, 3]
+                went, meant = (x - q) * invD, (pred - q) * invD
+                moved = max(float(np.abs(went).max()), float(np.abs(meant).max()))
+                ratio = float(np.abs(went - meant).max()) / max(moved, run.floor)
                 if not ratio <= opts.branch_ratio:
                     break
-                qd_new = D * y[:, 2]
+                qd_new = np.empty(n)
+                qd_new[band_cols] = y[:, 2]
+                qd_new *= D
                 gamma = fused.evaluate_gamma(x[None, None], qd_new[None, None])[0, 0]
                 gamma[drive_rows] += fdd[j]
                 inv_norm = max(float(np.abs(y[:, 0]).sum()), 2 * float(np.abs(y[:, 1]).sum()) / (3 * n))
-                z = lu_new.solve_transposed(np.where(y[:, 0] >= 0, 1.0, -1.0))
+                z = _solve(lu_new, np.where(y[:, 0] >= 0, 1.0, -1.0), trans=1)
                 big = int(np.argmax(np.abs(z)))
-                rhs = [r_new * gamma]
-                if abs(z[big]) > z.sum() / n:  # Hager's test: e_j may give a larger column
-                    e = np.zeros(n)
-                    e[big] = 1.0
-                    rhs.append(e)
-                y = lu_new.solve(np.stack(rhs, axis=1))
-                if len(rhs) > 1:
+                hager = abs(z[big]) > z.sum() / n  # Hager's test: e_j may give a larger column
+                B = np.zeros((n, 2 if hager else 1), order="F")
+                B[:, 0] = (r_new * gamma)[band_rows]
+                if hager:
+                    B[big, 1] = 1.0
+                y = _solve(lu_new, B)
+                if hager:
                     inv_norm = max(inv_norm, float(np.abs(y[:, 1]).sum()))
                 norm_a = float(np.bincount(pcol, np.abs(a), minlength=n).max())
                 rcond = 1.0 / (norm_a * inv_norm)
                 if not rcond >= opts.singular_rcond:
                     break
-                qdd_new = D * y[:, 0]
+                qdd_new = np.empty(n)
+                qdd_new[band_cols] = y[:, 0]
+                qdd_new *= D
                 if not (np.isfinite(qd_new).all() and np.isfinite(qdd_new).all()):
                     break
             residual = max(residual, res)
