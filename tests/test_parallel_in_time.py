@@ -94,3 +94,25 @@ def test_a_jacobian_with_a_nan_entry_is_singular():
 
     fac = factor(np.array([[np.nan, 1.0], [1.0, 1.0]])[None, None], np.ones((1, 1, 2)))
     assert fac.rcond[0, 0] == 0.0 and fac.sign[0, 0] == 0.0
+
+
+def test_a_single_mechanism_is_predicted_from_its_coarse_states_without_levels(
+        load_example, monkeypatch):
+    """The coarse states of a single mechanism are solved exactly on floats: every instant is
+    predicted from them directly, no level is solved, and the answers are the closed form."""
+    from mechdsl.solve import run as run_module
+
+    calls = {"level": 0}
+    real = run_module.KinematicRun.level
+
+    def counted(self, *args, **kwargs):
+        calls["level"] += 1
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(run_module.KinematicRun, "level", counted)
+    res = load_example("slider_crank.mech").simulate(options=SolverOptions(backend="numpy"))
+    assert res.ok and calls["level"] == 0
+    th = np.pi / 4 + 4 * np.pi * res["t"]
+    for name, exact in zip(("slider.x", "slider.vx", "slider.ax"),
+                           slider_crank(2.0, 3.5, th, 4 * np.pi, 0.0)):
+        assert rel_err(res[name], exact) < 1e-13, name

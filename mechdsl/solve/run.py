@@ -382,13 +382,17 @@ class KinematicRun(Run):
         1. Coarse: march every ``coarse_stride``-th instant (and end-1) from the state with a
            loose Newton tolerance (:func:`mechdsl.solve.levels.coarse_march`); then correct
            those states all at once to the full tolerance and solve their velocities and
-           accelerations (:meth:`level`): the first nodes.
+           accelerations (:meth:`level`): the first nodes. (A single mechanism's coarse march
+           runs on floats and solves its states exactly at once.)
         2. Levels: split every gap between nodes by ``level_split``; the new instants,
            predicted by the quintic Hermite interpolation of the nodes
            (:mod:`mechdsl.solve.hermite`), are corrected all at once and become nodes, until
-           the gaps are at most ``level_split`` instants.
+           the gaps are at most ``level_split`` instants. (A single mechanism first skips
+           them: its instants are predicted from the coarse states directly, and the levels
+           refine the gaps only if that prediction fails a check in step 3.)
         3. Settle: every instant of the window, predicted from the nodes, is solved by batched
-           Newton, factorised, checked against its predecessor and recorded.
+           Newton (:func:`mechdsl.solve.batch.settle`), factorised, checked against its
+           predecessor and recorded.
 
         At every level each state is checked as the march checks it: converged, regular
         (condition above ``singular_rcond``), det(Phi_q) of the same sign as at the start of
@@ -418,36 +422,25 @@ class KinematicRun(Run):
         if level is None:
             return k
         node = np.concatenate(([k - 1], idx))
-        tn, qn, qdn, qddn = (np.concatenate((a, b), axis=1) for a, b in zip(start, level))
-        while (np.diff(node) > split).any():
-            # split every gap longer than level_split into level_split parts, or into as few
-            # as leave none longer (sets, not np.unique: that imports numpy.ma, 10 ms of
-            # every start-up)
-            have = set(node.tolist())
-            pairs = zip(node[:-1].tolist(), node[1:].tolist())
-            new = np.array(sorted({a + (i * (b - a)) // parts for a, b in pairs if b - a > split
-                                   for parts in (min(split, -(-(b - a) // split)),)
-                                   for i in range(1, parts)} - have), np.intp)
-            T = np.where(act, times[new][None, :], self.t[:, None])
-            with np.errstate(all="ignore"):
-                pred = quintic_hermite(tn[first], qn, qdn, qddn, times[new])
-            left = np.searchsorted(node, new) - 1
-            level = self.level(pred, T, base=qn[:, left])
-            if level is None:
+        nodes = (node, *(np.concatenate((a, b), axis=1) for a, b in zip(start, level)))
+        # a single mechanism's coarse states are solved exactly, with their rates: every
+        # instant is first predicted from them directly; levels refine the gaps only if that
+        # prediction fails a check somewhere (the general march takes over only after)
+        direct = settled
+        if not direct:
+            nodes = self._refine(nodes, first)
+            if nodes is None:
                 return k
-            order = np.argsort(np.concatenate((node, new)), kind="stable")
-            node = np.concatenate((node, new))[order]
-            tn, qn, qdn, qddn = (np.concatenate((a, b), axis=1)[:, order]
-                                 for a, b in zip((tn, qn, qdn, qddn), level))
-        tn = tn[first]
         cap = self._batch_cap()
-        for j0 in range(k, end, cap):
+        j0 = k
+        while j0 < end:
             idx = np.arange(j0, min(j0 + cap, end))
             T = np.where(act, times[idx][None, :], self.t[:, None])
             if (_undefined_drives(system, T) & act).any():
                 return j0
+            _, tn, qn, qdn, qddn = nodes
             with np.errstate(all="ignore"):
-                pred = quintic_hermite(tn, qn, qdn, qddn, times[idx])
+                pred = quintic_hermite(tn[first], qn, qdn, qddn, times[idx])
             rates = None
             done = batch.settle(system, pred, T, D, self.active, opts,
                                 rates=self.pose_rates is not None or system.order >= 1)
@@ -467,9 +460,53 @@ class KinematicRun(Run):
                 self.accept(q[:, :nacc], T[:, :nacc], idx[:nacc], fac.columns(slice(0, nacc)),
                             self.active.copy(),
                             None if rates is None else tuple(x[:, :nacc] for x in rates))
-            if nacc < len(idx) or not self.active.any():
+            if not self.active.any():
                 return j0 + nacc
+            if nacc < len(idx):
+                if not direct:
+                    return j0 + nacc
+                # predicted too coarsely somewhere: the gaps from the last state on are
+                # refined by levels
+                direct = False
+                node, tn, qn, qdn, qddn = nodes
+                keep = node > j0 + nacc - 1
+                now = (self.t[:, None], self.q[:, None], self.qd[:, None], self.qdd[:, None])
+                nodes = self._refine((np.concatenate(([j0 + nacc - 1], node[keep])),
+                                      *(np.concatenate((a, b[:, keep]), axis=1)
+                                        for a, b in zip(now, (tn, qn, qdn, qddn)))), first)
+                if nodes is None:
+                    return j0 + nacc
+            j0 += nacc
         return end
+
+    def _refine(self, nodes: tuple, first: int) -> tuple | None:
+        """Split every gap between the ``nodes`` (instant indices, t, q, qd, qdd) longer than
+        ``level_split`` into level_split parts (or into as few as leave none longer), level
+        by level, each level's states predicted by the quintic Hermite interpolation of the
+        nodes and corrected all at once (:meth:`level`); the refined nodes, or None where a
+        state fails a check."""
+        split, times = self.opts.level_split, self.times
+        act = self.active[:, None]
+        node, tn, qn, qdn, qddn = nodes
+        while (np.diff(node) > split).any():
+            # (sets, not np.unique: that imports numpy.ma, 10 ms of every start-up)
+            have = set(node.tolist())
+            pairs = zip(node[:-1].tolist(), node[1:].tolist())
+            new = np.array(sorted({a + (i * (b - a)) // parts for a, b in pairs if b - a > split
+                                   for parts in (min(split, -(-(b - a) // split)),)
+                                   for i in range(1, parts)} - have), np.intp)
+            T = np.where(act, times[new][None, :], self.t[:, None])
+            with np.errstate(all="ignore"):
+                pred = quintic_hermite(tn[first], qn, qdn, qddn, times[new])
+            left = np.searchsorted(node, new) - 1
+            level = self.level(pred, T, base=qn[:, left])
+            if level is None:
+                return None
+            order = np.argsort(np.concatenate((node, new)), kind="stable")
+            node = np.concatenate((node, new))[order]
+            tn, qn, qdn, qddn = (np.concatenate((a, b), axis=1)[:, order]
+                                 for a, b in zip((tn, qn, qdn, qddn), level))
+        return node, tn, qn, qdn, qddn
 
     def level(self, pred: np.ndarray, T: np.ndarray, base: np.ndarray | None = None
               ) -> tuple[np.ndarray, ...] | None:
