@@ -9,9 +9,10 @@ converged positions, estimate their condition and solve their rates. Done step b
 and the generated code's entry-major one (coordinates, instants, variants), and each solve
 passes over the factors on its own. :func:`settle` keeps everything entry-major and:
 
-* iterates Newton with the *scaled* factorisation A = R Phi_q D (R the reciprocal row norms
-  of Phi_q D, D the column scale), so that the factors of the last iteration are the final
-  ones wherever its step was at round-off (``settled_step``) or the state did not move;
+* iterates Newton with the plain factorisation of Phi_q while the steps are large, then with
+  the *scaled* one A = R Phi_q D (R the reciprocal row norms of Phi_q D, D the column
+  scale), so that the factors of the last iteration are the final ones wherever its step
+  was at round-off (``settled_step``) or the state did not move;
   where some state's last step was larger, the batch is factorised once more at the
   converged positions;
 * solves Hager's and Higham's vectors of the condition estimate (as
@@ -48,6 +49,8 @@ class Settled:
     fac: Factor
     qd: np.ndarray | None
     qdd: np.ndarray | None
+    #: Newton iterations taken
+    iterations: int = 0
 
 
 def applies(system: System, states: int) -> bool:
@@ -55,6 +58,12 @@ def applies(system: System, states: int) -> bool:
     f = system.fused
     return (system.lu is not None and f is not None and f.layout == "member"
             and system.m == system.n and states >= LU_BATCH)
+
+
+#: A Newton step (scaled as newton_tol) at most this makes the next one, quadratically smaller,
+#: likely the last: from there the iterations factorise the scaled matrix, whose factors are
+#: then the final ones; before, the plain one (cheaper: no scaling pass).
+NEAR = 1e-6
 
 
 class _Scaled:
@@ -75,10 +84,13 @@ class _Scaled:
 
 
 def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
-           active: np.ndarray, opts: SolverOptions, rates: bool) -> Settled | None:
+           active: np.ndarray, opts: SolverOptions, rates: bool, near: bool = False
+           ) -> Settled | None:
     """Solve Phi(q, T) = 0 from ``pred`` (V, b, n) at times ``T`` (V, b) for the ``active``
     variants (V,), factorise Phi_q at the solutions, estimate the condition, and (with
     ``rates``) solve Phi_q qd = nu and Phi_q qdd = gamma; see the module documentation.
+    ``near``: the predictions are likely converged already (the last batch took one
+    iteration), so that the first iteration factorises the scaled matrix.
     Convergence as :func:`mechdsl.solve.newton.newton` (the scaled step max |dq / D| at most
     ``newton_tol``, or the error left, |dq_k|^3 / |dq_(k-1)|^2, at most ``newton_error``;
     abandoned where the step stops contracting). None where it does not apply."""
@@ -108,10 +120,19 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
             if drives is not None:
                 for i, row in enumerate(drive_rows):
                     E[row] -= drives[0][i]
-            scaled = _Scaled(system, E, dcols)
-            if not scaled.ok.all():
-                return None  # a pivot of the fixed order became small: the general path
-            Z = plan.solve_fn(scaled.F, -(scaled.r * E[:m]))  # A (dq / D) = -R Phi
+            if near:
+                # the steps are small: this iteration's factors may be the final ones, so
+                # they are the scaled factorisation the condition estimate needs
+                scaled = _Scaled(system, E, dcols)
+                if not scaled.ok.all():
+                    return None  # a pivot of the fixed order became small: the general path
+                Z = plan.solve_fn(scaled.F, -(scaled.r * E[:m]))  # A (dq / D) = -R Phi
+            else:
+                scaled = None
+                F_it, ok_it = plan.factor_fn(E[m:])
+                if not ok_it.all():
+                    return None
+                Z = plan.solve_fn(F_it, -E[:m]) / Dt  # Phi_q dq = -Phi, as dq / D
             step = np.maximum.reduce(np.abs(Z), axis=0)
             solved = np.isfinite(step)
             left = np.where((step < 0.25 * prev) & (prev < np.inf), step**3 / prev**2, np.inf)
@@ -126,11 +147,12 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
             prev = np.where(live, step, prev)
             if (done | failed).all():
                 break
+            near = bool((step[live & ~converged] <= NEAR).all())
         ok = done & ~failed
         # the last factors were taken at the positions before the last step: the final ones
         # where that step was at round-off (and where a state did not move); else once more
         # at the converged positions (every state: one pass of the kernels)
-        if not (step[moved & ok] <= opts.settled_step).all():
+        if scaled is None or not (step[moved & ok] <= opts.settled_step).all():
             E = fused.phi_jac(X.T, None, None, P, Fn).T
             scaled = _Scaled(system, E, dcols)
             if not scaled.ok.all():
@@ -181,4 +203,5 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
         rcond = np.where(np.isfinite(rcond) & scaled.finite, rcond, 0.0)
         sign = np.where(rcond > 0, plan.parity * np.prod(np.sign(F[plan.pivots]), axis=0), 0.0)
     fac = Factor(None, rcond.T, sign.T, gen=GeneratedLU(plan, F, r.T, np.broadcast_to(D, (V, b, n))))
-    return Settled(X.T, ok.T, fac, None if qd is None else qd.T, None if qdd is None else qdd.T)
+    return Settled(X.T, ok.T, fac, None if qd is None else qd.T, None if qdd is None else qdd.T,
+                   it)

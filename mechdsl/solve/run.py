@@ -178,6 +178,9 @@ class KinematicRun(Run):
         self.pose_rates = np.full((V, K, 2, n), np.nan) if self.keep_rates else None
         #: instants per block of the march, grown while Newton converges fast
         self.block = self.opts.initial_block
+        #: Newton iterations the last batch of the parallel march took (one: its predictions
+        #: were converged already, and the next batch's likely are)
+        self.settle_iterations = 0
         #: named outputs already warned about for values that are not finite
         self.undefined_outputs: set[str] = set()
         if mob is not None:
@@ -190,11 +193,25 @@ class KinematicRun(Run):
         system, opts, times = self.system, self.opts, self.times
         V, rows = system.n_variants, self.rows
         q0, t0 = asm.q[:, None], np.full((V, 1), times[0])
-        fac = None
+        fac, rates = None, None
         if system.one_state is not None and len(rows) == system.n:
-            one = OneState(system, system.one_state, self.D[0, 0], opts).factor(
-                asm.q[0].tolist())
-            fac = None if one is None else one.batched()
+            # a single mechanism: the factorisation, and the rates and residual where they
+            # are finite numbers, on floats
+            solver = OneState(system, system.one_state, self.D[0, 0], opts)
+            x = asm.q[0].tolist()
+            one = solver.factor(x)
+            if one is not None:
+                fac = one.batched()
+                f, fd, fdd = ([c[0] for c in d] for d in solver.drives(times[:1]))
+                try:
+                    phi, _ = solver.residual(x, f)
+                    res = max((abs(v) for v in phi), default=0.0)
+                except (ArithmeticError, ValueError):
+                    res = float("nan")
+                both = solver.rates(one, x, fd, fdd) if one.rcond > 0 else None
+                if both is not None and res < float("inf"):
+                    rates = tuple(np.array(v)[None, None] for v in both)
+                    self.residual = max(self.residual, res)
         if fac is None:
             fac = factor(eq.solver_jacobian(system, q0, rows, use_sparse(system, opts, rows)),
                          self.D)
@@ -204,7 +221,8 @@ class KinematicRun(Run):
                                          float(times[0]), 0, "singular"))
         self.active &= ~singular
         self.sign = fac.sign[:, 0]
-        self.accept(q0, t0, np.array([0]), fac, self.active.copy())
+        self.accept(q0, t0, np.array([0]), fac, self.active.copy(), rates,
+                    checked=rates is not None)
 
     def advance(self) -> None:
         """March from the state at instant 0 to the last instant, window by window.
@@ -443,9 +461,11 @@ class KinematicRun(Run):
                 pred = quintic_hermite(tn[first], qn, qdn, qddn, times[idx])
             rates = None
             done = batch.settle(system, pred, T, D, self.active, opts,
-                                rates=self.pose_rates is not None or system.order >= 1)
+                                rates=self.pose_rates is not None or system.order >= 1,
+                                near=self.settle_iterations == 1)
             if done is not None:
                 q, ok, fac = done.q, done.converged, done.fac
+                self.settle_iterations = done.iterations
                 if done.qd is not None:
                     rates = (done.qd, done.qdd)
             else:
