@@ -259,3 +259,42 @@ def plan(rows: np.ndarray, cols: np.ndarray, n: int, sample: np.ndarray) -> LUPl
     parity = _parity(order_rows) * _parity(order_cols)
     return LUPlan(n, nnz, slots, np.array(pivot_slots, dtype=np.intp), parity, ns["factor"],
                   ns["solve"], ns["solve_t"], source, slots - nnz, tuple(steps), tuple(back))
+
+
+def scalar_lines(lu: LUPlan, a, y, x, c, w, fail: str) -> tuple[list, list, list]:
+    """The plan's factorisation and solves as scalar statements (for code on one state: the
+    float code of :mod:`mechdsl.compiled.scalar`, the compiled backend's march), with the
+    names each caller gives: ``a(k)`` the factor in slot k, ``y(i)``, ``x(i)`` the right-hand
+    side and the solution of A x = y, ``c(i)``, ``w(i)`` those of A^T w = c (the right-hand
+    sides are overwritten); ``fail`` the statement where a pivot of the fixed order became
+    small. Returns the bodies (one statement per line, unindented) of factor, solve and
+    solve_t."""
+    factor = []
+    for pr, pc, below, right, p_slot in lu.steps:
+        if below:
+            terms = [f"abs({a(l)})" for _, l in below]
+            big = f"max({', '.join(terms)})" if len(terms) > 1 else terms[0]
+            factor.append(f"if not abs({a(p_slot)}) >= threshold * {big}:")
+        else:
+            factor.append(f"if not {a(p_slot)} != 0.0:")
+        factor.append(f"    {fail}")
+        for i, l in below:
+            factor.append(f"{a(l)} = {a(l)} / {a(p_slot)}")
+            for u, t in right[i]:
+                factor.append(f"{a(t)} = {a(t)} - {a(l)} * {a(u)}")
+    solve = []
+    for pr, pc, below, right, p_slot in lu.steps:
+        for i, l in below:
+            solve.append(f"{y(i)} = {y(i)} - {a(l)} * {y(pr)}")
+    for pr, pc, terms, p_slot in reversed(lu.back):
+        rest = "".join(f" - {a(u)} * {x(col)}" for u, col in terms)
+        solve.append(f"{x(pc)} = ({y(pr)}{rest}) / {a(p_slot)}")
+    solve_t = []
+    for pr, pc, terms, p_slot in lu.back:
+        solve_t.append(f"{w(pr)} = {c(pc)} / {a(p_slot)}")
+        for u, col in terms:
+            solve_t.append(f"{c(col)} = {c(col)} - {a(u)} * {w(pr)}")
+    for pr, pc, below, right, p_slot in reversed(lu.steps):
+        for i, l in below:
+            solve_t.append(f"{w(pr)} = {w(pr)} - {a(l)} * {w(i)}")
+    return factor, solve, solve_t

@@ -33,6 +33,7 @@ import numpy as np
 
 from ..symbolic.codegen import CALLED, assignments
 from ..symbolic.graph import Graph, Node
+from .lu import scalar_lines
 
 #: States (variants times instants) per call of the compiled march: about 0.1 s of work, so
 #: that progress is shown and an interrupt is taken between calls.
@@ -86,37 +87,15 @@ def source(system) -> str | None:
                          + [(f"a[{k}]", x) for k, x in enumerate(f.jac_nodes)], "    ")
     code += ["", JIT, "def gamma(q, qd, p, g):"]
     code += _scalar_code(graph, [(f"g[{i}]", x) for i, x in enumerate(f.gamma_nodes)], "    ")
+    factor, solve, solve_t = scalar_lines(
+        lu, "a[{}]".format, "y[{}]".format, "x[{}]".format, "c[{}]".format, "w[{}]".format,
+        "return False")
     code += ["", JIT, "def factor(a, threshold):",
              f"    a[{nnz}:] = 0.0" if slots > nnz else "    pass"]
-    for pr, pc, below, right, p_slot in lu.steps:
-        if below:
-            terms = [f"abs(a[{l}])" for _, l in below]
-            big = f"max({', '.join(terms)})" if len(terms) > 1 else terms[0]
-            code.append(f"    if not abs(a[{p_slot}]) >= threshold * {big}:")
-        else:
-            code.append(f"    if not a[{p_slot}] != 0.0:")
-        code.append("        return False")
-        for i, l in below:
-            code.append(f"    a[{l}] = a[{l}] / a[{p_slot}]")
-            for u, t in right[i]:
-                code.append(f"    a[{t}] = a[{t}] - a[{l}] * a[{u}]")
-    code.append("    return True")
+    code += [f"    {ln}" for ln in factor] + ["    return True"]
     # the solves overwrite their right-hand side (no allocation inside the march)
-    code += ["", JIT, "def solve(a, y, x):", "    pass"]
-    for pr, pc, below, right, p_slot in lu.steps:
-        for i, l in below:
-            code.append(f"    y[{i}] -= a[{l}] * y[{pr}]")
-    for pr, pc, terms, p_slot in reversed(lu.back):
-        rest = "".join(f" - a[{u}] * x[{c}]" for u, c in terms)
-        code.append(f"    x[{pc}] = (y[{pr}]{rest}) / a[{p_slot}]")
-    code += ["", JIT, "def solve_t(a, c, w):", "    pass"]
-    for k, (pr, pc, terms, p_slot) in enumerate(lu.back):
-        code.append(f"    w[{pr}] = c[{pc}] / a[{p_slot}]")
-        for u, col in terms:
-            code.append(f"    c[{col}] -= a[{u}] * w[{pr}]")
-    for pr, pc, below, right, p_slot in reversed(lu.steps):
-        for i, l in below:
-            code.append(f"    w[{pr}] -= a[{l}] * w[{i}]")
+    code += ["", JIT, "def solve(a, y, x):", "    pass"] + [f"    {ln}" for ln in solve]
+    code += ["", JIT, "def solve_t(a, c, w):", "    pass"] + [f"    {ln}" for ln in solve_t]
     pivots = ", ".join(str(k) for k in lu.pivots)
     drive_rows = ", ".join(str(int(r)) for r in system.drive_rows)
     code += ["", f"PIVOTS = np.array([{pivots}], dtype=np.int64)",

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from ..symbolic.codegen import ScalarKernel, scalar_functions, scalar_kernel
-from .lu import LUPlan
+from .lu import LUPlan, scalar_lines
 
 
 @dataclass(frozen=True)
@@ -56,43 +56,17 @@ def _lu_source(lu: LUPlan) -> str:
     """The plan's elimination and substitutions on local floats ``s0 ..`` (the factors)."""
     nnz, slots, n = lu.nnz, lu.slots, lu.n
     s = [f"s{k}" for k in range(slots)]
-    f = ["def factor(values, threshold):", f"    {', '.join(s[:nnz])}, = values"]
-    f += [f"    {s[k]} = 0.0" for k in range(nnz, slots)]
-    for pr, pc, below, right, p_slot in lu.steps:
-        if below:
-            terms = [f"abs({s[l]})" for _, l in below]
-            big = f"max({', '.join(terms)})" if len(terms) > 1 else terms[0]
-            f.append(f"    if not abs({s[p_slot]}) >= threshold * {big}:")
-        else:
-            f.append(f"    if not {s[p_slot]} != 0.0:")
-        f.append("        return None")
-        for i, l in below:
-            f.append(f"    {s[l]} = {s[l]} / {s[p_slot]}")
-            for u, t in right[i]:
-                f.append(f"    {s[t]} = {s[t]} - {s[l]} * {s[u]}")
-    f.append(f"    return ({', '.join(s)},)")
-    y = [f"y{i}" for i in range(n)]
-    x = [f"x{i}" for i in range(n)]
-    sv = ["def solve(F, b):", f"    {', '.join(s)}, = F", f"    {', '.join(y)}, = b"]
-    for pr, pc, below, right, p_slot in lu.steps:
-        for i, l in below:
-            sv.append(f"    {y[i]} = {y[i]} - {s[l]} * {y[pr]}")
-    for pr, pc, terms, p_slot in reversed(lu.back):
-        rest = "".join(f" - {s[u]} * {x[c]}" for u, c in terms)
-        sv.append(f"    {x[pc]} = ({y[pr]}{rest}) / {s[p_slot]}")
-    sv.append(f"    return [{', '.join(x)}]")
-    c = [f"c{i}" for i in range(n)]
-    w = [f"w{i}" for i in range(n)]
-    st = ["def solve_t(F, b):", f"    {', '.join(s)}, = F", f"    {', '.join(c)}, = b"]
-    for pr, pc, terms, p_slot in lu.back:
-        st.append(f"    {w[pr]} = {c[pc]} / {s[p_slot]}")
-        for u, col in terms:
-            st.append(f"    {c[col]} = {c[col]} - {s[u]} * {w[pr]}")
-    for pr, pc, below, right, p_slot in reversed(lu.steps):
-        for i, l in below:
-            st.append(f"    {w[pr]} = {w[pr]} - {s[l]} * {w[i]}")
-    st.append(f"    return [{', '.join(w)}]")
-    return "\n\n".join("\n".join(part) for part in (f, sv, st)) + "\n"
+    y, x, c, w = ([f"{v}{i}" for i in range(n)] for v in "yxcw")
+    factor, solve, solve_t = scalar_lines(lu, s.__getitem__, y.__getitem__, x.__getitem__,
+                                          c.__getitem__, w.__getitem__, "return None")
+    parts = [["def factor(values, threshold):", f"    {', '.join(s[:nnz])}, = values"]
+             + [f"    {s[k]} = 0.0" for k in range(nnz, slots)]
+             + [f"    {ln}" for ln in factor] + [f"    return ({', '.join(s)},)"],
+             ["def solve(F, b):", f"    {', '.join(s)}, = F", f"    {', '.join(y)}, = b"]
+             + [f"    {ln}" for ln in solve] + [f"    return [{', '.join(x)}]"],
+             ["def solve_t(F, b):", f"    {', '.join(s)}, = F", f"    {', '.join(c)}, = b"]
+             + [f"    {ln}" for ln in solve_t] + [f"    return [{', '.join(w)}]"]]
+    return "\n\n".join("\n".join(part) for part in parts) + "\n"
 
 
 def one_state(system, v: int = 0) -> OneState | None:
