@@ -66,6 +66,16 @@ def applies(system: System, states: int) -> bool:
 NEAR = 1e-6
 
 
+def _sums(values: np.ndarray, index: np.ndarray, size: int) -> np.ndarray:
+    """(size, ...): the sum of the entries ``values`` (nnz, ...) of each row (or column)
+    ``index`` (nnz,), one addition of whole batch arrays per entry (a matrix product over a
+    batch of this shape costs more on a few hundred entries)."""
+    out = np.zeros((size,) + values.shape[1:])
+    for k, i in enumerate(index.tolist()):
+        out[i] += values[k]
+    return out
+
+
 class _Scaled:
     """Phi_q at the states X (n, b, V) scaled and factorised, entry-major."""
 
@@ -73,9 +83,8 @@ class _Scaled:
         p, plan = system.pattern, system.lu
         m = system.m
         vals = E[m:]
-        nnz = vals.shape[0]
         a = vals * dcols
-        norms = np.sqrt((p.row_indicator.T @ (a * a).reshape(nnz, -1)).reshape((m,) + a.shape[1:]))
+        norms = np.sqrt(_sums(a * a, p.rows, m))
         self.r = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
         self.finite = np.isfinite(norms).all(axis=0)
         a *= self.r[p.rows]
@@ -197,8 +206,7 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
                 qdd = Dt * S2[:, 0]
             if better.any():
                 est = np.where(better, np.maximum(est, np.abs(S2[:, -1]).sum(axis=0)), est)
-        norm_a = np.maximum.reduce(
-            (p.col_indicator.T @ np.abs(a).reshape(a.shape[0], -1)).reshape((n, b, V)), axis=0)
+        norm_a = np.maximum.reduce(_sums(np.abs(a), p.cols, n), axis=0)
         rcond = 1.0 / (norm_a * est)
         rcond = np.where(np.isfinite(rcond) & scaled.finite, rcond, 0.0)
         sign = np.where(rcond > 0, plan.parity * np.prod(np.sign(F[plan.pivots]), axis=0), 0.0)
