@@ -178,9 +178,6 @@ class KinematicRun(Run):
         self.pose_rates = np.full((V, K, 2, n), np.nan) if self.keep_rates else None
         #: instants per block of the march, grown while Newton converges fast
         self.block = self.opts.initial_block
-        #: Newton iterations the last batch of the parallel march took (one: its predictions
-        #: were converged already, and the next batch's likely are)
-        self.settle_iterations = 0
         #: named outputs already warned about for values that are not finite
         self.undefined_outputs: set[str] = set()
         if mob is not None:
@@ -461,11 +458,9 @@ class KinematicRun(Run):
                 pred = quintic_hermite(tn[first], qn, qdn, qddn, times[idx])
             rates = None
             done = batch.settle(system, pred, T, D, self.active, opts,
-                                rates=self.pose_rates is not None or system.order >= 1,
-                                near=self.settle_iterations == 1)
+                                rates=self.pose_rates is not None or system.order >= 1)
             if done is not None:
                 q, ok, fac = done.q, done.converged, done.fac
-                self.settle_iterations = done.iterations
                 if done.qd is not None:
                     rates = (done.qd, done.qdd)
             else:
