@@ -50,8 +50,6 @@ class Settled:
     fac: Factor
     qd: np.ndarray | None
     qdd: np.ndarray | None
-    #: Newton iterations taken
-    iterations: int = 0
 
 
 def applies(system: System, states: int) -> bool:
@@ -195,5 +193,4 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
     one = np.ones(1)
     fac = Factor(None, rcond.T, sign.T, gen=GeneratedLU(plan, F, np.broadcast_to(one, (V, b, m)),
                                                          np.broadcast_to(one, (V, b, n))))
-    return Settled(X.T, ok.T, fac, None if qd is None else qd.T, None if qdd is None else qdd.T,
-                   it)
+    return Settled(X.T, ok.T, fac, None if qd is None else qd.T, None if qdd is None else qdd.T)

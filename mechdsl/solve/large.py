@@ -12,7 +12,10 @@ each instant as the compiled backend's march does (:mod:`mechdsl.compiled.native
 1. predict by the quintic through the last two states (q, qd, qdd at both: error O(h^6));
 2. correct by simplified Newton, Phi_q(q_prev) dq = -Phi, with the last instant's
    factorisation, down to round-off: a step at most ``settled_step``, or an error left after
-   it, theta |dq| / (1 - theta) with theta the contraction, at most ``newton_error``;
+   it, theta |dq| / (1 - theta) with theta the contraction, at most ``newton_error`` or one
+   ulp of the largest scaled coordinate; or down to the noise of the mechanism's own
+   equations, where steps below ``newton_tol`` stop contracting (then the step the final
+   Jacobian gives must be noise too, within ``noise_scatter``);
 3. factorise Phi_q once, at that converged position: the final Jacobian, which gives the
    condition number (Hager and Higham's estimate), the sign of det(Phi_q), the velocities and
    the accelerations exactly (Phi_q qd = nu, Phi_q qdd = gamma), and the next instant's
@@ -42,6 +45,7 @@ from .rowwise import allfinite
 
 #: Instants recorded together (outputs are computed for a block at once).
 BLOCK = 32
+#: the unit round-off of doubles: the smallest error a position can be solved to, relative
 EPS = float(np.finfo(float).eps)
 
 
@@ -115,7 +119,6 @@ def march_large(run, k: int, end: int) -> int:
     residual = 0.0
 
     def record() -> None:
-        nonlocal residual
         if not block:
             return
         j0 = block[0][0]
