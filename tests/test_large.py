@@ -115,13 +115,18 @@ def test_an_interrupt_keeps_every_instant_recorded_complete(loads, monkeypatch):
     assert np.isnan(res[f"crank{N_LOOPS}.alpha"][k:]).all()
 
 
-def test_noise_scatter_is_checked_and_a_strict_one_still_gives_the_closed_form(loads):
+def test_noise_options_are_checked_and_strict_ones_still_give_the_closed_form(loads):
     for bad in (0.5, 1000.0):
         with pytest.raises(ValueError, match="noise_scatter"):
             SolverOptions(noise_scatter=bad)
-    # the strictest check hands more instants to the careful march: the same answers
-    res = simulate(_chain(loads, t1=0.3, step=0.01),
-                   SolverOptions(sparse_from=0, noise_scatter=1.0))
-    assert res.ok
-    ex = models.chain_exact(res["t"])
-    assert np.abs(res[f"crank{N_LOOPS}.alpha"] - ex["alpha"]).max() < 1e-10
+    for bad in (-1.0, 1e-5):
+        with pytest.raises(ValueError, match="noise_floor"):
+            SolverOptions(noise_floor=bad)
+    # the strictest checks hand more instants (noise_floor 0: every stall) to the careful
+    # march: the same answers
+    for strict in (SolverOptions(sparse_from=0, noise_scatter=1.0),
+                   SolverOptions(sparse_from=0, noise_floor=0.0)):
+        res = simulate(_chain(loads, t1=0.3, step=0.01), strict)
+        assert res.ok
+        ex = models.chain_exact(res["t"])
+        assert np.abs(res[f"crank{N_LOOPS}.alpha"] - ex["alpha"]).max() < 1e-10

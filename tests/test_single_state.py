@@ -139,3 +139,19 @@ def test_a_sweep_has_no_float_code_and_gives_the_same_answers(load_example):
     r_sweep, r_alone = simulate(sweep), simulate(alone)
     np.testing.assert_allclose(r_sweep["slider.ax"][1], r_alone["slider.ax"], rtol=1e-13,
                                atol=1e-12)
+
+
+def test_a_jacobian_without_a_usable_pivot_is_no_factorisation(load_example):
+    """A pivot of the fixed order exactly zero with zeros below it passes the threshold test
+    (0 >= 0) and divides by zero on floats (the four-bar's plan meets one on a Jacobian of
+    zeros): the factorisation is refused, not raised."""
+    from dataclasses import replace
+
+    system = load_example("fourbar.mech").compile(Overrides())
+    one = system.one_state
+    with pytest.raises(ZeroDivisionError):
+        one.factor([0.0] * one.nnz, THRESHOLD)
+    zeros = replace(one, phi_jac=lambda q, qd, t, p, F: [0.0] * (one.m + one.nnz))
+    solver = OneState(system, zeros, col_scale(system)[0, 0], SolverOptions())
+    assert solver.factor(system.guess[0].tolist()) is None
+    assert solver.factor(system.guess[0].tolist(), exact=False) is None

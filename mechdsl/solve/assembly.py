@@ -330,7 +330,10 @@ def _continue_one(one, q: np.ndarray, t0: float, opts: SolverOptions
     s, ds, iterations = 0.0, 1.0, 0
     while s < 1.0:
         s_new = min(1.0, s + ds)
-        tangent = fac.solve(delta)  # Phi_q dq/ds = delta
+        try:
+            tangent = fac.solve(delta)  # Phi_q dq/ds = delta
+        except (ArithmeticError, ValueError):
+            return None
         pred = [xi + (s_new - s) * ti if math.isfinite(ti) else xi
                 for xi, ti in zip(x, tangent)]
         target = [gi - (gi - fi) * s_new for gi, fi in zip(g, f)]

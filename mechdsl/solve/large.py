@@ -14,7 +14,7 @@ each instant as the compiled backend's march does (:mod:`mechdsl.compiled.native
    factorisation, down to round-off: a step at most ``settled_step``, or an error left after
    it, theta |dq| / (1 - theta) with theta the contraction, at most ``newton_error`` or one
    ulp of the largest scaled coordinate; or down to the noise of the mechanism's own
-   equations, where steps below ``newton_tol`` stop contracting (then the step the final
+   equations, where steps below ``noise_floor`` stop contracting (then the step the final
    Jacobian gives must be noise too, within ``noise_scatter``);
 3. factorise Phi_q once, at that converged position: the final Jacobian, which gives the
    condition number (Hager and Higham's estimate), the sign of det(Phi_q), the velocities and
@@ -164,11 +164,11 @@ def march_large(run, k: int, end: int) -> int:
                     if prev < math.inf:
                         theta = step / prev
                         if theta >= opts.reuse_ratio:
-                            # no longer contracting: round-off, if the steps are below the
-                            # tolerance already (their size is then the noise of this
-                            # mechanism's equations); else too slow, for the careful march
-                            converged = prev <= opts.newton_tol
+                            # no longer contracting: round-off, if the steps are tiny (their
+                            # size is then the noise of this mechanism's equations); else
+                            # too slow or diverging, for the careful march
                             noise = max(step, prev)
+                            converged = noise <= min(opts.noise_floor, opts.newton_tol)
                             break
                         # the error left, below newton_error or below what floating point
                         # resolves in the largest coordinate (one ulp of it, scaled)
@@ -213,11 +213,11 @@ def march_large(run, k: int, end: int) -> int:
                 y = _solve(lu_new, B)
                 if check:
                     # converged to the noise of the equations, above settled_step: the
-                    # Jacobian is the final one if the Newton step it gives is noise too
-                    # (within the scatter of the last steps, ``noise_scatter``)
+                    # position is solved if the Newton step of the Jacobian factorised there
+                    # is noise too (within the scatter of the last steps, ``noise_scatter``);
+                    # it is not taken, so that the rates are solved at the position recorded
                     if not float(np.abs(y[:, 3]).max()) <= opts.noise_scatter * noise:
                         break
-                    x[band_cols] += D[band_cols] * y[:, 3]
                 went, meant = (x - q) * invD, (pred - q) * invD
                 moved = max(float(np.abs(went).max()), float(np.abs(meant).max()))
                 ratio = float(np.abs(went - meant).max()) / max(moved, run.floor)

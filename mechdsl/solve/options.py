@@ -29,6 +29,11 @@ class SolverOptions:
     #: steps (noise steps of one instant scatter within a factor of 3 on a row of 1001
     #: bodies). Else the careful march solves the instant.
     noise_scatter: float = 4.0
+    #: ... and counts as stalled at noise only where those last two steps are at most this
+    #: and newton_tol (scaled as newton_tol): a larger stall is a slow or diverging
+    #: iteration, for the careful march. (A row of 1001 bodies stalls between 1e-14 and
+    #: 3e-13.)
+    noise_floor: float = 1e-12
     #: Forward dynamics: the integrator's relative and absolute error tolerances per step (the
     #: absolute one scaled as newton_tol: lengths by L, velocities by L per unit time). None:
     #: the ``simulate`` statement's ``rtol = ..., atol = ...``, else 1e-8 and 1e-10; a value
@@ -140,6 +145,8 @@ class SolverOptions:
             raise ValueError(f"settled_step must be in [0, 1e-13], not {self.settled_step!r}")
         if not 1 <= self.noise_scatter <= 100:
             raise ValueError(f"noise_scatter must be in [1, 100], not {self.noise_scatter!r}")
+        if not 0 <= self.noise_floor <= 1e-6:
+            raise ValueError(f"noise_floor must be in [0, 1e-6], not {self.noise_floor!r}")
         if not 0 < self.coarse_newton_tol <= 1e-1:
             raise ValueError("coarse_newton_tol must be in (0, 0.1], not "
                              f"{self.coarse_newton_tol!r}")

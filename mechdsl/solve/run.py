@@ -202,7 +202,9 @@ class KinematicRun(Run):
                 f, fd, fdd = ([c[0] for c in d] for d in solver.drives(times[:1]))
                 try:
                     phi, _ = solver.residual(x, f)
-                    res = max((abs(v) for v in phi), default=0.0)
+                    # (not max() alone: it passes over a NaN that is not first)
+                    res = (max((abs(v) for v in phi), default=0.0)
+                           if all(v == v for v in phi) else float("nan"))
                 except (ArithmeticError, ValueError):
                     res = float("nan")
                 both = solver.rates(one, x, fd, fdd) if one.rcond > 0 else None

@@ -139,7 +139,10 @@ class OneState:
         for xi, pi, bi, di in zip(x, pred, base, self.D):
             moved = max(moved, abs(xi - bi) / di, abs(pi - bi) / di)
             corr = max(corr, abs(xi - pi) / di)
-        return corr / max(moved, floor)
+        ratio = corr / max(moved, floor)
+        # (Python's max() passes over a NaN that is not first: the states must be numbers)
+        finite = all(math.isfinite(v) for v in x) and all(math.isfinite(v) for v in pred)
+        return ratio if finite else math.inf
 
     def factor(self, x: list, exact: bool = True) -> "OneFactor | None":
         """Phi_q at ``x`` factorised as :func:`mechdsl.solve.linalg.factor` factorises one
@@ -165,38 +168,47 @@ class OneState:
         col = [0.0] * n
         for v, c in zip(a, code.cols):
             col[c] += abs(v)
-        fac = code.factor(a, THRESHOLD)
-        if fac is None:
+        try:
+            fac = code.factor(a, THRESHOLD)
+            if fac is None:
+                return None
+            if exact:
+                inverse = []  # the columns of A^-1
+                for j in range(n):
+                    e = [0.0] * n
+                    e[j] = 1.0
+                    inverse.append(code.solve(fac, e))
+                sums = [math.fsum(abs(v) for v in column) for column in inverse]
+                # (Python's max() passes over a NaN that is not first)
+                norm_inv = max(sums) if all(math.isfinite(v) for v in sums) else math.nan
+            else:
+                inverse, norm_inv = None, _inverse_norm1(code, fac, n)
+        except FLOAT_ERRORS:  # a pivot exactly zero, its column zero below it: no LU
             return None
-        if exact:
-            inverse = []  # the columns of A^-1
-            for j in range(n):
-                e = [0.0] * n
-                e[j] = 1.0
-                inverse.append(code.solve(fac, e))
-            norm_inv = max(sum(abs(v) for v in column) for column in inverse)
-        else:
-            inverse, norm_inv = None, _inverse_norm1(code, fac, n)
         rcond = 1.0 / (max(col) * norm_inv) if norm_inv > 0 else 0.0
-        if not math.isfinite(rcond):
+        if not (math.isfinite(rcond) and all(math.isfinite(v) for v in col)):
             rcond = 0.0
         return OneFactor(code, fac, r, D, inverse, rcond, self.sign(fac) if rcond > 0 else 0.0)
 
 
 def _inverse_norm1(code: Code, fac: tuple, n: int) -> float:
     """||A^-1||_1 estimated by one step of Hager's method with Higham's safeguard
-    (:meth:`mechdsl.compiled.lu.LUPlan.inverse_norm1` on one matrix)."""
+    (:meth:`mechdsl.compiled.lu.LUPlan.inverse_norm1` on one matrix); NaN where a solve is
+    not finite."""
     x = code.solve(fac, [1.0 / n] * n)
-    est = sum(abs(v) for v in x)
+    est = math.fsum(abs(v) for v in x)
     z = code.solve_t(fac, [1.0 if v >= 0 else -1.0 for v in x])
     az = [abs(v) for v in z]
+    if not (math.isfinite(est) and all(math.isfinite(v) for v in az)):
+        return math.nan
     big = max(az)
-    if big > sum(z) / n:  # Hager's test: e_j may give more
+    if big > math.fsum(z) / n:  # Hager's test: e_j may give more
         e = [0.0] * n
         e[az.index(big)] = 1.0
-        est = max(est, sum(abs(v) for v in code.solve(fac, e)))
+        est = max(est, math.fsum(abs(v) for v in code.solve(fac, e)))
     alt = [(1.0 if i % 2 == 0 else -1.0) * (1 + i / max(n - 1, 1)) for i in range(n)]
-    return max(est, 2 * sum(abs(v) for v in code.solve(fac, alt)) / (3 * n))
+    last = 2 * math.fsum(abs(v) for v in code.solve(fac, alt)) / (3 * n)
+    return max(est, last) if math.isfinite(est) and math.isfinite(last) else math.nan
 
 
 class OneFactor:
