@@ -690,15 +690,20 @@ def test_an_interrupt_that_a_drawing_library_turns_into_its_own_error_is_an_inte
     assert main(["run", str(SLIDER), "--t1", "0.01", "-o", str(out), "--plot", str(png)]) == 3
 
 
+def _model_reading(folder, table: str):
+    """The seed's slider-crank in ``folder``/m.mech, its drive adding the values of the
+    table file ``table`` (a path relative to the model): the model's data file."""
+    folder.joinpath("m.mech").write_text(SLIDER.read_text().replace(
+        "drive crank_angle: angle(crank) = pi/4 + omega*t",
+        f'drive crank_angle: angle(crank) = pi/4 + omega*t + table("{table}", t)'))
+
+
 def test_an_export_of_a_chunked_sweep_never_overwrites_a_later_variants_input(tmp_path):
     # a sweep cut into chunks is checked against the files of every variant, not only those
     # of the first chunk: variant 2's export would be the table the drive reads
     table = tmp_path / "motion_v2.xdmf"
     table.write_text("0, 0\n1, 0\n2, 0\n")
-    model = tmp_path / "m.mech"
-    model.write_text(SLIDER.read_text().replace(
-        "drive crank_angle: angle(crank) = pi/4 + omega*t",
-        'drive crank_angle: angle(crank) = pi/4 + omega*t + table("motion_v2.xdmf", t)'))
+    _model_reading(tmp_path, "motion_v2.xdmf")
     r = subprocess.run([sys.executable, "-m", "mechdsl", "run", "m.mech", "--t1", "0.01",
                         "--sweep", "l=3,3.5,4", "--chunk", "1", "--export", "motion.xdmf"],
                        capture_output=True, text=True, cwd=tmp_path, timeout=120)
@@ -716,10 +721,7 @@ def test_a_store_is_never_replaced_over_a_file_the_model_reads_inside_it(tmp_pat
     assert r.returncode == 0, r.stderr
     table = store / "motion.csv"
     table.write_text("0, 0\n1, 0\n")
-    model = tmp_path / "m.mech"
-    model.write_text(SLIDER.read_text().replace(
-        "drive crank_angle: angle(crank) = pi/4 + omega*t",
-        'drive crank_angle: angle(crank) = pi/4 + omega*t + table("out.zarr/motion.csv", t)'))
+    _model_reading(tmp_path, "out.zarr/motion.csv")
     r = subprocess.run([sys.executable, "-m", "mechdsl", "run", "m.mech", "--t1", "0.01",
                         "-o", "out.zarr"], capture_output=True, text=True, cwd=tmp_path,
                        timeout=120)

@@ -39,6 +39,7 @@ import numpy as np
 from ..compiled import equations as eq
 from ..compiled.band import BandLU
 from ..compiled.sparse import band_of
+from . import hermite
 from .linalg import Factor
 from .newton import use_sparse
 from .rowwise import allfinite
@@ -54,15 +55,8 @@ def _extrapolate(a: tuple, b: tuple, t: float) -> np.ndarray:
     solved: the Hermite basis of :mod:`mechdsl.solve.hermite` beyond its interval, error
     O(h^6) against the cubic Taylor polynomial's O(h^4)."""
     h = b[0] - a[0]
-    s = (t - a[0]) / h
-    s2 = s * s
-    s3 = s2 * s
-    h3 = s3 * (10.0 + s * (-15.0 + 6.0 * s))
-    h1 = s + s3 * (-6.0 + s * (8.0 - 3.0 * s))
-    h2 = 0.5 * (s2 + s3 * (-3.0 + s * (3.0 - s)))
-    h4 = s3 * (-4.0 + s * (7.0 - 3.0 * s))
-    h5 = 0.5 * s3 * (1.0 + s * (-2.0 + s))
-    return ((1.0 - h3) * a[1] + h3 * b[1] + h * (h1 * a[2] + h4 * b[2])
+    h0, h1, h2, h3, h4, h5 = hermite.basis((t - a[0]) / h)
+    return (h0 * a[1] + h3 * b[1] + h * (h1 * a[2] + h4 * b[2])
             + h * h * (h2 * a[3] + h5 * b[3]))
 
 

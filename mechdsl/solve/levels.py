@@ -22,6 +22,7 @@ from ..compiled.system import System
 from .linalg import solve
 from .options import SolverOptions
 from .rowwise import absmax
+from .single import UNDECIDED, OneState, coarse_march_one
 
 
 def polish(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
@@ -84,8 +85,6 @@ def coarse_march(system: System, start: tuple[np.ndarray, ...], sign: np.ndarray
     if system.one_state is not None and active[0]:
         # a single mechanism: one state per step, on floats (numpy's per-call overhead
         # would be nearly all of its cost)
-        from .single import UNDECIDED, OneState, coarse_march_one
-
         one = OneState(system, system.one_state, D[0, 0], opts)
         out = coarse_march_one(one, (start[0][0], *(a[0] for a in start[1:])), sign[0],
                                times, gap, opts, min_gap)
