@@ -237,3 +237,46 @@ def test_a_sweep_integrates_every_variant_with_its_own_values():
     # a longer pendulum swings slower: at the same instant it has fallen less far
     k = len(res["t"]) // 8
     assert res["rod.phi"][0, k] < res["rod.phi"][1, k] < res["rod.phi"][2, k] < 0
+
+
+def _andrews_run(rtol: float = 1e-8):
+    from mechdsl.solve.dynamic import DynamicRun, _Evaluator
+    from mechdsl.solve.options import SolverOptions
+
+    system = mechdsl.load(EXAMPLES / "andrews.mech").compile()
+    run = DynamicRun(system, SolverOptions(rtol=rtol, atol=rtol * 1e-2))
+    q0 = run._initial_positions()[0]
+    run.ev = _Evaluator(system, run.D[0, 0])
+    return run, q0
+
+
+def test_the_step_correction_agrees_with_the_full_projection_to_its_square():
+    # a state moved off both manifolds by the drift of a step (1e-9 and 1e-7 of the
+    # coordinates' scales): one Gauss-Newton correction each for q and qd lands where the
+    # projection iterated to newton_tol does, to the square of the drift
+    run, q0 = _andrews_run()
+    n = run.ev.n
+    rng = np.random.default_rng(7)
+    qd = rng.normal(size=n)
+    y = np.concatenate((q0, qd))
+    exact = run._project(0.0, y)
+    for drift in (1e-9, 1e-7):
+        moved = exact + drift * rng.normal(size=2 * n) * np.concatenate((run.ev.D, run.ev.D))
+        settled, projected = run._settle(0.0, moved), run._project(0.0, moved)
+        phi, jac = run.ev.phi_jac(0.0, settled[:n])
+        assert np.abs(phi).max() <= 1e-6 * drift  # on the position manifold, to its square
+        assert np.abs(jac @ settled[n:]).max() <= 1e-5 * drift * np.abs(qd).max()
+        assert np.abs(settled - projected).max() <= 1e-5 * drift * np.abs(y).max()
+        assert np.abs(settled - moved).max() >= 0.1 * drift * np.abs(run.ev.D).min()
+        assert not np.array_equal(settled, projected)  # one correction, not the iteration
+
+
+def test_a_drift_beyond_the_tolerance_gets_the_full_projection():
+    # |dz|^2 above atol / 1000: one correction would not do, the iteration runs as at an
+    # output instant (the same state, to the last bit)
+    run, q0 = _andrews_run()
+    n = run.ev.n
+    y = np.concatenate((q0 + 1e-4 * run.ev.D, np.zeros(n)))
+    assert np.array_equal(run._settle(0.0, y), run._project(0.0, y))
+    phi, _ = run.ev.phi_jac(0.0, run._settle(0.0, y)[:n])
+    assert np.abs(phi).max() <= 1e-12

@@ -212,17 +212,30 @@ class System:
     @functools.cached_property
     def scalar_kernels(self):
         """The forward dynamics' one-state kernels on floats
-        (:func:`mechdsl.symbolic.codegen.scalar_kernel`): ``(phi_jac, motion)``, Phi and
-        Phi_q's entries, and Phi_q's entries, gamma, Q and M's entries; None where the model
-        is traced type by type (the group layout) or has no masses."""
+        (:func:`mechdsl.symbolic.codegen.scalar_kernel`): ``(phi_jac, motion, fixed)``.
+        ``phi_jac`` gives Phi and Phi_q's entries. ``motion`` gives the entries of the
+        augmented matrix [M Phi_q^T; Phi_q 0] in the order they are stored (Phi_q's entries,
+        Phi_q^T's, M's) except the constant ones, then its right-hand side [Q; gamma];
+        ``fixed`` holds, over that order, the value of each constant entry and NaN where
+        ``motion`` gives it (a constant is stored once, not at every evaluation). None
+        where the model is traced type by type (the group layout) or has no masses."""
         from ..symbolic.codegen import joint_scalar_kernel, scalar_kernel
 
         f, d = self.fused, self.dynamics
         if f is None or d is None or f.layout != "member" or d.graph is None:
             return None
+        nodes = [*f.jac_nodes, *f.gamma_nodes, *d.mass_nodes, *d.load_nodes]
+        nnz, m, n_mass = len(f.jac_nodes), len(f.gamma_nodes), len(d.mass_nodes)
+        jac, mass = range(nnz), range(nnz + m, nnz + m + n_mass)
+        matrix = [*jac, *jac, *mass]
+        fixed = np.array([nodes[k].value if nodes[k].op == "const" else np.nan
+                          for k in matrix])
+        rhs = [*range(nnz + m + n_mass, len(nodes)), *range(nnz, nnz + m)]
+        order = [k for k, c in zip(matrix, fixed) if np.isnan(c)] + rhs
         return (scalar_kernel(f.graph, [*f.phi_nodes, *f.jac_nodes], "phi_jac"),
                 joint_scalar_kernel([(f.graph, [*f.jac_nodes, *f.gamma_nodes]),
-                                     (d.graph, [*d.load_nodes, *d.mass_nodes])], "motion"))
+                                     (d.graph, [*d.mass_nodes, *d.load_nodes])], "motion",
+                                    order=order), fixed)
 
     @property
     def n_bodies(self) -> int:

@@ -6,12 +6,14 @@ Haug's constrained equations of motion (1989, ch. 6) in the index-1 form: at eve
     [ Phi_q  0       ] [ lambda ] = [ gamma       ]
 
 gives the accelerations and the multipliers, and y = (q, qd) is integrated by the explicit
-Dormand-Prince 8(5,3) method with step-size control (:mod:`mechdsl.solve.explicit`). After
-every step, and at every output instant, the state is projected back onto both constraint
-manifolds: q by Gauss-Newton on Phi(q, t) = 0 with the minimum-norm correction, qd onto
-Phi_q qd = nu. The index-1 form alone lets the constraints drift (|Phi| grows with the run);
-the projections keep them at the solver's tolerance whatever the length of the run, at the
-cost of one factorisation of Phi_q D (scaled) per step. This choice over an implicit method
+Dormand-Prince 8(5,3) method with step-size control (:mod:`mechdsl.solve.explicit`). At
+every output instant the state is projected back onto both constraint manifolds: q by
+Gauss-Newton on Phi(q, t) = 0 with the minimum-norm correction, iterated to newton_tol, then
+qd onto Phi_q qd = nu; after every other step, by one such correction of q and qd together
+(the drift of one step is within the integrator's tolerance, and one correction leaves its
+square). The index-1 form alone lets the constraints drift (|Phi| grows with the run); the
+projections keep them at the solver's tolerance whatever the length of the run, at the cost
+of one factorisation of (Phi_q D)(Phi_q D)^T per step. This choice over an implicit method
 on the index-3 or stabilised index-2 form is argued, with measurements, in docs/dynamics.md.
 
 Drives may move some coordinates (a mixed case): their f(t) enters Phi, nu = f'(t) and
@@ -22,7 +24,10 @@ projection that changes a given velocity is reported as a warning with its size.
 
 from __future__ import annotations
 
+import functools
+import math
 import time
+from typing import Callable
 
 import numpy as np
 
@@ -87,7 +92,7 @@ class DynamicRun(Run):
         # as the kinematics: a step of at most newton_tol leaves an error of its square
         for _ in range(self.opts.max_iterations):
             phi, jac = ev.phi_jac(t, q)
-            dz = _min_norm(jac * D, phi)
+            dz = _min_norm(ev.dgesv, jac * D, phi)
             q -= D * dz
             if not np.abs(dz).max() > self.opts.newton_tol:
                 break
@@ -95,8 +100,37 @@ class DynamicRun(Run):
             raise np.linalg.LinAlgError("the position constraints cannot be closed there "
                                         "(a lock-up)")
         _, jac = ev.phi_jac(t, q)
-        qd -= D * _min_norm(jac * D, jac @ qd - ev.nu(t))
+        qd -= D * _min_norm(ev.dgesv, jac * D, jac @ qd - ev.nu(t))
         return np.concatenate((q, qd))
+
+    def _settle(self, t: float, y: np.ndarray) -> np.ndarray:
+        """(q, qd) after a step, moved onto both manifolds by one Gauss-Newton correction
+        each: dz = (J D)^+ Phi at q, then dv = (J D)^+ (J' qd - nu) with J' = Phi_q at the
+        corrected q, both on one factorisation of S = (J D)(J D)^T (at the corrected q,
+        J' D (J D)^T = S + O(|dz|): the velocity's residual is left at the product of the two
+        drifts). A step's drift is within the integrator's tolerance, and one correction
+        of size |dz| leaves an error of order |dz|^2; where that is not far inside the
+        absolute tolerance (|dz|^2 > atol / 1000, scaled coordinates), the full projection
+        (:meth:`_project`) iterates as at an output instant."""
+        ev = self.ev
+        n = ev.n
+        if ev.m == 0:
+            return y
+        D = ev.D
+        q, qd = y[:n], y[n:]
+        phi, jac = ev.phi_jac(t, q)
+        a = jac * D
+        s = a @ a.T
+        try:
+            dz = a.T @ _solve(ev.dgesv, s, phi)
+            if not np.abs(dz).max() ** 2 <= 1e-3 * self.atol:
+                return self._project(t, y)
+            q = q - D * dz
+            _, jac = ev.phi_jac(t, q)
+            dv = a.T @ _solve(ev.dgesv, s, jac @ qd - ev.nu(t))
+        except np.linalg.LinAlgError:
+            return self._project(t, y)
+        return np.concatenate((q, qd - D * dv))
 
     # -- the run -------------------------------------------------------------------------------
     def run(self) -> Results:
@@ -209,10 +243,6 @@ class DynamicRun(Run):
                 f"constraints: projected onto them, changing {self._coordinate(k)} by "
                 f"{moved[k]:.3g}")
 
-        def rhs(t: float, y: np.ndarray) -> np.ndarray:
-            qdd, _ = self._augmented(t, y[:n], y[n:])
-            return np.concatenate((y[n:], qdd))
-
         V = self.system.n_variants
 
         def record(k: int, t: float, y: np.ndarray) -> None:
@@ -226,7 +256,7 @@ class DynamicRun(Run):
                        "qdd": np.full((K, n), np.nan), "lambda": np.full((K, sysm.m), np.nan)}
         scale = np.concatenate((self.D[v, 0], self.D[v, 0]))
         try:
-            sol = integrate(Problem(rhs, lambda t, y: self._project(t, y)), y0, times,
+            sol = integrate(Problem(self.ev.derivative, self._project, self._settle), y0, times,
                             rtol=self.rtol, atol=self.atol, scale=scale, on_output=record)
         finally:  # an interrupt too: the instants solved are written, complete
             self._write(v)
@@ -293,23 +323,23 @@ def _one(system: System, v: int) -> System:
     return one_variant(system, v)
 
 
-def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a x = b by LAPACK's dgesv through scipy (9 us on Andrews' 41 x 41 system, against
-    np.linalg.solve's 20: its checks cost more than the arithmetic); LinAlgError where a is
-    singular. scipy.linalg is imported by the forward dynamics only (0.1 s of start-up)."""
-    from scipy.linalg.lapack import dgesv
-
+def _solve(dgesv: Callable, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x = b by LAPACK's ``dgesv`` (scipy's, passed in: 9 us on Andrews' 41 x 41 system,
+    against np.linalg.solve's 20, whose checks cost more than the arithmetic; importing it at
+    every call would cost as much again); LinAlgError where a is singular."""
     _, _, x, info = dgesv(a, b)
-    if info != 0 or not np.isfinite(x).all():
+    # x @ x: one call where np.isfinite(x).all() takes two (a solution beyond 1e154, which
+    # overflows it, is no more use than an infinite one)
+    if info != 0 or not math.isfinite(x.ravel() @ x.ravel()):
         raise np.linalg.LinAlgError("singular matrix")
     return x
 
 
-def _min_norm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _min_norm(dgesv: Callable, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The minimum-norm solution of a x = b for a of full row rank: a^T (a a^T)^-1 b (the
     least-squares one where a a^T is singular)."""
     try:
-        return a.T @ _solve(a @ a.T, b)
+        return a.T @ _solve(dgesv, a @ a.T, b)
     except np.linalg.LinAlgError:
         return np.linalg.lstsq(a, b, rcond=None)[0]
 
@@ -323,8 +353,12 @@ class _Evaluator:
     array kernels."""
 
     def __init__(self, system: System, D: np.ndarray, compiled=None) -> None:
+        # scipy.linalg is imported by the forward dynamics only (0.1 s of start-up)
+        from scipy.linalg.lapack import dgesv
+
         from ..symbolic.codegen import scalar_functions
 
+        self.dgesv = dgesv
         self.system, self.D = system, D
         #: the compiled accel of the backend (mechdsl.compiled.native), or None
         self.compiled = compiled
@@ -333,8 +367,7 @@ class _Evaluator:
         kernels = system.scalar_kernels
         self.scalar = kernels is not None
         if self.scalar:
-            self.k_phi_jac, self.k_motion = kernels
-            self.cuts = np.cumsum([len(f.jac_nodes), m, n])
+            self.k_phi_jac, self.k_motion, fixed = kernels
             self.p = [float(np.asarray(x).reshape(-1)[0]) for x in f.params]
             self.F = scalar_functions(f.functions)
             self.pd = [float(np.asarray(x).reshape(-1)[0]) for x in d.params]
@@ -343,11 +376,17 @@ class _Evaluator:
             rows, cols = f.rows, f.cols
             self.jac_flat = rows * n + cols
             big = n + m
-            #: where the entries of Phi_q (twice) and M go in the augmented matrix, in the
-            #: order the motion kernel gives them
-            self.aug = np.concatenate(((rows + n) * big + cols, cols * big + rows + n,
-                                       d.rows * big + d.cols))
+            #: where the entries of Phi_q, Phi_q^T and M go in the augmented matrix
+            aug = np.concatenate(((rows + n) * big + cols, cols * big + rows + n,
+                                  d.rows * big + d.cols))
+            given = np.isnan(fixed)
+            #: where the motion kernel's entries go, in its order; [Q; gamma] follows
+            self.aug = aug[given]
+            self.n_out = len(self.aug) + big
             self.a = np.zeros((big, big))
+            self.a.flat[aug[~given]] = fixed[~given]
+            self.motion = functools.partial(self.k_motion.fn, t=None, p=(self.p, self.pd),
+                                            F=(self.F, self.Fd))
         self.drive_rows = system.drive_rows
 
     def _drives(self, t: float, which: str) -> np.ndarray:
@@ -380,6 +419,33 @@ class _Evaluator:
             out[self.drive_rows] = self._drives(t, "fd")
         return out
 
+    def _scalar_solve(self, t: float, q: list, qd: list) -> np.ndarray:
+        """[qdd; lambda] by the motion kernel on floats and LAPACK."""
+        # fromiter with its dtype: np.array would inspect each float first (1 us more)
+        vals = np.fromiter(self.motion(q, qd, t=t), float, self.n_out)
+        k = len(self.aug)
+        # the same positions every time: the other entries stay zero
+        self.a.flat[self.aug] = vals[:k]
+        rhs = vals[k:]
+        if self.drive_rows.size:
+            rhs[self.n + self.drive_rows] += self._drives(t, "fdd")
+        return _solve(self.dgesv, self.a, rhs)
+
+    def derivative(self, t: float, y: np.ndarray) -> np.ndarray:
+        """y' = (qd, qdd) at y = (q, qd): the integrator's right-hand side."""
+        n = self.n
+        if self.scalar and self.compiled is None:
+            try:
+                listed = y.tolist()
+                out = np.empty(2 * n)
+                out[:n] = y[n:]
+                out[n:] = self._scalar_solve(t, listed[:n], listed[n:])[:n]
+                return out
+            except (ValueError, ZeroDivisionError, OverflowError):
+                pass
+        qdd, _ = self.accelerations(t, y[:n], y[n:])
+        return np.concatenate((y[n:], qdd))
+
     def accelerations(self, t: float, q: np.ndarray, qd: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray]:
         """qdd (n,) and lambda (m,) from [M Phi_q^T; Phi_q 0][qdd; lambda] = [Q; gamma]."""
@@ -392,16 +458,7 @@ class _Evaluator:
             return qdd, lam
         if self.scalar:
             try:
-                out = self.k_motion(q.tolist(), qd.tolist(), t, (self.p, self.pd),
-                                    (self.F, self.Fd))
-                nnz, g_end, q_end = self.cuts
-                jac = out[:nnz]
-                # the same positions every time: the other entries stay zero
-                self.a.flat[self.aug] = jac + jac + out[q_end:]
-                rhs = np.array(out[g_end:q_end] + out[nnz:g_end])
-                if self.drive_rows.size:
-                    rhs[n + self.drive_rows] += self._drives(t, "fdd")
-                sol = _solve(self.a, rhs)
+                sol = self._scalar_solve(t, q.tolist(), qd.tolist())
                 return sol[:n], sol[n:]
             except (ValueError, ZeroDivisionError, OverflowError):
                 pass

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -205,13 +206,24 @@ def scalar_kernel(graph: Graph, outputs: Sequence[Node], name: str = "scalar") -
 
 
 def joint_scalar_kernel(parts: Sequence[tuple[Graph, Sequence[Node]]],
-                        name: str = "scalar", single: bool = False) -> ScalarKernel:
+                        name: str = "scalar", single: bool = False,
+                        order: Sequence[int] | None = None) -> ScalarKernel:
     """One function of floats for the outputs of several graphs, in order:
     ``fn(q, qd, t, p, F)`` with ``p`` and ``F`` sequences of each graph's parameters and
     functions (``p[i][j]``, ``F[i][k]``; with ``single``, one graph's, ``p[j]``); one list
-    of every output."""
+    of every output, or of the outputs at the positions ``order`` lists (in the order the
+    caller stores them, an output as often as it is stored)."""
     body = [f"def {name}(q, qd, t, p, F):"]
     out = []
+    #: across the graphs, a value computed twice (the cosine of a body's angle, read by
+    #: the constraints' graph and the masses') is computed once: ``seen`` maps each
+    #: right-hand side, written with the earlier names, to its name
+    seen: dict[str, str] = {}
+    alias: dict[str, str] = {}
+
+    def earlier(match: re.Match) -> str:
+        return alias.get(match.group(0), match.group(0))
+
     for i, (graph, outputs) in enumerate(parts):
         body.append(f"    p{i}, F{i} = p, F" if single else f"    p{i}, F{i} = p[{i}], F[{i}]")
 
@@ -220,13 +232,26 @@ def joint_scalar_kernel(parts: Sequence[tuple[Graph, Sequence[Node]]],
             return f"p{i}{text[1:]}" if key[0] == "p" else text
 
         lines, names = assignments(graph, outputs, read, prefix=f"g{i}", functions=f"F{i}")
-        body += [f"    {ln}" for ln in lines]
-        out += [names[n.id] for n in outputs]
+        for line in lines:
+            lhs, rhs = line.split(" = ", 1)
+            rhs = _NAME.sub(earlier, rhs)
+            if rhs in seen:
+                alias[lhs] = seen[rhs]
+                continue
+            seen[rhs] = lhs
+            body.append(f"    {lhs} = {rhs}")
+        out += [alias.get(v, v) for v in (names[n.id] for n in outputs)]
+    if order is not None:
+        out = [out[k] for k in order]
     body.append(f"    return [{', '.join(out)}]")
     source = "\n".join(body) + "\n"
     namespace = dict(_SCALAR_NAMESPACE)
     exec(compile(source, f"<mechdsl generated {name}>", "exec"), namespace)  # noqa: S102
     return ScalarKernel(namespace[name], source)
+
+
+#: a name :func:`joint_scalar_kernel` gives a value (its prefix, g0, g1, ..., then the rest)
+_NAME = re.compile(r"\bg\d+\w*")
 
 
 def scalar_functions(functions: Sequence) -> tuple:
