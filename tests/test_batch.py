@@ -110,3 +110,27 @@ def test_a_small_batch_or_a_lost_pivot_goes_to_the_general_path(sweep):
     T = np.broadcast_to(t, (3, len(t)))
     assert batch.settle(system, pred, T, col_scale(system), np.ones(3, bool), OPTS,
                         rates=True) is None
+
+
+def test_the_residual_and_correction_ratio_are_measured_where_the_run_measures_them(sweep):
+    # the settle's own |Phi| at its final positions and Newton's correction against the
+    # motion from each state's predecessor are what the step-by-step path measures
+    from mechdsl.solve.newton import correction_ratio
+
+    system, lengths = sweep
+    t = np.linspace(0.1, 0.3, 30)
+    pred, _ = _crank_states(system, lengths, t, noise=1e-5)
+    before, _ = _crank_states(system, lengths, np.array([0.09]), noise=0.0)
+    T = np.broadcast_to(t, (len(lengths), len(t)))
+    D = col_scale(system)
+    out = batch.settle(system, pred, T, D, np.ones(3, bool), OPTS, rates=False,
+                       before=before[:, 0], floor=1e-5)
+    assert out is not None and out.converged.all()
+    phi = np.abs(eq.constraint_values(system, out.q, T)).max(axis=-1)
+    np.testing.assert_allclose(out.residual, phi, rtol=0, atol=1e-16)
+    assert out.residual.max() <= 1e-14
+    previous = np.concatenate((before, out.q[:, :-1]), axis=1)
+    expected = correction_ratio(out.q, pred, previous, D, 1e-5)
+    np.testing.assert_allclose(out.ratio, expected, rtol=1e-12)
+    # the correction of a 1e-5 perturbation against 0.0067 s of motion: small, not zero
+    assert 1e-5 < out.ratio.max() < 0.1

@@ -42,14 +42,19 @@ from .options import SolverOptions
 @dataclass(frozen=True)
 class Settled:
     """States of a (V, b) batch: positions ``q`` (V, b, n), whether each ``converged``, the
-    factorisation ``fac`` of Phi_q there (rcond, sign, and the generated LU for solves), and,
-    where asked for, the rates ``qd``, ``qdd``."""
+    factorisation ``fac`` of Phi_q there (rcond, sign, and the generated LU for solves),
+    and, where asked for, the rates ``qd``, ``qdd`` and the correction ratio."""
 
     q: np.ndarray
     converged: np.ndarray
     fac: Factor
     qd: np.ndarray | None
     qdd: np.ndarray | None
+    #: max |Phi| of each state at its final position (V, b)
+    residual: np.ndarray
+    #: Newton's correction against the motion (:func:`mechdsl.solve.newton.
+    #: correction_ratio`), (V, b), where a ``base`` or ``before`` was given
+    ratio: np.ndarray | None = None
 
 
 def applies(system: System, states: int) -> bool:
@@ -77,14 +82,23 @@ def _sums(values: np.ndarray, index: np.ndarray, size: int,
     return out
 
 
+def _absmax0(x: np.ndarray) -> np.ndarray:
+    """max |x| over the first (coordinate) axis of an entry-major array: contiguous rows."""
+    return np.maximum.reduce(np.abs(x), axis=0)
+
+
 def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
-           active: np.ndarray, opts: SolverOptions, rates: bool) -> Settled | None:
+           active: np.ndarray, opts: SolverOptions, rates: bool,
+           before: np.ndarray | None = None, floor: float = 0.0) -> Settled | None:
     """Solve Phi(q, T) = 0 from ``pred`` (V, b, n) at times ``T`` (V, b) for the ``active``
     variants (V,), factorise Phi_q at the solutions, estimate the condition, and (with
     ``rates``) solve Phi_q qd = nu and Phi_q qdd = gamma; see the module documentation.
     Convergence as :func:`mechdsl.solve.newton.newton` (the scaled step max |dq / D| at most
     ``newton_tol``, or the error left, |dq_k|^3 / |dq_(k-1)|^2, at most ``newton_error``;
-    abandoned where the step stops contracting). None where it does not apply."""
+    abandoned where the step stops contracting). With ``before`` (V, n), the state before
+    the batch's first instant, each state's correction ratio against the motion from the
+    state before it (:func:`mechdsl.solve.newton.correction_ratio` with ``floor``) is
+    measured too, on the entry-major arrays. None where it does not apply."""
     V, b, n = pred.shape
     if not applies(system, V * b):
         return None
@@ -92,8 +106,10 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
     m = system.m
     P, Fn = fused.params, fused.functions
     X = np.array(pred.T, dtype=float)  # (n, b, V), contiguous
+    X0 = X.copy() if before is not None else None
     Dt = np.ascontiguousarray(np.broadcast_to(D, (V, 1, n)).T)  # (n, 1, V)
     dcols = Dt[p.cols]
+    inv_d = 1.0 / Dt
     drive_rows = system.drive_rows
     which = ("f", "fd", "fdd") if rates else ("f",)
     drives = ([np.asarray(eq.drive_values(system, T, w, (V, b))).T for w in which]
@@ -113,14 +129,17 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
             F, fixed = plan.factor_fn(E[m:])
             if not fixed.all():
                 return None  # a pivot of the fixed order became small: the general path
-            Z = plan.solve_fn(F, -E[:m]) / Dt  # Phi_q dq = -Phi, as dq / D
-            step = np.maximum.reduce(np.abs(Z), axis=0)
+            dq = plan.solve_fn(F, -E[:m])  # Phi_q dq = -Phi
+            step = _absmax0(dq * inv_d)  # max |dq / D|
             solved = np.isfinite(step)
             left = np.where((step < 0.25 * prev) & (prev < np.inf), step**3 / prev**2, np.inf)
             failed |= ~solved & ~done
             live = ~done & ~failed
             moved = live
-            np.copyto(X, X + Dt * Z, where=live[None])
+            if live.all():
+                X += dq
+            else:
+                np.copyto(X, X + dq, where=live[None])
             converged = live & ((step <= opts.newton_tol) | (left <= opts.newton_error))
             done |= converged
             if it >= 3:
@@ -139,6 +158,15 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
             if not fixed.all():
                 return None
             vals = E[m:]
+            phi = E[:m]
+        else:
+            phi = np.asarray(fused.phi(X.T, None, None, P, Fn)).T
+        # the residual |Phi| at the final positions, as the run records it
+        if drives is not None:
+            phi = phi.copy()
+            for i, row in enumerate(drive_rows):
+                phi[row] -= drives[0][i]
+        residual = _absmax0(phi)
         # the condition number is that of the scaled A = R Phi_q D (R the reciprocal row
         # norms of Phi_q D), never formed: A^-1 y = D^-1 Phi_q^-1 R^-1 y and
         # A^-T c = R^-1 Phi_q^-T D^-1 c, with Phi_q's own factors
@@ -190,7 +218,17 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
         rcond = 1.0 / (norm_a * est)
         rcond = np.where(np.isfinite(rcond) & finite, rcond, 0.0)
         sign = np.where(rcond > 0, plan.parity * np.prod(np.sign(F[plan.pivots]), axis=0), 0.0)
+        ratio = None
+        if X0 is not None:
+            # as correction_ratio: |q - pred| / max(|q - base|, |pred - base|, floor), scaled
+            # by D, the base of each instant the state before it
+            B = np.empty_like(X)
+            B[:, 0] = before.T
+            B[:, 1:] = X[:, :-1]
+            moved = np.maximum(_absmax0((X - B) * inv_d), _absmax0((X0 - B) * inv_d))
+            ratio = (_absmax0((X - X0) * inv_d) / np.maximum(moved, floor)).T
     one = np.ones(1)
     fac = Factor(None, rcond.T, sign.T, gen=GeneratedLU(plan, F, np.broadcast_to(one, (V, b, m)),
                                                          np.broadcast_to(one, (V, b, n))))
-    return Settled(X.T, ok.T, fac, None if qd is None else qd.T, None if qdd is None else qdd.T)
+    return Settled(X.T, ok.T, fac, None if qd is None else qd.T, None if qdd is None else qdd.T,
+                   residual.T, ratio)

@@ -258,7 +258,7 @@ class KinematicRun(Run):
     # -- accepting solved states ---------------------------------------------------------------
     def accept(self, q: np.ndarray, t: np.ndarray, rec: np.ndarray, fac: Factor,
                mask: np.ndarray, rates: tuple[np.ndarray, np.ndarray] | None = None,
-               checked: bool = False) -> None:
+               checked: bool = False, residual: np.ndarray | None = None) -> None:
         """Take the solved positions ``q`` (V, c, n) at ``t`` (V, c), with their factorised
         Jacobians, as the new state of the variants in ``mask``; solve velocities and
         accelerations, Phi_q qd = nu and Phi_q qdd = gamma (at every column when an output
@@ -266,7 +266,8 @@ class KinematicRun(Run):
         (qd, qdd) gives them; record the columns whose ``rec`` index (into ``system.times``)
         is not negative. Redundant equations left out of the solve must still hold. With
         ``checked``, the compiled march has measured the residual and stopped at the first
-        value that is not finite, as it went."""
+        value that is not finite, as it went; ``residual`` (V, c), where given, is max |Phi|
+        of each state, measured by the caller (:func:`mechdsl.solve.batch.settle`)."""
         system, opts, rows = self.system, self.opts, self.rows
         order = 2 if self.pose_rates is not None else system.order
         c = q.shape[1]
@@ -285,7 +286,9 @@ class KinematicRun(Run):
             if bad.any():
                 self._split_at_nonfinite(q, t, rec, fac, mask, (qd, qdd), bad)
                 return
-        if not checked:
+        if residual is not None and not self.watched.size:
+            self.residual = max(self.residual, float(residual[mask].max(initial=0.0)))
+        elif not checked:
             with np.errstate(all="ignore"):
                 phi = eq.constraint_values(system, q, t)
             self.residual = max(self.residual, float(np.abs(phi[mask]).max(initial=0.0)))
@@ -460,23 +463,25 @@ class KinematicRun(Run):
                 pred = quintic_hermite(tn[first], qn, qdn, qddn, times[idx])
             rates = None
             done = batch.settle(system, pred, T, D, self.active, opts,
-                                rates=self.pose_rates is not None or system.order >= 1)
+                                rates=self.pose_rates is not None or system.order >= 1,
+                                before=self.q, floor=self.floor)
             if done is not None:
-                q, ok, fac = done.q, done.converged, done.fac
+                q, ok, fac, ratio = done.q, done.converged, done.fac, done.ratio
                 if done.qd is not None:
                     rates = (done.qd, done.qdd)
             else:
                 q, ok, _ = newton(system, pred, T, D, self.active, opts, rows)
                 fac = factor(eq.solver_jacobian(system, q, rows, False), D)
-            previous = np.concatenate((self.q[:, None], q[:, :-1]), axis=1)
-            ratio = correction_ratio(q, pred, previous, D, self.floor)
+                previous = np.concatenate((self.q[:, None], q[:, :-1]), axis=1)
+                ratio = correction_ratio(q, pred, previous, D, self.floor)
             good = (ok & (fac.rcond >= opts.singular_rcond) & (fac.sign == self._signs_before(fac))
                     & (ratio <= opts.branch_ratio)) | ~act
             nacc = _good_prefix(good)
             if nacc:
                 self.accept(q[:, :nacc], T[:, :nacc], idx[:nacc], fac.columns(slice(0, nacc)),
                             self.active.copy(),
-                            None if rates is None else tuple(x[:, :nacc] for x in rates))
+                            None if rates is None else tuple(x[:, :nacc] for x in rates),
+                            residual=None if done is None else done.residual[:, :nacc])
             if not self.active.any():
                 return j0 + nacc
             if nacc < len(idx):
