@@ -273,3 +273,39 @@ def test_singular_samples_give_no_plan():
     # a column the pattern does not have at all
     keep = cols != 5
     assert plan(rows[keep], cols[keep], n, sample[keep]) is None
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_constant_entries_fold_to_the_same_factors_and_solutions(seed):
+    # a third of the entries the same in every matrix (units, as a revolute joint's, and
+    # other values), the rest varying: the code for the entries with the constants folded
+    # solves as LAPACK does, and its factors are the general code's, slot by slot
+    rng = np.random.default_rng(300 + seed)
+    n = 14
+    rows, cols = _random_pattern(rng, n)
+    base, values = _values(rng, rows, (2, 5))
+    pick = rng.choice(len(rows), size=len(rows) // 3, replace=False)
+    const = {int(k): float(rng.choice([1.0, -1.0, 2.5, -0.75])) for k in pick}
+    for k, v in const.items():
+        base[k] = v
+        values[..., k] = v
+    lu = plan(rows, cols, n, base, const)
+    assert lu is not None and lu.raw_factor_fn is not lu.factor_fn
+    entry_major = np.ascontiguousarray(values.T)
+    general, ok = lu.factor_fn(entry_major)
+    folded, ok_folded = lu.raw_factor_fn(entry_major)
+    assert ok.all() and ok_folded.all()
+    np.testing.assert_allclose(folded, general, rtol=1e-13, atol=1e-15)
+    # fewer operations: the folded factorisation is shorter
+    assert lu.raw_factor_fn.__code__.co_code != lu.factor_fn.__code__.co_code
+    A = _dense(rows, cols, n, values)
+    b = rng.normal(size=(2, 5, n))
+    x = lu.raw_solve_fn(folded, np.ascontiguousarray(b.T)).T
+    np.testing.assert_allclose(x, np.linalg.solve(A, b[..., None])[..., 0], rtol=1e-10,
+                               atol=1e-12)
+    z = lu.raw_solve_t_fn(folded, np.ascontiguousarray(b.T)).T
+    np.testing.assert_allclose(z, np.linalg.solve(np.swapaxes(A, -1, -2), b[..., None])[..., 0],
+                               rtol=1e-10, atol=1e-12)
+    # the general solves on the folded factors: the same solutions
+    np.testing.assert_allclose(lu.solve_fn(folded, np.ascontiguousarray(b.T)).T, x,
+                               rtol=1e-12, atol=1e-13)

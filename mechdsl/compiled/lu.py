@@ -71,6 +71,12 @@ class LUPlan:
     #: the back substitution: per step, (pivot row, pivot column, [(U's slot, column)],
     #: pivot slot)
     back: tuple = ()
+    #: factor, solve and solve_t for Phi_q's own entries (not scaled), with what the
+    #: constant entries determine folded in (:func:`_source`); the functions above where
+    #: no entry is constant. Their factors are the same, for either kind of solve.
+    raw_factor_fn: Callable | None = None
+    raw_solve_fn: Callable | None = None
+    raw_solve_t_fn: Callable | None = None
 
     def factor(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The factors of the matrices with entries ``values`` (..., nnz), entry-major with
@@ -131,9 +137,12 @@ class LUPlan:
         return x.T.swapaxes(-1, -2)
 
 
-def plan(rows: np.ndarray, cols: np.ndarray, n: int, sample: np.ndarray) -> LUPlan | None:
+def plan(rows: np.ndarray, cols: np.ndarray, n: int, sample: np.ndarray,
+         constants: dict[int, float] | None = None) -> LUPlan | None:
     """Choose the pivot order on ``sample`` (nnz,) and generate the code; None where the
-    sample is singular in the pattern (no acceptable pivot is left)."""
+    sample is singular in the pattern (no acceptable pivot is left). ``constants`` maps the
+    entries that are the same in every matrix (a revolute joint's -1 and 1) to their
+    values: the code folds what they determine (see :func:`_source`)."""
     rows = [int(r) for r in rows]
     cols = [int(c) for c in cols]
     nnz = len(rows)
@@ -198,8 +207,97 @@ def plan(rows: np.ndarray, cols: np.ndarray, n: int, sample: np.ndarray) -> LUPl
                       {i: [(slot[(pr, c)], slot[(i, c)]) for c in right] for i in below},
                       p_slot))
     slots = next_slot
-    # the generated code works on entry-major arrays (one contiguous row of the batch per
-    # entry) and in place: each operation is one ufunc call writing into existing memory
+    source = _source(steps, n, nnz, slots, order_cols, by_row, slot, {})
+    ns = _compiled(source, "lu")
+    fixed = {int(k): float(v) for k, v in (constants or {}).items()}
+    raw = ns
+    if fixed:
+        raw = _compiled(_source(steps, n, nnz, slots, order_cols, by_row, slot, fixed),
+                        "lu of the entries")
+    back = []
+    for k, (pr, pc, below, right, p_slot) in enumerate(steps):
+        later = set(order_cols[k + 1 :])
+        back.append((pr, pc, [(slot[(pr, c)], c) for c in sorted(by_row[pr] & later)], p_slot))
+    parity = _parity(order_rows) * _parity(order_cols)
+    return LUPlan(n, nnz, slots, np.array(pivot_slots, dtype=np.intp), parity, ns["factor"],
+                  ns["solve"], ns["solve_t"], source, slots - nnz, tuple(steps), tuple(back),
+                  raw["factor"], raw["solve"], raw["solve_t"])
+
+
+def _compiled(source: str, name: str) -> dict:
+    ns = {"empty": np.empty, "ones": np.ones, "maximum": np.maximum, "absolute": np.absolute,
+          "divide": np.divide, "multiply": np.multiply, "subtract": np.subtract, "add": np.add,
+          "negative": np.negative, "copyto": np.copyto}
+    exec(compile(source, f"<mechdsl generated {name}>", "exec"), ns)  # noqa: S102 - generated
+    return ns
+
+
+class _Folding:
+    """The values of the factor slots known when the code is generated: the constant
+    entries, and what elimination computes from constants alone. ``val(k)`` is slot k as
+    the generated code reads it (its value written out, or ``F[k]``)."""
+
+    def __init__(self, fixed: dict[int, float], nnz: int, slots: int) -> None:
+        self.known = dict(fixed)
+        self.known.update({k: 0.0 for k in range(nnz, slots)})  # fill starts at zero
+        #: known slots whose value differs from what the array holds (folded updates)
+        self.stale: set[int] = set()
+
+    def val(self, k: int) -> str:
+        return repr(self.known[k]) if k in self.known else f"F[{k}]"
+
+    def forget(self, k: int, out: list[str]) -> None:
+        """Slot k is about to be computed at run time: the array must hold its value."""
+        if k in self.known:
+            if k in self.stale:
+                out.append(f"    F[{k}] = {self.known[k]!r}")
+            del self.known[k]
+            self.stale.discard(k)
+
+    def set(self, k: int, value: float) -> None:
+        self.known[k] = value
+        self.stale.add(k)
+
+
+def _times(row: str, factor: str, sign: float, target: str, out: list[str]) -> None:
+    """``target -= factor * row`` (sign -1: ``target += ...``) with ``factor`` a value written
+    out or an array: one operation for a unit factor, none for zero, else two."""
+    try:
+        f = float(factor)
+    except ValueError:
+        f = None
+    if f == 0.0:
+        return
+    if f is not None and abs(f) == 1.0:
+        op = "subtract" if f * sign > 0 else "add"
+        out.append(f"    {op}({target}, {row}, out={target})")
+        return
+    out.append(f"    multiply({factor}, {row}, out=tmp)")
+    out.append(f"    {'subtract' if sign > 0 else 'add'}({target}, tmp, out={target})")
+
+
+def _divide(num: str, pivot: str, target: str, out: list[str]) -> None:
+    """``target = num / pivot``: a copy or a negation for a unit pivot written out."""
+    if pivot in ("1.0", "-1.0"):
+        if pivot == "1.0":
+            if num != target:
+                out.append(f"    copyto({target}, {num})")
+        else:
+            out.append(f"    negative({num}, out={target})")
+        return
+    out.append(f"    divide({num}, {pivot}, out={target})")
+
+
+def _source(steps: list, n: int, nnz: int, slots: int, order_cols: list[int],
+            by_row: dict, slot: dict, fixed: dict[int, float]) -> str:
+    """The generated factor, solve and solve_t. They work on entry-major arrays (one
+    contiguous row of the batch per entry) and in place: each operation is one ufunc call
+    writing into existing memory. Where entries are constant (``fixed``), what elimination
+    computes from them alone is computed here, a pivot test on constants is passed (the plan
+    chose that pivot on the same values), and a product with a unit factor is an addition:
+    the slider-crank's factorisation makes 7 calls instead of 20. The factors hold every
+    slot's value all the same, so that the general solves work on them too."""
+    fold = _Folding(fixed, nnz, slots)
     src = ["def factor(At):",
            f"    F = empty(({slots},) + At.shape[1:])",
            f"    F[:{nnz}] = At"]
@@ -207,58 +305,71 @@ def plan(rows: np.ndarray, cols: np.ndarray, n: int, sample: np.ndarray) -> LUPl
         src.append(f"    F[{nnz}:] = 0.0")
     src += ["    tmp = empty(At.shape[1:])", "    ok = ones(At.shape[1:], bool)"]
     for pr, pc, below, right, p_slot in steps:
-        if below:
-            big = (f"maximum.reduce(({', '.join(f'absolute(F[{l}])' for _, l in below)},))"
-                   if len(below) > 1 else f"absolute(F[{below[0][1]}])")
-            src.append(f"    ok &= absolute(F[{p_slot}]) >= {THRESHOLD!r} * {big}")
+        if all(k in fold.known for k in [p_slot] + [l for _, l in below]):
+            pass  # the test on constants: the plan chose this pivot on these values
+        elif below:
+            terms = [f"absolute(F[{l}])" for _, l in below if l not in fold.known]
+            big = (f"maximum.reduce(({', '.join(terms)},))" if len(terms) > 1
+                   else terms[0] if terms else "")
+            known = [abs(fold.known[l]) for _, l in below if l in fold.known]
+            if known:  # the largest constant below, written out
+                big = f"maximum({big}, {max(known)!r})" if big else repr(max(known))
+            pivot = (repr(abs(fold.known[p_slot])) if p_slot in fold.known
+                     else f"absolute(F[{p_slot}])")
+            src.append(f"    ok &= {pivot} >= {THRESHOLD!r} * {big}")
         else:
-            src.append(f"    ok &= F[{p_slot}] != 0")
+            src.append(f"    ok &= {fold.val(p_slot)} != 0")
         for i, l in below:
-            src.append(f"    divide(F[{l}], F[{p_slot}], out=F[{l}])")
+            if l in fold.known and p_slot in fold.known:
+                fold.set(l, fold.known[l] / fold.known[p_slot])
+            else:
+                fold.forget(l, src)
+                _divide(f"F[{l}]", fold.val(p_slot), f"F[{l}]", src)
             for u, t in right[i]:
-                src.append(f"    multiply(F[{l}], F[{u}], out=tmp)")
-                src.append(f"    subtract(F[{t}], tmp, out=F[{t}])")
+                if l in fold.known and u in fold.known:
+                    product = fold.known[l] * fold.known[u]
+                    if t in fold.known:
+                        fold.set(t, fold.known[t] - product)
+                    elif product != 0.0:
+                        src.append(f"    subtract(F[{t}], {product!r}, out=F[{t}])")
+                    continue
+                fold.forget(t, src)
+                if l in fold.known:
+                    _times(f"F[{u}]", fold.val(l), 1.0, f"F[{t}]", src)
+                elif u in fold.known:
+                    _times(f"F[{l}]", fold.val(u), 1.0, f"F[{t}]", src)
+                else:
+                    src.append(f"    multiply(F[{l}], F[{u}], out=tmp)")
+                    src.append(f"    subtract(F[{t}], tmp, out=F[{t}])")
+    for k in sorted(fold.stale):  # the factors hold every slot's value (the sign reads
+        src.append(f"    F[{k}] = {fold.known[k]!r}")  # the pivots, other solves the rest)
     src.append("    return F, ok")
     solve = ["def solve(F, Y):",
              "    tmp = empty(Y.shape[1:])",
              "    X = empty(Y.shape)"]
     for pr, pc, below, right, p_slot in steps:
         for i, l in below:
-            solve.append(f"    multiply(F[{l}], Y[{pr}], out=tmp)")
-            solve.append(f"    subtract(Y[{i}], tmp, out=Y[{i}])")
+            _times(f"Y[{pr}]", fold.val(l), 1.0, f"Y[{i}]", solve)
     for k in reversed(range(n)):
         pr, pc, below, right, p_slot = steps[k]
         later = set(order_cols[k + 1 :])
         for c in sorted(by_row[pr] & later):
-            solve.append(f"    multiply(F[{slot[(pr, c)]}], X[{c}], out=tmp)")
-            solve.append(f"    subtract(Y[{pr}], tmp, out=Y[{pr}])")
-        solve.append(f"    divide(Y[{pr}], F[{p_slot}], out=X[{pc}])")
+            _times(f"X[{c}]", fold.val(slot[(pr, c)]), 1.0, f"Y[{pr}]", solve)
+        _divide(f"Y[{pr}]", fold.val(p_slot), f"X[{pc}]", solve)
     solve.append("    return X")
     # the transposed solve A^T z = c (for the condition estimate): A = E^-1 U with E the
     # elimination's row operations, so U^T w = c forward in pivot order, then z = E^T w
     tsolve = ["def solve_t(F, C):", "    tmp = empty(C.shape[1:])", "    W = empty(C.shape)"]
     for k, (pr, pc, below, right, p_slot) in enumerate(steps):
-        tsolve.append(f"    divide(C[{pc}], F[{p_slot}], out=W[{pr}])")
+        _divide(f"C[{pc}]", fold.val(p_slot), f"W[{pr}]", tsolve)
         later = set(order_cols[k + 1 :])
         for c in sorted(by_row[pr] & later):
-            tsolve.append(f"    multiply(F[{slot[(pr, c)]}], W[{pr}], out=tmp)")
-            tsolve.append(f"    subtract(C[{c}], tmp, out=C[{c}])")
+            _times(f"W[{pr}]", fold.val(slot[(pr, c)]), 1.0, f"C[{c}]", tsolve)
     for pr, pc, below, right, p_slot in reversed(steps):
         for i, l in below:
-            tsolve.append(f"    multiply(F[{l}], W[{i}], out=tmp)")
-            tsolve.append(f"    subtract(W[{pr}], tmp, out=W[{pr}])")
+            _times(f"W[{i}]", fold.val(l), 1.0, f"W[{pr}]", tsolve)
     tsolve.append("    return W")
-    source = "\n\n".join("\n".join(x) for x in (src, solve, tsolve)) + "\n"
-    ns = {"empty": np.empty, "ones": np.ones, "maximum": np.maximum, "absolute": np.absolute,
-          "divide": np.divide, "multiply": np.multiply, "subtract": np.subtract}
-    exec(compile(source, "<mechdsl generated lu>", "exec"), ns)  # noqa: S102 - generated
-    back = []
-    for k, (pr, pc, below, right, p_slot) in enumerate(steps):
-        later = set(order_cols[k + 1 :])
-        back.append((pr, pc, [(slot[(pr, c)], c) for c in sorted(by_row[pr] & later)], p_slot))
-    parity = _parity(order_rows) * _parity(order_cols)
-    return LUPlan(n, nnz, slots, np.array(pivot_slots, dtype=np.intp), parity, ns["factor"],
-                  ns["solve"], ns["solve_t"], source, slots - nnz, tuple(steps), tuple(back))
+    return "\n\n".join("\n".join(x) for x in (src, solve, tsolve)) + "\n"
 
 
 def scalar_lines(lu: LUPlan, a, y, x, c, w, fail: str) -> tuple[list, list, list]:

@@ -186,8 +186,12 @@ class System:
         Jacobian is singular in its pattern."""
         if self.fused is None or self.m != self.n or not 0 < self.n <= MAX_N:
             return None
-        sample = self.fused.evaluate_jac(self.guess[:, None, :])[0, 0]
-        return plan(self.fused.rows, self.fused.cols, self.n, sample)
+        f = self.fused
+        sample = f.evaluate_jac(self.guess[:, None, :])[0, 0]
+        # the member layout's entries are one node each: those that are constants fold
+        constants = ({k: float(d.value) for k, d in enumerate(f.jac_nodes) if d.op == "const"}
+                     if f.layout == "member" else None)
+        return plan(f.rows, f.cols, self.n, sample, constants)
 
     @functools.cached_property
     def native(self):

@@ -126,10 +126,10 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
             if drives is not None:
                 for i, row in enumerate(drive_rows):
                     E[row] -= drives[0][i]
-            F, fixed = plan.factor_fn(E[m:])
+            F, fixed = plan.raw_factor_fn(E[m:])
             if not fixed.all():
                 return None  # a pivot of the fixed order became small: the general path
-            dq = plan.solve_fn(F, -E[:m])  # Phi_q dq = -Phi
+            dq = plan.raw_solve_fn(F, -E[:m])  # Phi_q dq = -Phi
             step = _absmax0(dq * inv_d)  # max |dq / D|
             solved = np.isfinite(step)
             left = np.where((step < 0.25 * prev) & (prev < np.inf), step**3 / prev**2, np.inf)
@@ -154,7 +154,7 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
         vals = E[m:]
         if not (step[moved & ok] <= opts.settled_step).all():
             E = fused.phi_jac(X.T, None, None, P, Fn).T
-            F, fixed = plan.factor_fn(E[m:])
+            F, fixed = plan.raw_factor_fn(E[m:])
             if not fixed.all():
                 return None
             vals = E[m:]
@@ -186,7 +186,7 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
             Y[:, 2] = 0.0
             if drives is not None:
                 Y[drive_rows, 2] = drives[1]
-        S = plan.solve_fn(F[:, None], Y)
+        S = plan.raw_solve_fn(F[:, None], Y)
         x0 = S[:, 0] / Dt
         est = np.maximum(np.abs(x0).sum(axis=0), 2 * np.abs(S[:, 1] / Dt).sum(axis=0) / (3 * n))
         qd = None
@@ -198,7 +198,7 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
                 for k, row in enumerate(drive_rows):
                     gamma[row] += drives[2][k]
             rhs.append(gamma)
-        z = plan.solve_t_fn(F, np.where(x0 >= 0, 1.0, -1.0) / Dt) * inv_r
+        z = plan.raw_solve_t_fn(F, np.where(x0 >= 0, 1.0, -1.0) / Dt) * inv_r
         az = np.abs(z)
         top = np.maximum.reduce(az, axis=0)
         better = top > z.sum(axis=0) / n  # Hager's test: e_j may give more
@@ -210,7 +210,7 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
             rhs.append(e * inv_r)
         qdd = None
         if rhs:
-            S2 = plan.solve_fn(F[:, None], np.stack(rhs, axis=1))
+            S2 = plan.raw_solve_fn(F[:, None], np.stack(rhs, axis=1))
             if rates:
                 qdd = S2[:, 0]
             if better.any():
