@@ -320,7 +320,7 @@ def _continue_one(one, q: np.ndarray, t0: float, opts: SolverOptions
     # Phi(q, t0) + (1 - s) delta = 0 on the drive rows: a drive's target moves from g(q1)
     # at s = 0 to f(t0) at s = 1
     g = [phi[r] for r in one.drive_rows]
-    fac = one.factor(x)
+    fac = one.factor(x, exact=None)  # its sign and its solves: the condition is not asked
     if fac is None:
         return None
     delta = [0.0] * one.m

@@ -144,14 +144,14 @@ class OneState:
         finite = all(math.isfinite(v) for v in x) and all(math.isfinite(v) for v in pred)
         return ratio if finite else math.inf
 
-    def factor(self, x: list, exact: bool = True) -> "OneFactor | None":
+    def factor(self, x: list, exact: bool | None = True) -> "OneFactor | None":
         """Phi_q at ``x`` factorised as :func:`mechdsl.solve.linalg.factor` factorises one
         dense state: A = R Phi_q D (R the reciprocal row norms of Phi_q D) in the fixed-order
         LU, the exact reciprocal 1-norm condition number 1 / (||A||_1 ||A^-1||_1) (A^-1
-        from n solves; without ``exact``, ||A^-1||_1 estimated from four, as the batched
-        generated LU estimates it) and the sign of det Phi_q from the pivots. None where the fixed
-        order does not apply or an entry is not a number (the caller factorises with
-        LAPACK)."""
+        from n solves; with ``exact`` False, ||A^-1||_1 estimated from four, as the batched
+        generated LU estimates it; with None, not measured: rcond is NaN) and the sign of
+        det Phi_q from the pivots. None where the fixed order does not apply or an entry is
+        not a number (the caller factorises with LAPACK)."""
         code, D, n = self.code, self.D, self.n
         try:
             out = code.phi_jac(x, (), 0.0, code.params, code.functions)
@@ -172,6 +172,8 @@ class OneState:
             fac = code.factor(a, THRESHOLD)
             if fac is None:
                 return None
+            if exact is None:
+                return OneFactor(code, fac, r, D, None, math.nan, self.sign(fac))
             if exact:
                 inverse = []  # the columns of A^-1
                 for j in range(n):
@@ -245,9 +247,11 @@ def coarse_march_one(solver: OneState, start: tuple, sign: float, times: np.ndar
     (1, c, n) arrays (None where the march gives up), or :data:`UNDECIDED` where a pivot of
     the fixed order became small. Each state is solved to the full tolerance at once (a
     Newton step on floats costs a few microseconds: the loose tolerance and the batched
-    polish after it would cost more than they save), and checked as the first level of
-    the batched march checks its nodes: regular (``singular_rcond``), else the march
-    gives up."""
+    polish after it would cost more than they save), and checked for the sign of det Phi_q
+    and the correction ratio. Its condition is not estimated here: every instant of the
+    window, these included, is settled after, with its condition measured and checked
+    (:func:`mechdsl.solve.batch.settle`); a node near a singular position only spoils the
+    predictions around it, which those checks then refuse."""
     t = float(start[0])
     q, qd, qdd = (np.asarray(a, dtype=float).tolist() for a in start[1:])
     n = solver.n
@@ -262,7 +266,7 @@ def coarse_march_one(solver: OneState, start: tuple, sign: float, times: np.ndar
         tau = float(times[j]) - t
         pred = [q[i] + tau * (qd[i] + tau / 2 * (qdd[i] + tau / 3 * jerk[i])) for i in range(n)]
         x, ok, _ = solver.newton(pred, [c[j] for c in f], opts.newton_tol)
-        fac = solver.factor(x, exact=False)
+        fac = solver.factor(x, exact=None)
         if fac is None:
             return UNDECIDED
         try:
@@ -274,8 +278,6 @@ def coarse_march_one(solver: OneState, start: tuple, sign: float, times: np.ndar
                 return None
             gap = (j - at) // 2
             continue
-        if not fac.rcond >= opts.singular_rcond:
-            return None
         rates = solver.rates(fac, x, [c[j] for c in fd], [c[j] for c in fdd])
         if rates is None:
             return None
