@@ -380,6 +380,9 @@ def _gauss_newton_one(one, q: np.ndarray, t: float, rows: np.ndarray, opts: Solv
             return None
         done, it = False, 0
         for it in range(1, opts.assembly_max_iterations + 1):
+            if not phi.any():
+                # closed exactly (guesses written from the drawing): the step would be zero
+                return x, True, it
             dz = _lm_step((jac * D * W[:, None])[None], (W * phi)[None])[0]
             size = float(np.abs(dz).max(initial=0.0))
             dz = dz * min(1.0, opts.assembly_max_step / max(size, 1e-300))
