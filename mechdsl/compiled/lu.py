@@ -209,7 +209,8 @@ def plan(rows: np.ndarray, cols: np.ndarray, n: int, sample: np.ndarray,
     slots = next_slot
     source = _source(steps, n, nnz, slots, order_cols, by_row, slot, {})
     ns = _compiled(source, "lu")
-    fixed = {int(k): float(v) for k, v in (constants or {}).items()}
+    # (a constant that is not a number stays in the arrays: the code reads it there)
+    fixed = {int(k): float(v) for k, v in (constants or {}).items() if np.isfinite(v)}
     raw = ns
     if fixed:
         raw = _compiled(_source(steps, n, nnz, slots, order_cols, by_row, slot, fixed),

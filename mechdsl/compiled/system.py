@@ -189,7 +189,8 @@ class System:
         f = self.fused
         sample = f.evaluate_jac(self.guess[:, None, :])[0, 0]
         # the member layout's entries are one node each: those that are constants fold
-        constants = ({k: float(d.value) for k, d in enumerate(f.jac_nodes) if d.op == "const"}
+        constants = ({k: float(d.value) for k, d in enumerate(f.jac_nodes)
+                      if d.op == "const" and np.isfinite(float(d.value))}
                      if f.layout == "member" else None)
         return plan(f.rows, f.cols, self.n, sample, constants)
 
@@ -232,8 +233,8 @@ class System:
         nnz, m, n_mass = len(f.jac_nodes), len(f.gamma_nodes), len(d.mass_nodes)
         jac, mass = range(nnz), range(nnz + m, nnz + m + n_mass)
         matrix = [*jac, *jac, *mass]
-        fixed = np.array([nodes[k].value if nodes[k].op == "const" else np.nan
-                          for k in matrix])
+        fixed = np.array([float(nodes[k].value) if nodes[k].op == "const" else np.nan
+                          for k in matrix], dtype=float)
         rhs = [*range(nnz + m + n_mass, len(nodes)), *range(nnz, nnz + m)]
         order = [k for k, c in zip(matrix, fixed) if np.isnan(c)] + rhs
         return (scalar_kernel(f.graph, [*f.phi_nodes, *f.jac_nodes], "phi_jac"),

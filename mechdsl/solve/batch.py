@@ -89,7 +89,7 @@ def _absmax0(x: np.ndarray) -> np.ndarray:
 
 def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
            active: np.ndarray, opts: SolverOptions, rates: bool,
-           before: np.ndarray | None = None, floor: float = 0.0) -> Settled | None:
+           before: np.ndarray | None = None, floor: float | None = None) -> Settled | None:
     """Solve Phi(q, T) = 0 from ``pred`` (V, b, n) at times ``T`` (V, b) for the ``active``
     variants (V,), factorise Phi_q at the solutions, estimate the condition, and (with
     ``rates``) solve Phi_q qd = nu and Phi_q qdd = gamma; see the module documentation.
@@ -98,8 +98,11 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
     abandoned where the step stops contracting). With ``before`` (V, n), the state before
     the batch's first instant, each state's correction ratio against the motion from the
     state before it (:func:`mechdsl.solve.newton.correction_ratio` with ``floor``) is
-    measured too, on the entry-major arrays. None where it does not apply."""
+    measured too, on the entry-major arrays (``floor`` required with it: a state that did
+    not move would make 0 / 0). None where it does not apply."""
     V, b, n = pred.shape
+    if before is not None and not (floor or 0) > 0:
+        raise ValueError("settle: the correction ratio needs a positive floor")
     if not applies(system, V * b):
         return None
     plan, fused, p = system.lu, system.fused, system.pattern

@@ -106,9 +106,9 @@ class DynamicRun(Run):
     def _settle(self, t: float, y: np.ndarray) -> np.ndarray:
         """(q, qd) after a step, moved onto both manifolds by one Gauss-Newton correction
         each: dz = (J D)^+ Phi at q, then dv = (J D)^+ (J' qd - nu) with J' = Phi_q at the
-        corrected q, both on one factorisation of S = (J D)(J D)^T (at the corrected q,
-        J' D (J D)^T = S + O(|dz|): the velocity's residual is left at the product of the two
-        drifts). A step's drift is within the integrator's tolerance, and one correction
+        corrected q, both on one Cholesky factorisation of S = (J D)(J D)^T (at the
+        corrected q, J' D (J D)^T = S + O(|dz|): the velocity's residual is left at the
+        product of the two drifts). A step's drift is within the integrator's tolerance, and one correction
         of size |dz| leaves an error of order |dz|^2; where that is not far inside the
         absolute tolerance (|dz|^2 > atol / 1000, scaled coordinates), the full projection
         (:meth:`_project`) iterates as at an output instant."""
@@ -120,15 +120,18 @@ class DynamicRun(Run):
         q, qd = y[:n], y[n:]
         phi, jac = ev.phi_jac(t, q)
         a = jac * D
-        s = a @ a.T
-        try:
-            dz = a.T @ _solve(ev.dgesv, s, phi)
-            if not np.abs(dz).max() ** 2 <= 1e-3 * self.atol:
-                return self._project(t, y)
-            q = q - D * dz
-            _, jac = ev.phi_jac(t, q)
-            dv = a.T @ _solve(ev.dgesv, s, jac @ qd - ev.nu(t))
-        except np.linalg.LinAlgError:
+        # S = (J D)(J D)^T is symmetric positive definite where J has full rank: Cholesky,
+        # once for both corrections
+        c, info = ev.dpotrf(a @ a.T, lower=1)
+        if info != 0:
+            return self._project(t, y)
+        dz = a.T @ ev.dpotrs(c, phi, lower=1)[0]
+        if not np.abs(dz).max() ** 2 <= 1e-3 * self.atol:
+            return self._project(t, y)
+        q = q - D * dz
+        _, jac = ev.phi_jac(t, q)
+        dv = a.T @ ev.dpotrs(c, jac @ qd - ev.nu(t), lower=1)[0]
+        if not (math.isfinite(dz @ dz) and math.isfinite(dv @ dv)):
             return self._project(t, y)
         return np.concatenate((q, qd - D * dv))
 
@@ -256,7 +259,8 @@ class DynamicRun(Run):
                        "qdd": np.full((K, n), np.nan), "lambda": np.full((K, sysm.m), np.nan)}
         scale = np.concatenate((self.D[v, 0], self.D[v, 0]))
         try:
-            sol = integrate(Problem(self.ev.derivative, self._project, self._settle), y0, times,
+            sol = integrate(Problem(self.ev.derivative, self._project, self._settle,
+                                    _velocities_carried(n)), y0, times,
                             rtol=self.rtol, atol=self.atol, scale=scale, on_output=record)
         finally:  # an interrupt too: the instants solved are written, complete
             self._write(v)
@@ -314,6 +318,18 @@ class DynamicRun(Run):
                 f"{what}; give every free body a mass and an inertia")
 
 
+def _velocities_carried(n: int) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """y' = (qd, qdd): after a correction of y, its first half is the corrected qd exactly;
+    qdd is kept from before it (:class:`mechdsl.solve.explicit.Problem`'s ``carry``)."""
+
+    def carry(y: np.ndarray, f: np.ndarray) -> np.ndarray:
+        out = f.copy()
+        out[:n] = y[n:]
+        return out
+
+    return carry
+
+
 def _one(system: System, v: int) -> System:
     """The system as variant ``v`` alone sees it (its params), for the outputs."""
     if system.n_variants == 1:
@@ -329,7 +345,7 @@ def _solve(dgesv: Callable, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     every call would cost as much again); LinAlgError where a is singular."""
     _, _, x, info = dgesv(a, b)
     # x @ x: one call where np.isfinite(x).all() takes two (a solution beyond 1e154, which
-    # overflows it, is no more use than an infinite one)
+    # overflows it and is reported as singular, is no more use than an infinite one)
     if info != 0 or not math.isfinite(x.ravel() @ x.ravel()):
         raise np.linalg.LinAlgError("singular matrix")
     return x
@@ -354,11 +370,11 @@ class _Evaluator:
 
     def __init__(self, system: System, D: np.ndarray, compiled=None) -> None:
         # scipy.linalg is imported by the forward dynamics only (0.1 s of start-up)
-        from scipy.linalg.lapack import dgesv
+        from scipy.linalg.lapack import dgesv, dpotrf, dpotrs
 
         from ..symbolic.codegen import scalar_functions
 
-        self.dgesv = dgesv
+        self.dgesv, self.dpotrf, self.dpotrs = dgesv, dpotrf, dpotrs
         self.system, self.D = system, D
         #: the compiled accel of the backend (mechdsl.compiled.native), or None
         self.compiled = compiled

@@ -231,6 +231,8 @@ class OneFactor:
         """As the batched solver's factorisation of a (1, 1) batch: Phi_q^-1 = D A^-1 R
         (of an exact factorisation)."""
         n, D, r, inv = len(self.D), self.D, self.r, self.inverse
+        if inv is None:
+            raise ValueError("batched() needs the exact factorisation (factor(x, exact=True))")
         phi_q_inv = np.array([[D[i] * inv[j][i] * r[j] for j in range(n)] for i in range(n)])
         return Factor(phi_q_inv[None, None], np.array([[self.rcond]]),
                       np.array([[self.sign]]))
