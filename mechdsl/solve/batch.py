@@ -135,7 +135,8 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
             dq = plan.raw_solve_fn(F, -E[:m])  # Phi_q dq = -Phi
             step = _absmax0(dq * inv_d)  # max |dq / D|
             solved = np.isfinite(step)
-            left = np.where((step < 0.25 * prev) & (prev < np.inf), step**3 / prev**2, np.inf)
+            left = np.where((step < 0.25 * prev) & (prev < np.inf),
+                            step * step * step / (prev * prev), np.inf)
             failed |= ~solved & ~done
             live = ~done & ~failed
             moved = live
@@ -196,7 +197,7 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
         rhs = []
         if rates:
             qd = S[:, 2]
-            gamma = np.array(fused.gamma(X.T, qd.T, None, P, Fn).T)
+            gamma = np.asarray(fused.gamma(X.T, qd.T, None, P, Fn)).T  # fresh: added to in place
             if drives is not None:
                 for k, row in enumerate(drive_rows):
                     gamma[row] += drives[2][k]

@@ -108,10 +108,10 @@ class DynamicRun(Run):
         each: dz = (J D)^+ Phi at q, then dv = (J D)^+ (J' qd - nu) with J' = Phi_q at the
         corrected q, both on one Cholesky factorisation of S = (J D)(J D)^T (at the
         corrected q, J' D (J D)^T = S + O(|dz|): the velocity's residual is left at the
-        product of the two drifts). A step's drift is within the integrator's tolerance, and one correction
-        of size |dz| leaves an error of order |dz|^2; where that is not far inside the
-        absolute tolerance (|dz|^2 > atol / 1000, scaled coordinates), the full projection
-        (:meth:`_project`) iterates as at an output instant."""
+        product of the two drifts). A step's drift is within the integrator's tolerance,
+        and one correction of size |dz| leaves an error of order |dz|^2; where that is not
+        far inside the absolute tolerance (|dz|^2 > atol / 1000, scaled coordinates), the
+        full projection (:meth:`_project`) iterates as at an output instant."""
         ev = self.ev
         n = ev.n
         if ev.m == 0:

@@ -50,7 +50,8 @@ def polish(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
             jac = eq.jacobian_for(system, vals, rows)
             dq, solved = solve(jac, -phi if len(rows) == system.m else -phi[..., rows])
             step = absmax(dq / D)
-            left = np.where((step < 0.25 * prev) & (prev < np.inf), step**3 / prev**2, np.inf)
+            left = np.where((step < 0.25 * prev) & (prev < np.inf),
+                            step * step * step / (prev * prev), np.inf)
             live = ~done & solved
             # a live state's step is finite (solved); where() keeps the others' NaN out
             q += np.where(live[..., None], dq, 0.0)

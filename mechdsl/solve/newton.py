@@ -82,7 +82,8 @@ def newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray, active: 
         # the error left after this step is about |dq_k|^3 / |dq_{k-1}|^2, so the step that
         # would only confirm convergence is saved (Deuflhard 2004, sec. 2.1)
         with np.errstate(all="ignore"):
-            left = np.where((step < 0.25 * prev) & (prev < np.inf), step**3 / prev**2, np.inf)
+            left = np.where((step < 0.25 * prev) & (prev < np.inf),
+                            step * step * step / (prev * prev), np.inf)
             if stale:
                 theta = step / prev
                 left = np.where((theta < opts.reuse_ratio) & (prev < np.inf),

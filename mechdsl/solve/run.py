@@ -541,7 +541,7 @@ class KinematicRun(Run):
         act = self.active[:, None]
         if (_undefined_drives(system, T) & act).any():
             return None
-        done = batch.settle(system, pred, T, D, self.active, opts, rates=True)
+        done = _settle_in_batches(system, pred, T, D, self.active, opts, self._batch_cap())
         if done is not None:
             q, ok, fac = done.q, done.converged, done.fac
         else:
@@ -798,6 +798,30 @@ class KinematicRun(Run):
     def _signs_before(self, fac: Factor) -> np.ndarray:
         """(V, b): the sign of det Phi_q at the state before each column of a block."""
         return np.concatenate((self.sign[:, None], fac.sign[:, :-1]), axis=1)
+
+
+def _settle_in_batches(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
+                       active: np.ndarray, opts: SolverOptions, cap: int):
+    """:func:`mechdsl.solve.batch.settle` of a level, ``cap`` instants at a time (a batch
+    that fits the processor's cache, as the last step's), joined; None where it does not
+    apply to some batch."""
+    c = pred.shape[1]
+    if c <= cap:
+        return batch.settle(system, pred, T, D, active, opts, rates=True)
+    parts = []
+    for j in range(0, c, cap):
+        part = batch.settle(system, pred[:, j : j + cap], T[:, j : j + cap], D, active, opts,
+                            rates=True)
+        if part is None:
+            return None
+        parts.append(part)
+    cat = np.concatenate
+    fac = Factor(None, cat([p.fac.rcond for p in parts], axis=1),
+                 cat([p.fac.sign for p in parts], axis=1))
+    return batch.Settled(cat([p.q for p in parts], axis=1),
+                         cat([p.converged for p in parts], axis=1), fac,
+                         cat([p.qd for p in parts], axis=1), cat([p.qdd for p in parts], axis=1),
+                         cat([p.residual for p in parts], axis=1))
 
 
 #: The solver methods by name: a compiled system is solved by one of them
