@@ -89,7 +89,8 @@ def _absmax0(x: np.ndarray) -> np.ndarray:
 
 def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
            active: np.ndarray, opts: SolverOptions, rates: bool,
-           before: np.ndarray | None = None, floor: float | None = None) -> Settled | None:
+           before: np.ndarray | None = None, floor: float | None = None,
+           drive_values: tuple[np.ndarray, ...] | None = None) -> Settled | None:
     """Solve Phi(q, T) = 0 from ``pred`` (V, b, n) at times ``T`` (V, b) for the ``active``
     variants (V,), factorise Phi_q at the solutions, estimate the condition, and (with
     ``rates``) solve Phi_q qd = nu and Phi_q qdd = gamma; see the module documentation.
@@ -99,7 +100,8 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
     the batch's first instant, each state's correction ratio against the motion from the
     state before it (:func:`mechdsl.solve.newton.correction_ratio` with ``floor``) is
     measured too, on the entry-major arrays (``floor`` required with it: a state that did
-    not move would make 0 / 0). None where it does not apply."""
+    not move would make 0 / 0). ``drive_values``: the drives' f, f', f'' at ``T``
+    (V, b, drives each) where the caller has them. None where it does not apply."""
     V, b, n = pred.shape
     if before is not None and not (floor or 0) > 0:
         raise ValueError("settle: the correction ratio needs a positive floor")
@@ -115,8 +117,12 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
     inv_d = 1.0 / Dt
     drive_rows = system.drive_rows
     which = ("f", "fd", "fdd") if rates else ("f",)
-    drives = ([np.asarray(eq.drive_values(system, T, w, (V, b))).T for w in which]
-              if system.drive_functions else None)
+    if not system.drive_functions:
+        drives = None
+    elif drive_values is not None:
+        drives = [v.T for v in drive_values[: len(which)]]
+    else:
+        drives = [np.asarray(eq.drive_values(system, T, w, (V, b))).T for w in which]
     done = np.zeros((b, V), bool)
     done |= ~active[None, :]
     failed = np.zeros((b, V), bool)

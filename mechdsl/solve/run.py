@@ -456,7 +456,8 @@ class KinematicRun(Run):
         while j0 < end:
             idx = np.arange(j0, min(j0 + cap, end))
             T = np.where(act, times[idx][None, :], self.t[:, None])
-            if (_undefined_drives(system, T) & act).any():
+            values = _drive_values(system, T)
+            if (_undefined_drives(system, T, values) & act).any():
                 return j0
             _, tn, qn, qdn, qddn = nodes
             with np.errstate(all="ignore"):
@@ -464,7 +465,7 @@ class KinematicRun(Run):
             rates = None
             done = batch.settle(system, pred, T, D, self.active, opts,
                                 rates=self.pose_rates is not None or system.order >= 1,
-                                before=self.q, floor=self.floor)
+                                before=self.q, floor=self.floor, drive_values=values)
             if done is not None:
                 q, ok, fac, ratio = done.q, done.converged, done.fac, done.ratio
                 if done.qd is not None:
@@ -595,12 +596,12 @@ class KinematicRun(Run):
         while k < K:
             end = min(K, k + step)
             T = np.broadcast_to(times[k - 1 : end], (V, end - k + 1))
-            if (_undefined_drives(system, T) & self.active[:, None]).any():
+            values = _drive_values(system, T)
+            if (_undefined_drives(system, T, values) & self.active[:, None]).any():
                 return k
             fd = np.zeros((len(live), end - k + 1, 3, len(system.drive_rows)))
-            for i, which in enumerate(("f", "fd", "fdd")):
-                if system.drive_functions:
-                    fd[:, :, i] = eq.drive_values(system, T, which, T.shape)[live]
+            for i, v in enumerate(values or ()):
+                fd[:, :, i] = v[live]
             L, C = len(live), end - k + 1
             # every column before a variant's status is written by the march; only those
             # are read
@@ -907,11 +908,21 @@ def _wants_native(system: System, opts: SolverOptions) -> bool:
         system.n_variants * len(system.times) >= opts.compiled_from and native.available())
 
 
-def _undefined_drives(system: System, T: np.ndarray) -> np.ndarray:
-    """(V, b): where some drive's function, or its derivatives, is not a finite number."""
+def _undefined_drives(system: System, T: np.ndarray,
+                      values: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
+    """(V, b): where some drive's function, or its derivatives, is not a finite number
+    (``values``: f, f', f'' at ``T`` where the caller has them, from :func:`_drive_values`)."""
     if not system.drive_functions:
         return np.zeros(T.shape, bool)
     ok = np.ones(T.shape, bool)
-    for which in ("f", "fd", "fdd"):
-        ok &= np.isfinite(eq.drive_values(system, T, which, T.shape)).all(axis=-1)
+    for v in values or _drive_values(system, T):
+        ok &= np.isfinite(v).all(axis=-1)
     return ~ok
+
+
+def _drive_values(system: System, T: np.ndarray) -> tuple[np.ndarray, ...] | None:
+    """f, f', f'' of every drive at ``T`` (V, b), each (V, b, drives); None without drives."""
+    if not system.drive_functions:
+        return None
+    return tuple(np.asarray(eq.drive_values(system, T, w, T.shape))
+                 for w in ("f", "fd", "fdd"))
