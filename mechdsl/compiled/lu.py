@@ -226,6 +226,7 @@ def plan(rows: np.ndarray, cols: np.ndarray, n: int, sample: np.ndarray,
 
 
 def _compiled(source: str, name: str) -> dict:
+    """The generated ``source`` run in a namespace of the numpy functions it calls."""
     ns = {"empty": np.empty, "ones": np.ones, "maximum": np.maximum, "absolute": np.absolute,
           "divide": np.divide, "multiply": np.multiply, "subtract": np.subtract, "add": np.add,
           "negative": np.negative, "copyto": np.copyto}
