@@ -261,9 +261,9 @@ class _Folding:
         self.stale.add(k)
 
 
-def _times(row: str, factor: str, sign: float, target: str, out: list[str]) -> None:
-    """``target -= factor * row`` (sign -1: ``target += ...``) with ``factor`` a value written
-    out or an array: one operation for a unit factor, none for zero, else two."""
+def _times(row: str, factor: str, target: str, out: list[str]) -> None:
+    """``target -= factor * row`` with ``factor`` a value written out or an array: one
+    operation for a unit factor, none for zero, else two."""
     try:
         f = float(factor)
     except ValueError:
@@ -271,11 +271,11 @@ def _times(row: str, factor: str, sign: float, target: str, out: list[str]) -> N
     if f == 0.0:
         return
     if f is not None and abs(f) == 1.0:
-        op = "subtract" if f * sign > 0 else "add"
+        op = "subtract" if f > 0 else "add"
         out.append(f"    {op}({target}, {row}, out={target})")
         return
     out.append(f"    multiply({factor}, {row}, out=tmp)")
-    out.append(f"    {'subtract' if sign > 0 else 'add'}({target}, tmp, out={target})")
+    out.append(f"    subtract({target}, tmp, out={target})")
 
 
 def _divide(num: str, pivot: str, target: str, out: list[str]) -> None:
@@ -337,9 +337,9 @@ def _source(steps: list, n: int, nnz: int, slots: int, order_cols: list[int],
                     continue
                 fold.forget(t, src)
                 if l in fold.known:
-                    _times(f"F[{u}]", fold.val(l), 1.0, f"F[{t}]", src)
+                    _times(f"F[{u}]", fold.val(l), f"F[{t}]", src)
                 elif u in fold.known:
-                    _times(f"F[{l}]", fold.val(u), 1.0, f"F[{t}]", src)
+                    _times(f"F[{l}]", fold.val(u), f"F[{t}]", src)
                 else:
                     src.append(f"    multiply(F[{l}], F[{u}], out=tmp)")
                     src.append(f"    subtract(F[{t}], tmp, out=F[{t}])")
@@ -351,12 +351,12 @@ def _source(steps: list, n: int, nnz: int, slots: int, order_cols: list[int],
              "    X = empty(Y.shape)"]
     for pr, pc, below, right, p_slot in steps:
         for i, l in below:
-            _times(f"Y[{pr}]", fold.val(l), 1.0, f"Y[{i}]", solve)
+            _times(f"Y[{pr}]", fold.val(l), f"Y[{i}]", solve)
     for k in reversed(range(n)):
         pr, pc, below, right, p_slot = steps[k]
         later = set(order_cols[k + 1 :])
         for c in sorted(by_row[pr] & later):
-            _times(f"X[{c}]", fold.val(slot[(pr, c)]), 1.0, f"Y[{pr}]", solve)
+            _times(f"X[{c}]", fold.val(slot[(pr, c)]), f"Y[{pr}]", solve)
         _divide(f"Y[{pr}]", fold.val(p_slot), f"X[{pc}]", solve)
     solve.append("    return X")
     # the transposed solve A^T z = c (for the condition estimate): A = E^-1 U with E the
@@ -366,10 +366,10 @@ def _source(steps: list, n: int, nnz: int, slots: int, order_cols: list[int],
         _divide(f"C[{pc}]", fold.val(p_slot), f"W[{pr}]", tsolve)
         later = set(order_cols[k + 1 :])
         for c in sorted(by_row[pr] & later):
-            _times(f"W[{pr}]", fold.val(slot[(pr, c)]), 1.0, f"C[{c}]", tsolve)
+            _times(f"W[{pr}]", fold.val(slot[(pr, c)]), f"C[{c}]", tsolve)
     for pr, pc, below, right, p_slot in reversed(steps):
         for i, l in below:
-            _times(f"W[{i}]", fold.val(l), 1.0, f"W[{pr}]", tsolve)
+            _times(f"W[{i}]", fold.val(l), f"W[{pr}]", tsolve)
     tsolve.append("    return W")
     return "\n\n".join("\n".join(x) for x in (src, solve, tsolve)) + "\n"
 

@@ -17,6 +17,7 @@ from .linalg import factor
 from .mobility import Mobility, analyse, count_check, square
 from .newton import correction_ratio, newton, use_sparse
 from .options import SolverOptions
+from .single import FLOAT_ERRORS, OneState
 
 
 @dataclass(frozen=True)
@@ -197,8 +198,6 @@ def gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
     if rows.size == 0:
         return q.copy(), np.ones(V, bool), 0
     if system.one_state is not None:
-        from .single import OneState
-
         one = OneState(system, system.one_state, D[0, 0], opts)
         out = _gauss_newton_one(one, q[0, 0], float(t[0, 0]), rows, opts)
         if out is not None:
@@ -267,8 +266,6 @@ def _continue_drives(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray
     if system.drive_rows.size == 0 or not ok.any():
         return q, ok, 0
     if system.one_state is not None and len(rows) == system.n:
-        from .single import OneState
-
         done = _continue_one(OneState(system, system.one_state, D[0, 0], opts), q[0, 0],
                              float(t[0, 0]), opts)
         if done is not None:
@@ -315,7 +312,7 @@ def _continue_one(one, q: np.ndarray, t0: float, opts: SolverOptions
     f = [c[0] for c in one.drives(np.array([t0]), ("f",))[0]]
     try:
         phi, _ = one.residual(x, [0.0] * len(f))
-    except (ArithmeticError, ValueError):
+    except FLOAT_ERRORS:
         return None
     # Phi(q, t0) + (1 - s) delta = 0 on the drive rows: a drive's target moves from g(q1)
     # at s = 0 to f(t0) at s = 1
@@ -332,7 +329,7 @@ def _continue_one(one, q: np.ndarray, t0: float, opts: SolverOptions
         s_new = min(1.0, s + ds)
         try:
             tangent = fac.solve(delta)  # Phi_q dq/ds = delta
-        except (ArithmeticError, ValueError):
+        except FLOAT_ERRORS:
             return None
         pred = [xi + (s_new - s) * ti if math.isfinite(ti) else xi
                 for xi, ti in zip(x, tangent)]
@@ -409,6 +406,6 @@ def _gauss_newton_one(one, q: np.ndarray, t: float, rows: np.ndarray, opts: Solv
                 # nil
                 done = float(np.abs(W * phi).max(initial=0.0)) <= opts.assembly_residual
                 break
-    except (ArithmeticError, ValueError):
+    except FLOAT_ERRORS:
         return None
     return x, done, it

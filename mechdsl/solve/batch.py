@@ -53,7 +53,7 @@ class Settled:
     #: max |Phi| of each state at its final position (V, b)
     residual: np.ndarray
     #: Newton's correction against the motion (:func:`mechdsl.solve.newton.
-    #: correction_ratio`), (V, b), where a ``base`` or ``before`` was given
+    #: correction_ratio`), (V, b), where ``before`` was given
     ratio: np.ndarray | None = None
 
 
@@ -62,8 +62,6 @@ def applies(system: System, states: int) -> bool:
     f = system.fused
     return (system.lu is not None and f is not None and f.layout == "member"
             and system.m == system.n and states >= LU_BATCH)
-
-
 
 
 def _sums(values: np.ndarray, index: np.ndarray, size: int,
@@ -235,8 +233,8 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
             B = np.empty_like(X)
             B[:, 0] = before.T
             B[:, 1:] = X[:, :-1]
-            moved = np.maximum(_absmax0((X - B) * inv_d), _absmax0((X0 - B) * inv_d))
-            ratio = (_absmax0((X - X0) * inv_d) / np.maximum(moved, floor)).T
+            motion = np.maximum(_absmax0((X - B) * inv_d), _absmax0((X0 - B) * inv_d))
+            ratio = (_absmax0((X - X0) * inv_d) / np.maximum(motion, floor)).T
     one = np.ones(1)
     fac = Factor(None, rcond.T, sign.T, gen=GeneratedLU(plan, F, np.broadcast_to(one, (V, b, m)),
                                                          np.broadcast_to(one, (V, b, n))))

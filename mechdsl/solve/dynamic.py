@@ -74,11 +74,6 @@ class DynamicRun(Run):
         self.atol = self.opts.atol or tol.get("atol", ATOL)
 
     # -- the equations of one variant --------------------------------------------------------
-    def _augmented(self, t: float, q: np.ndarray, qd: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray]:
-        """qdd and lambda of the current variant at (t, q, qd) from the index-1 system."""
-        return self.ev.accelerations(t, q, qd)
-
     def _project(self, t: float, y: np.ndarray) -> np.ndarray:
         """(q, qd) moved onto Phi(q, t) = 0 and Phi_q qd = nu: Gauss-Newton with the
         minimum-norm correction in coordinates scaled by D, dz = -(J D)^+ Phi, then
@@ -234,7 +229,7 @@ class DynamicRun(Run):
         qd_given = np.array(d.v0[0], dtype=float)
         try:
             y0 = self._project(t0, np.concatenate((q0, qd_given)))
-            self._augmented(t0, y0[:n], y0[n:])
+            self.ev.accelerations(t0, y0[:n], y0[n:])  # singular at the start?
         except np.linalg.LinAlgError:
             self.failures.append(self._singular_message(v, t0))
             return "failed"

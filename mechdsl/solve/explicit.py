@@ -184,8 +184,8 @@ def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: flo
                     yo = dense((te - t) / h)
                     emit(k_next, te, project(te, yo) if project is not None else yo)
                     k_next += 1
+            at_output = k_next < len(t_eval) and t_eval[k_next] <= t_new
             if project is not None:
-                at_output = k_next < len(t_eval) and t_eval[k_next] <= t_new
                 moved = (project if at_output else settle)(t_new, y_new)
                 # a projection within the tolerance (the drift of one step) keeps the
                 # derivative of the step's end; a larger one evaluates it anew
@@ -194,7 +194,7 @@ def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: flo
                 elif problem.carry is not None:
                     f_new = problem.carry(moved, f_new)
                 y_new = moved
-            if k_next < len(t_eval) and t_eval[k_next] <= t_new:
+            if at_output:
                 emit(k_next, t_new, y_new.copy())
                 k_next += 1
             factor = (_MAX_FACTOR if err == 0 else
@@ -249,6 +249,3 @@ def _interpolant(f, K: np.ndarray, t: float, h: float, y: np.ndarray, y_new: np.
         return out + y
 
     return at
-
-
-

@@ -57,7 +57,7 @@ from .newton import correction_ratio, newton, use_sparse
 from .options import SolverOptions
 from .reduce import reduce_results
 from .rowwise import allfinite
-from .single import OneState
+from .single import FLOAT_ERRORS, OneState
 from .singular import singular_step
 
 __all__ = ["KinematicRun", "METHODS", "SolverOptions", "simulate"]
@@ -205,7 +205,7 @@ class KinematicRun(Run):
                     # (not max() alone: it passes over a NaN that is not first)
                     res = (max((abs(v) for v in phi), default=0.0)
                            if all(v == v for v in phi) else float("nan"))
-                except (ArithmeticError, ValueError):
+                except FLOAT_ERRORS:
                     res = float("nan")
                 both = solver.rates(one, x, fd, fdd) if one.rcond > 0 else None
                 if both is not None and res < float("inf"):
@@ -540,9 +540,11 @@ class KinematicRun(Run):
         (the loosely solved states of the coarse march, already checked), it is not."""
         system, opts, D, rows = self.system, self.opts, self.D, self.rows
         act = self.active[:, None]
-        if (_undefined_drives(system, T) & act).any():
+        values = _drive_values(system, T)
+        if (_undefined_drives(system, T, values) & act).any():
             return None
-        done = _settle_in_batches(system, pred, T, D, self.active, opts, self._batch_cap())
+        done = _settle_in_batches(system, pred, T, D, self.active, opts, self._batch_cap(),
+                                  values)
         if done is not None:
             q, ok, fac = done.q, done.converged, done.fac
         else:
@@ -802,17 +804,20 @@ class KinematicRun(Run):
 
 
 def _settle_in_batches(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
-                       active: np.ndarray, opts: SolverOptions, cap: int):
+                       active: np.ndarray, opts: SolverOptions, cap: int,
+                       values: tuple[np.ndarray, ...] | None):
     """:func:`mechdsl.solve.batch.settle` of a level, ``cap`` instants at a time (a batch
     that fits the processor's cache, as the last step's), joined; None where it does not
-    apply to some batch."""
+    apply to some batch. ``values``: the drives' f, f', f'' at ``T`` (:func:`_drive_values`)."""
     c = pred.shape[1]
     if c <= cap:
-        return batch.settle(system, pred, T, D, active, opts, rates=True)
+        return batch.settle(system, pred, T, D, active, opts, rates=True, drive_values=values)
     parts = []
     for j in range(0, c, cap):
-        part = batch.settle(system, pred[:, j : j + cap], T[:, j : j + cap], D, active, opts,
-                            rates=True)
+        cut = slice(j, j + cap)
+        part = batch.settle(system, pred[:, cut], T[:, cut], D, active, opts, rates=True,
+                            drive_values=None if values is None
+                            else tuple(v[:, cut] for v in values))
         if part is None:
             return None
         parts.append(part)
@@ -916,7 +921,7 @@ def _undefined_drives(system: System, T: np.ndarray,
         return np.zeros(T.shape, bool)
     ok = np.ones(T.shape, bool)
     for v in values or _drive_values(system, T):
-        ok &= np.isfinite(v).all(axis=-1)
+        ok &= allfinite(v)
     return ~ok
 
 
