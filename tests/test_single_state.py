@@ -155,3 +155,48 @@ def test_a_jacobian_without_a_usable_pivot_is_no_factorisation(load_example):
     solver = OneState(system, zeros, col_scale(system)[0, 0], SolverOptions())
     assert solver.factor(system.guess[0].tolist()) is None
     assert solver.factor(system.guess[0].tolist(), exact=False) is None
+
+
+def test_the_cholesky_step_is_the_svd_step_and_gives_way_to_it_on_redundant_rows():
+    """The Levenberg-Marquardt step of one state through a a^T + lam I equals the SVD's
+    (the identity (a^T a + lam I)^-1 a^T = a^T (a a^T + lam I)^-1); with a repeated row it
+    is the SVD's own (the Cholesky factor's diagonal then spans far more than 1e5)."""
+    from mechdsl.solve.assembly import _lm_step, _lm_step_one
+
+    rng = np.random.default_rng(3)
+    for k, n in ((4, 6), (6, 6), (20, 21)):
+        a, r = rng.normal(size=(k, n)), 1e-3 * rng.normal(size=k)
+        want = _lm_step(a[None], r[None])[0]
+        np.testing.assert_allclose(_lm_step_one(a, r), want, rtol=1e-10, atol=1e-16)
+    a = rng.normal(size=(5, 7))
+    a[4] = a[1]
+    r = np.zeros(5)
+    r[[1, 4]] = 1e-9
+    np.testing.assert_allclose(_lm_step_one(a, r), _lm_step(a[None], r[None])[0], rtol=1e-12,
+                               atol=1e-20)
+
+
+def test_float_and_batched_assembly_agree_from_guesses_off_the_closure(load_example):
+    """Guesses that leave the joints open: the float Gauss-Newton and drive continuation
+    reach the batched path's configuration, and the slider's position is the closed form's."""
+    from conftest import EXAMPLES
+    from mechdsl import loads
+
+    text = (EXAMPLES / "slider_crank.mech").read_text().replace(
+        "guess = (3.75, 0, 0)", "guess = (3.6, 0.3, 0.1)")
+    assert "(3.6, 0.3, 0.1)" in text
+    crank, batched = (loads(text, "slider_crank.mech").compile(Overrides()) for _ in range(2))
+    batched.__dict__["one_state"] = None  # (a cached property: the batched path)
+    opts = SolverOptions()
+    a, b = assemble(crank, 0.0, opts), assemble(batched, 0.0, opts)
+    assert a.ok.all() and b.ok.all() and a.start is not None and b.start is None
+    np.testing.assert_allclose(a.q, b.q, atol=1e-12)
+    k = crank.body_names.index("slider")
+    assert a.q[0, 3 * k] == pytest.approx(slider_crank(2.0, 3.5, np.pi / 4, 0, 0)[0], abs=1e-12)
+    # the factorisation handed to the first instant is the one at the configuration reached
+    fresh = OneState(crank, crank.one_state, col_scale(crank)[0, 0], opts).factor(a.q[0].tolist())
+    assert a.start.fac.sign == fresh.sign and a.start.fac.rcond == pytest.approx(fresh.rcond)
+    res = simulate(crank)
+    x, vx, ax = slider_crank(2.0, 3.5, np.pi / 4 + 4 * np.pi * res["t"], 4 * np.pi, 0)
+    np.testing.assert_allclose(res["slider.vx"][:1], vx[:1], rtol=1e-13, atol=1e-13)
+    np.testing.assert_allclose(res["slider.ax"][:1], ax[:1], rtol=1e-13, atol=1e-12)

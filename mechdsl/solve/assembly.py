@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -17,20 +18,23 @@ from .linalg import factor
 from .mobility import Mobility, analyse, count_check, square
 from .newton import correction_ratio, newton, use_sparse
 from .options import SolverOptions
-from .single import FLOAT_ERRORS, OneState
+from .single import FLOAT_ERRORS, OneStart, OneState
 
 
 @dataclass(frozen=True)
 class Assembly:
     """The configuration at t0 of every variant (``ok[v]`` False where it was not found, with
     the reasons in ``messages``) and the mobility analysis that says which equations to use
-    (None if no variant's joints could be closed)."""
+    (None if no variant's joints could be closed). ``start``: for a single mechanism
+    assembled on floats, the drives at t0 and Phi_q factorised at ``q`` (the first instant
+    takes them over); else None."""
 
     q: np.ndarray
     ok: np.ndarray
     messages: tuple[str, ...]
     iterations: int
     mobility: Mobility | None
+    start: OneStart | None = None
 
 
 def _lm_step(a: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -56,6 +60,25 @@ def _lm_step(a: np.ndarray, r: np.ndarray) -> np.ndarray:
     return -np.einsum("...ji,...j,...j->...i", vt, gain, np.einsum("...ji,...j->...i", u, r))
 
 
+def _lm_step_one(a: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """:func:`_lm_step` for one state (``a`` (k, n) with k <= n, ``r`` (k,)) through the
+    identity (a^T a + lam I)^-1 a^T = a^T (a a^T + lam I)^-1: one Cholesky factorisation of
+    the k x k matrix G = a a^T + lam I, six times cheaper than the SVD. Where G is not
+    clearly well conditioned (its factor's diagonal spans more than 1e5: cond(G) >= 1e10;
+    rows redundant or nearly so, a singular position), and for more rows than columns,
+    by the SVD of :func:`_lm_step`."""
+    if a.shape[0] <= a.shape[1] and np.isfinite(a).all() and np.isfinite(r).all():
+        g = a @ a.T
+        g.flat[:: len(g) + 1] += r @ r
+        try:
+            d = np.diagonal(np.linalg.cholesky(g))
+        except np.linalg.LinAlgError:
+            d = None
+        if d is not None and d.min() > 1e-5 * d.max():
+            return -(a.T @ np.linalg.solve(g, r))
+    return _lm_step(a[None], r[None])[0]
+
+
 def assemble(system: System, t0: float, options: SolverOptions | None = None) -> Assembly:
     """Find q with Phi(q, t0) = 0 in the assembly mode nearest the guesses.
 
@@ -77,7 +100,7 @@ def assemble(system: System, t0: float, options: SolverOptions | None = None) ->
     joint_rows = system.joint_rows
     guess = system.guess.reshape(V, 1, n)
     q1, ok1, it1 = gauss_newton(system, guess, t, D, joint_rows, opts)
-    mob = None
+    mob, start = None, None
     q, ok, it2 = q1, ok1 & False, 0
     if ok1.any():
         first = int(np.flatnonzero(ok1)[0])
@@ -86,7 +109,7 @@ def assemble(system: System, t0: float, options: SolverOptions | None = None) ->
             mob = analyse(one_variant(system, first), q1[first, 0], D[first, 0])
         else:
             mob = square(system)
-        q, ok, it2 = _continue_drives(system, q1, t, D, ok1, opts, mob.rows)
+        q, ok, it2, start = _continue_drives(system, q1, t, D, ok1, opts, mob.rows)
         retry = ok1 & ~ok
         if retry.any():
             q2, ok2, it3 = gauss_newton(system, q1, t, D, mob.rows, opts)
@@ -96,7 +119,8 @@ def assemble(system: System, t0: float, options: SolverOptions | None = None) ->
     messages = []
     reported: set[int] = set()
     if ok.all() and (mob is None or not mob.dropped.size):
-        return Assembly(q[:, 0], ok, (), it1 + it2, mob)  # nothing to check or to report
+        # nothing to check or to report
+        return Assembly(q[:, 0], ok, (), it1 + it2, mob, start)
     with np.errstate(all="ignore"):
         phi = eq.constraint_values(system, np.where(ok1[:, None, None], q, q1), t)[:, 0]
         weights = _row_weights(system, q, D, opts)[:, 0]
@@ -185,21 +209,30 @@ def _row_weights(system: System, q: np.ndarray, D: np.ndarray,
     return np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
 
 
+#: Phi(q, t) (m,) and Phi_q (m, n) of one state at a fixed t, from q as a list of floats
+OneEquations = Callable[[list], tuple[np.ndarray, np.ndarray]]
+
+
 def gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
-                  rows: np.ndarray, opts: SolverOptions) -> tuple[np.ndarray, np.ndarray, int]:
+                 rows: np.ndarray, opts: SolverOptions, one: OneEquations | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Damped Gauss-Newton on the equations ``rows`` from ``q`` (V, 1, n).
 
     With W the row weights at the start, each step solves min || W (Phi + Phi_q D dz) || in
     the least-squares, minimum-norm sense (SVD) and is halved until || W Phi || decreases;
     this goes through configurations where the Jacobian is singular. Returns q, a (V,) mask
     of the converged variants (step and scaled residual small) and the iterations used.
+    A single mechanism is solved on floats: by ``one`` where the caller has its equations
+    as float code at ``t``, else by the system's own (``system.one_state``).
     """
     V = q.shape[0]
     if rows.size == 0:
         return q.copy(), np.ones(V, bool), 0
-    if system.one_state is not None:
-        one = OneState(system, system.one_state, D[0, 0], opts)
-        out = _gauss_newton_one(one, q[0, 0], float(t[0, 0]), rows, opts)
+    if one is None and system.one_state is not None:
+        one = _one_equations(OneState(system, system.one_state, D[0, 0], opts),
+                             float(t[0, 0]), rows)
+    if one is not None and V == 1:
+        out = _gauss_newton_one(one, q[0, 0], D[0, 0], rows, opts)
         if out is not None:
             qn, ok, it = out
             return np.array(qn).reshape(q.shape), np.array([ok]), it
@@ -260,17 +293,18 @@ def gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
 
 def _continue_drives(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
                      active: np.ndarray, opts: SolverOptions, rows: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray, int]:
-    """Carry the drives from their values at ``q`` to f(t0) (step 2 of :func:`assemble`)."""
+                     ) -> tuple[np.ndarray, np.ndarray, int, OneStart | None]:
+    """Carry the drives from their values at ``q`` to f(t0) (step 2 of :func:`assemble`);
+    the last item is the float code's :class:`OneStart` where it carried them."""
     ok = active.copy()
     if system.drive_rows.size == 0 or not ok.any():
-        return q, ok, 0
+        return q, ok, 0, None
     if system.one_state is not None and len(rows) == system.n:
         done = _continue_one(OneState(system, system.one_state, D[0, 0], opts), q[0, 0],
                              float(t[0, 0]), opts)
         if done is not None:
-            qn, good, it = done
-            return np.array(qn).reshape(q.shape), np.array([good]), it
+            qn, good, it, start = done
+            return np.array(qn).reshape(q.shape), np.array([good]), it, start
     with np.errstate(all="ignore"):
         delta = np.zeros(q.shape[:-1] + (system.m,))
         delta[..., system.drive_rows] = -eq.constraint_values(system, q, t)[..., system.drive_rows]
@@ -300,16 +334,17 @@ def _continue_drives(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray
         s = s_new
         if it <= 3:
             ds = min(1.0, 2 * ds)
-    return q, ok, iterations
+    return q, ok, iterations, None
 
 
 def _continue_one(one, q: np.ndarray, t0: float, opts: SolverOptions
-                  ) -> tuple[list, bool, int] | None:
+                  ) -> tuple[list, bool, int, OneStart | None] | None:
     """:func:`_continue_drives` for a single mechanism, on floats
-    (:mod:`mechdsl.solve.single`): the same steps and checks; None where the fixed-order
-    LU does not apply (the batched continuation decides)."""
+    (:mod:`mechdsl.solve.single`): the same steps and checks, and where they succeed the
+    drives at t0 with the exact factorisation at the configuration reached; None where the
+    fixed-order LU does not apply (the batched continuation decides)."""
     x = q.tolist()
-    f = [c[0] for c in one.drives(np.array([t0]), ("f",))[0]]
+    f, fd, fdd = ([c[0] for c in d] for d in one.drives(np.array([t0])))
     try:
         phi, _ = one.residual(x, [0.0] * len(f))
     except FLOAT_ERRORS:
@@ -345,30 +380,43 @@ def _continue_one(one, q: np.ndarray, t0: float, opts: SolverOptions
             if ds > 2.0 ** -opts.max_bisections:
                 ds /= 2
                 continue
-            return x, False, iterations
+            return x, False, iterations, None
         x, fac, s = xn, fn, s_new
         if it <= 3:
             ds = min(1.0, 2 * ds)
-    return x, True, iterations
+    return x, True, iterations, OneStart(f, fd, fdd, fac)
 
 
-def _gauss_newton_one(one, q: np.ndarray, t: float, rows: np.ndarray, opts: SolverOptions
-                      ) -> tuple[list, bool, int] | None:
-    """:func:`gauss_newton` for a single mechanism, Phi and Phi_q from its float code
-    (:mod:`mechdsl.solve.single`): the same weights, steps, trust region and line search;
-    None where the float code meets what numpy would make a NaN (the batched Gauss-Newton
-    then decides)."""
-    f = [c[0] for c in one.drives(np.array([t]), ("f",))[0]]
-    D = np.array(one.D)
+def _one_equations(one: OneState, t: float, rows: np.ndarray) -> OneEquations:
+    """Phi and Phi_q of a single mechanism at ``t`` by its float code (the drives' values
+    at t only where their rows are solved: the joints alone need none)."""
+    f = ([c[0] for c in one.drives(np.array([t]), ("f",))[0]]
+         if not set(one.drive_rows).isdisjoint(rows.tolist()) else [0.0] * len(one.drive_rows))
     dense = one.system.fused.dense
 
     def evaluate(x: list) -> tuple[np.ndarray, np.ndarray]:
         phi, vals = one.residual(x, f)
-        return np.array(phi)[rows], dense(np.array(vals))[rows]
+        return np.array(phi), dense(np.array(vals))
+
+    return evaluate
+
+
+def _gauss_newton_one(equations: OneEquations, q: np.ndarray, D: np.ndarray, rows: np.ndarray,
+                      opts: SolverOptions) -> tuple[list, bool, int] | None:
+    """:func:`gauss_newton` for a single mechanism, Phi and Phi_q from ``equations`` (float
+    code): the same weights, steps, trust region and line search; None where the float
+    code meets what numpy would make a NaN (the batched Gauss-Newton then decides)."""
+
+    def evaluate(x: list) -> tuple[np.ndarray, np.ndarray]:
+        phi, jac = equations(x)
+        return phi[rows], jac[rows]
 
     try:
         x = q.tolist()
         phi, jac = evaluate(x)
+        if not phi.any():
+            # closed exactly (guesses written from the drawing): the step would be zero
+            return x, True, 1
         with np.errstate(all="ignore"):
             norms = np.sqrt(np.einsum("ij,ij->i", jac * D, jac * D))
         W = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
@@ -377,10 +425,9 @@ def _gauss_newton_one(one, q: np.ndarray, t: float, rows: np.ndarray, opts: Solv
             return None
         done, it = False, 0
         for it in range(1, opts.assembly_max_iterations + 1):
-            if not phi.any():
-                # closed exactly (guesses written from the drawing): the step would be zero
+            if not phi.any():  # closed exactly after a step
                 return x, True, it
-            dz = _lm_step((jac * D * W[:, None])[None], (W * phi)[None])[0]
+            dz = _lm_step_one(jac * D * W[:, None], W * phi)
             size = float(np.abs(dz).max(initial=0.0))
             dz = dz * min(1.0, opts.assembly_max_step / max(size, 1e-300))
             if (float(np.abs(W * phi).max(initial=0.0)) <= opts.assembly_residual

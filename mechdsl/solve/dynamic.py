@@ -200,8 +200,19 @@ class DynamicRun(Run):
         V = sysm.n_variants
         t = np.full((V, 1), self.times[0])
         guess = sysm.guess.reshape(V, 1, sysm.n)
-        q1, ok1, _ = gauss_newton(sysm, guess, t, self.D, sysm.joint_rows, opts)
-        q2, ok2, _ = gauss_newton(sysm, q1, t, self.D, np.arange(sysm.m), opts)
+        one = None
+        if V == 1 and sysm.scalar_kernels is not None:
+            # a single mechanism on floats, by the kernels its integration uses
+            ev, t0 = _Evaluator(sysm, self.D[0, 0]), float(self.times[0])
+
+            def one(x: list) -> tuple[np.ndarray, np.ndarray]:
+                return ev.phi_jac(t0, np.array(x))
+
+        q1, ok1, _ = gauss_newton(sysm, guess, t, self.D, sysm.joint_rows, opts, one)
+        if sysm.drive_rows.size:
+            q2, ok2, _ = gauss_newton(sysm, q1, t, self.D, np.arange(sysm.m), opts, one)
+        else:  # the joints are every equation
+            q2, ok2 = q1, ok1
         out: list[np.ndarray | None] = []
         for v in range(V):
             if ok1[v] and ok2[v]:

@@ -196,10 +196,11 @@ class KinematicRun(Run):
             # are finite numbers, on floats
             solver = OneState(system, system.one_state, self.D[0, 0], opts)
             x = asm.q[0].tolist()
-            one = solver.factor(x)
+            start = asm.start  # the assembly's own factorisation at x, where it has one
+            one = start.fac if start is not None else solver.factor(x)
             if one is not None:
-                fac = one.batched()
-                f, fd, fdd = ([c[0] for c in d] for d in solver.drives(times[:1]))
+                f, fd, fdd = ((start.f, start.fd, start.fdd) if start is not None else
+                              ([c[0] for c in d] for d in solver.drives(times[:1])))
                 try:
                     phi, _ = solver.residual(x, f)
                     # (not max() alone: it passes over a NaN that is not first)
@@ -211,6 +212,10 @@ class KinematicRun(Run):
                 if both is not None and res < float("inf"):
                     rates = tuple(np.array(v)[None, None] for v in both)
                     self.residual = max(self.residual, res)
+                    # the rates are solved: accept needs the condition and the sign alone
+                    fac = Factor(None, np.array([[one.rcond]]), np.array([[one.sign]]))
+                else:
+                    fac = one.batched()
         if fac is None:
             fac = factor(eq.solver_jacobian(system, q0, rows, use_sparse(system, opts, rows)),
                          self.D)

@@ -16,6 +16,7 @@ then does what the batched solver does with a state that failed.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -236,6 +237,17 @@ class OneFactor:
         phi_q_inv = np.array([[D[i] * inv[j][i] * r[j] for j in range(n)] for i in range(n)])
         return Factor(phi_q_inv[None, None], np.array([[self.rcond]]),
                       np.array([[self.sign]]))
+
+
+@dataclass(frozen=True)
+class OneStart:
+    """A single mechanism as the assembly left it on floats: its drives' f, f', f'' at t0
+    (a value per drive) and Phi_q factorised exactly at the assembled configuration."""
+
+    f: list
+    fd: list
+    fdd: list
+    fac: OneFactor
 
 
 #: coarse_march_one's answer where the float code cannot decide: the batched march decides
