@@ -63,8 +63,9 @@ def _options(args):
         given["at_singular"] = "continue"
     if getattr(args, "keep_nonfinite", False):
         given["nonfinite"] = "keep"
-    if getattr(args, "backend", None) is not None:
-        given["backend"] = args.backend
+    for name in ("backend", "method"):
+        if getattr(args, name, None) is not None:
+            given[name] = getattr(args, name)
     for name in ("rtol", "atol"):
         if getattr(args, name, None) is not None:
             given[name] = getattr(args, name)
@@ -74,7 +75,7 @@ def _options(args):
     try:
         return SolverOptions(**given)
     except ValueError as err:
-        option = next((f"--{name.replace('_', '-')}" for name in ("backend", "rtol", "atol")
+        option = next((f"--{name.replace('_', '-')}" for name in ("backend", "method", "rtol", "atol")
                        if str(err).startswith(name)), "--newton-tol")
         raise MechError(f"{option}: {err}") from None
 

@@ -9,6 +9,7 @@ from scipy.special import ellipk
 
 import mechdsl
 from conftest import EXAMPLES
+from mechdsl.solve import SolverOptions
 
 #: Andrews at t = 0.03: the Test Set's reference (PSIDE at 1e-14 on a Cray C90; andsoln in
 #: Ex_andrews.f), the seven angles beta, Theta, gamma, Phi, delta, Omega, epsilon
@@ -280,3 +281,50 @@ def test_a_drift_beyond_the_tolerance_gets_the_full_projection():
     assert np.array_equal(run._settle(0.0, y), run._project(0.0, y))
     phi, _ = run.ev.phi_jac(0.0, run._settle(0.0, y)[:n])
     assert np.abs(phi).max() <= 1e-12
+
+
+def test_the_integrator_is_chosen_by_the_tolerance_unless_named():
+    from mechdsl.solve.dynamic import DynamicRun
+
+    system = mechdsl.loads(pendulum(1.0), "p.mech").compile()
+    assert DynamicRun(system).method == "dop853"  # the file's rtol, 1e-12
+    for rtol, method, chosen in ((1e-3, "auto", "dopri5"), (1e-5, "auto", "dopri5"),
+                                 (1e-6, "auto", "dop853"), (1e-3, "dop853", "dop853"),
+                                 (1e-9, "dopri5", "dopri5")):
+        run = DynamicRun(system, SolverOptions(rtol=rtol, method=method))
+        assert run.method == chosen, (rtol, method)
+    with pytest.raises(ValueError, match="method must be"):
+        SolverOptions(method="rk4")
+
+
+def test_the_pendulum_period_by_dopri5():
+    """The lower-order pair reaches the elliptic integral's period too, at its own cost."""
+    length = 1.5
+    T = 4 * np.sqrt(length / G) * ellipk(0.5)
+    res = mechdsl.loads(pendulum(length, per_period=40), "pendulum.mech").simulate(
+        options=SolverOptions(method="dopri5", rtol=1e-11, atol=1e-13))
+    assert res.status == "ok", res.messages
+    t, phi, w = res["t"], res["rod.phi"], res["rod.omega"]
+    for k, when in ((10, T / 4), (30, 3 * T / 4)):
+        crossing = t[k] - (phi[k] + np.pi / 2) / w[k]
+        assert abs(crossing - when) <= 1e-9 * T
+    assert res.residual <= 1e-12 * length
+
+
+def test_the_command_line_names_the_integrator(tmp_path):
+    import subprocess
+    import sys
+
+    runs = {}
+    for method in ("dop853", "dopri5"):
+        out = tmp_path / f"{method}.csv"
+        subprocess.run([sys.executable, "-m", "mechdsl", "run", str(EXAMPLES / "andrews.mech"),
+                        "-o", str(out), "-q", "--rtol", "1e-4", "--atol", "1e-6", "--method",
+                        method], check=True)
+        runs[method] = np.loadtxt(out, delimiter=",", comments="#", skiprows=1)[-1]
+    # the same tolerance, two methods: two different approximations, each near the reference
+    assert np.abs(runs["dop853"] - runs["dopri5"]).max() > 1e-9
+    bad = subprocess.run([sys.executable, "-m", "mechdsl", "run", str(EXAMPLES / "andrews.mech"),
+                          "-o", "-", "-q", "--method", "rk4"], capture_output=True, text=True)
+    assert bad.returncode == 1 and "--method: method must be" in bad.stderr
+    assert "Traceback" not in bad.stderr

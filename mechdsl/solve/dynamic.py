@@ -72,6 +72,11 @@ class DynamicRun(Run):
         tol = system.tolerances  # the file's; options given explicitly override them
         self.rtol = self.opts.rtol or tol.get("rtol", RTOL)
         self.atol = self.opts.atol or tol.get("atol", ATOL)
+        method = self.opts.method
+        if method == "auto":
+            method = "dopri5" if self.rtol >= self.opts.dopri5_from else "dop853"
+        #: the integrator's name (:data:`mechdsl.solve.explicit.METHODS`)
+        self.method = method
 
     # -- the equations of one variant --------------------------------------------------------
     def _project(self, t: float, y: np.ndarray) -> np.ndarray:
@@ -229,7 +234,7 @@ class DynamicRun(Run):
         return out
 
     def _variant(self, v: int, q0: np.ndarray) -> str:
-        from .explicit import Problem, integrate
+        from .explicit import METHODS, Problem, integrate
 
         #: the system as variant v sees it: its params, its functions
         self.one, self.variant = _one(self.system, v), v
@@ -267,7 +272,8 @@ class DynamicRun(Run):
         try:
             sol = integrate(Problem(self.ev.derivative, self._project, self._settle,
                                     _velocities_carried(n)), y0, times,
-                            rtol=self.rtol, atol=self.atol, scale=scale, on_output=record)
+                            rtol=self.rtol, atol=self.atol, scale=scale, on_output=record,
+                            method=METHODS[self.method])
         finally:  # an interrupt too: the instants solved are written, complete
             self._write(v)
         if sol.status == "failed":

@@ -50,13 +50,119 @@ def _coefficients():
 
 dop = _coefficients()
 
-_STAGES = dop.N_STAGES
-_A = [np.ascontiguousarray(dop.A[s, :s]) for s in range(dop.N_STAGES_EXTENDED)]
-_C, _B, _E3, _E5, _D = dop.C, dop.B, dop.E3, dop.E5, dop.D
-#: the nodes as Python floats: t + c h on numpy scalars costs five times as much
-_C_FLOAT = tuple(_C.tolist())
 _SAFETY, _MIN_FACTOR, _MAX_FACTOR = 0.9, 0.2, 10.0
-_EXPONENT = -1.0 / 8.0
+
+
+@dataclass(frozen=True)
+class Method:
+    """An embedded explicit Runge-Kutta pair with first-same-as-last: ``stages`` stages per
+    step (the derivative at the step's end, stage ``stages``, is the next step's first),
+    nodes ``c`` and rows ``a`` of its matrix (a[s] (s,); rows past ``stages`` + 1 are the
+    dense output's extra stages), weights ``b``; ``error(K, h, sc)`` the scaled error norm
+    of a step (``inf`` where it is not a number) and ``exponent`` = -1 / (q + 1), q the
+    order of that estimate; ``interpolant(f, K, t, h, y, y_new)`` its continuous extension,
+    y(t + x h) for x in [0, 1]."""
+
+    name: str
+    order: int
+    stages: int
+    c: tuple[float, ...]  # (Python floats: t + c h on numpy scalars costs five times more)
+    a: tuple[np.ndarray, ...]
+    b: np.ndarray
+    exponent: float
+    error: Callable[[np.ndarray, float, np.ndarray], float]
+    interpolant: Callable[..., Callable[[float], np.ndarray]]
+
+
+def _dop853_error(K: np.ndarray, h: float, sc: np.ndarray) -> float:
+    """err = h |e5|^2 / sqrt(|e5|^2 + 0.01 |e3|^2) / sqrt(N), the 5th- and 3rd-order
+    estimates combined (Hairer, Norsett and Wanner, sec. II.10)."""
+    e5 = (dop.E5 @ K[: dop.N_STAGES + 1]) / sc
+    e3 = (dop.E3 @ K[: dop.N_STAGES + 1]) / sc
+    n5, n3 = float(e5 @ e5), float(e3 @ e3)
+    denom = n5 + 0.01 * n3
+    if not np.isfinite(denom):
+        return np.inf
+    return abs(h) * n5 / np.sqrt(denom * len(sc)) if denom > 0 else 0.0
+
+
+def _dop853_interpolant(f, K: np.ndarray, t: float, h: float, y: np.ndarray,
+                        y_new: np.ndarray) -> Callable[[float], np.ndarray]:
+    """DOP853's continuous extension over the step (three more stages): y(t + x h) for x in
+    [0, 1], of order 7."""
+    for s in range(dop.N_STAGES + 1, dop.N_STAGES_EXTENDED):
+        K[s] = f(t + DOP853.c[s] * h, y + h * (DOP853.a[s] @ K[:s]))
+    dy = y_new - y
+    F = np.empty((dop.INTERPOLATOR_POWER, len(y)))
+    F[0] = dy
+    F[1] = h * K[0] - dy
+    F[2] = 2 * dy - h * (K[dop.N_STAGES] + K[0])
+    F[3:] = h * (dop.D @ K)
+    rev = F[::-1]
+
+    def at(x: float) -> np.ndarray:
+        out = np.zeros(len(y))
+        for i, row in enumerate(rev):
+            out += row
+            out *= x if i % 2 == 0 else 1 - x
+        return out + y
+
+    return at
+
+
+#: Dormand and Prince's 8(5,3), with its published coefficients as scipy ships them
+DOP853 = Method(
+    "dop853", 8, dop.N_STAGES, tuple(dop.C.tolist()),
+    tuple(np.ascontiguousarray(dop.A[s, :s]) for s in range(dop.N_STAGES_EXTENDED)),
+    dop.B, -1.0 / 8.0, _dop853_error, _dop853_interpolant)
+
+# Dormand and Prince's 5(4) (Hairer, Norsett and Wanner, sec. II.5, table 5.2; code DOPRI5):
+# six stages, the seventh (the step's end) first-same-as-last
+_C5 = (0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0, 1.0)
+_A5 = ((), (1 / 5,), (3 / 40, 9 / 40), (44 / 45, -56 / 15, 32 / 9),
+       (19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729),
+       (9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656),
+       (35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84))
+#: the weights of the 5th-order solution minus those of the embedded 4th-order one
+_E5_4 = np.array([71 / 57600, 0.0, -71 / 16695, 71 / 1920, -17253 / 339200, 22 / 525, -1 / 40])
+#: the continuous extension of order 4 (Shampine's, as in DOPRI5 and scipy's RK45):
+#: y(t + x h) = y + h sum_s K_s sum_j P[s, j] x^(j + 1)
+_P5 = np.array([
+    [1.0, -8048581381 / 2820520608, 8663915743 / 2820520608, -12715105075 / 11282082432],
+    [0.0, 0.0, 0.0, 0.0],
+    [0.0, 131558114200 / 32700410799, -68118460800 / 10900136933,
+     87487479700 / 32700410799],
+    [0.0, -1754552775 / 470086768, 14199869525 / 1410260304, -10690763975 / 1880347072],
+    [0.0, 127303824393 / 49829197408, -318862633887 / 49829197408,
+     701980252875 / 199316789632],
+    [0.0, -282668133 / 205662961, 2019193451 / 616988883, -1453857185 / 822651844],
+    [0.0, 40617522 / 29380423, -110615467 / 29380423, 69997945 / 29380423]])
+
+
+def _dopri5_error(K: np.ndarray, h: float, sc: np.ndarray) -> float:
+    """err = h |E K / sc|_rms, E the difference of the 5th- and 4th-order weights."""
+    e = (_E5_4 @ K[:7]) / sc
+    n = float(e @ e)
+    return abs(h) * np.sqrt(n / len(sc)) if np.isfinite(n) else np.inf
+
+
+def _dopri5_interpolant(f, K: np.ndarray, t: float, h: float, y: np.ndarray,
+                        y_new: np.ndarray) -> Callable[[float], np.ndarray]:
+    """DOPRI5's continuous extension of order 4 (no extra stage)."""
+    Q = h * (K[:7].T @ _P5)  # (N, 4)
+
+    def at(x: float) -> np.ndarray:
+        return y + Q @ np.array([x, x * x, x**3, x**4])
+
+    return at
+
+
+#: Dormand and Prince's 5(4)
+DOPRI5 = Method("dopri5", 5, 6, _C5, tuple(np.array(row) for row in _A5),
+                np.array(_A5[6][:6]), -1.0 / 5.0, _dopri5_error, _dopri5_interpolant)
+
+#: The methods by name.
+METHODS = {m.name: m for m in (DOP853, DOPRI5)}
 
 
 @dataclass(frozen=True)
@@ -95,7 +201,8 @@ def _rms(x: np.ndarray) -> float:
 def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: float = 1e-8,
               atol: float | np.ndarray = 1e-10, scale: np.ndarray | None = None,
               h0: float | None = None, max_step: float = np.inf, max_steps: int = 1_000_000,
-              on_output: Callable[[int, float, np.ndarray], None] | None = None) -> Solution:
+              on_output: Callable[[int, float, np.ndarray], None] | None = None,
+              method: Method = DOP853) -> Solution:
     """Integrate from ``y0`` at ``t_eval[0]`` to ``t_eval[-1]``, returning the state at every
     instant of ``t_eval`` (increasing). ``atol`` (times ``scale``, per component, if given)
     and ``rtol`` bound the local error of each step (see the module); ``h0`` is the first
@@ -129,14 +236,17 @@ def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: flo
         return Solution(np.array(outs_t), np.array(outs_y).reshape(len(outs_t), n), status,
                         message, counts["steps"], counts["rejected"], counts["evaluations"])
 
-    K = np.empty((dop.N_STAGES_EXTENDED, n))
+    stages, c, a, b, error = method.stages, method.c, method.a, method.b, method.error
+    exponent = method.exponent
+    K = np.empty((len(a), n))
     k_next = 1
     try:
         emit(0, t, y.copy())
         if t_end <= t:
             return done("ok")
         fy = f(t, y)
-        h = h0 if h0 is not None else _first_step(f, t, y, fy, rtol, atol_v, t_end - t)
+        h = h0 if h0 is not None else _first_step(f, t, y, fy, rtol, atol_v, t_end - t,
+                                                          -exponent)
         rejected = False
         while k_next < len(t_eval):
             if counts["steps"] >= max_steps:
@@ -148,24 +258,21 @@ def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: flo
             h = min(max(h, h_min), max_step, t_end - t)
             # -- one step from (t, y) of size h -------------------------------------------
             K[0] = fy
-            for s in range(1, _STAGES):
-                K[s] = f(t + _C_FLOAT[s] * h, y + h * (_A[s] @ K[:s]))
-            y_new = y + h * (_B @ K[:_STAGES])
+            for s in range(1, stages):
+                K[s] = f(t + c[s] * h, y + h * (a[s] @ K[:s]))
+            y_new = y + h * (b @ K[:stages])
             f_new = f(t + h, y_new)
-            K[_STAGES] = f_new
+            K[stages] = f_new
             sc = atol_v + rtol * np.maximum(np.abs(y), np.abs(y_new))
-            e5 = (_E5 @ K[: _STAGES + 1]) / sc
-            e3 = (_E3 @ K[: _STAGES + 1]) / sc
-            n5, n3 = float(e5 @ e5), float(e3 @ e3)
-            denom = n5 + 0.01 * n3
-            finite = np.isfinite(denom) and np.isfinite(f_new).all()
+            err = error(K, h, sc)
             # a stage that is not a number rejects the step: shorter ones locate where
-            err = (np.inf if not finite else
-                   abs(h) * n5 / np.sqrt(denom * n) if denom > 0 else 0.0)
+            finite = err < np.inf and np.isfinite(f_new).all()
+            if not finite:
+                err = np.inf
             if err > 1.0:
                 counts["rejected"] += 1
                 rejected = True
-                h *= max(_MIN_FACTOR, _SAFETY * err**_EXPONENT) if finite else _MIN_FACTOR
+                h *= max(_MIN_FACTOR, _SAFETY * err**exponent) if finite else _MIN_FACTOR
                 if h < h_min:
                     why = ("the accelerations are not finite numbers" if not finite else
                            "a singular or discontinuous motion")
@@ -176,7 +283,7 @@ def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: flo
             t_new = t + h if t + h < t_end else t_end
             # -- outputs inside the step, by the 7th-order interpolant ----------------------
             if k_next < len(t_eval) and t_eval[k_next] <= t_new:
-                dense = _interpolant(f, K, t, h, y, y_new, fy, f_new)
+                dense = method.interpolant(f, K, t, h, y, y_new)
                 while k_next < len(t_eval) and t_eval[k_next] <= t_new:
                     te = float(t_eval[k_next])
                     if te >= t_new:
@@ -198,7 +305,7 @@ def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: flo
                 emit(k_next, t_new, y_new.copy())
                 k_next += 1
             factor = (_MAX_FACTOR if err == 0 else
-                      min(_MAX_FACTOR, _SAFETY * err**_EXPONENT))
+                      min(_MAX_FACTOR, _SAFETY * err**exponent))
             if rejected:
                 factor = min(1.0, factor)
             rejected = False
@@ -213,9 +320,10 @@ def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: flo
 
 
 def _first_step(f, t: float, y: np.ndarray, fy: np.ndarray, rtol: float, atol: np.ndarray,
-                span: float) -> float:
+                span: float, power: float) -> float:
     """Hairer's starting step (Solving ODEs I, sec. II.4): the step whose local error
-    estimate from the first two derivatives is about the tolerance."""
+    estimate from the first two derivatives is about the tolerance (``power``: 1 / (q + 1),
+    q the order of the method's error estimate)."""
     sc = atol + rtol * np.abs(y)
     d0, d1 = _rms(y / sc), _rms(fy / sc)
     h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
@@ -223,29 +331,5 @@ def _first_step(f, t: float, y: np.ndarray, fy: np.ndarray, rtol: float, atol: n
     f1 = f(t + h0, y + h0 * fy)
     d2 = _rms((f1 - fy) / sc) / h0
     h1 = (max(1e-6, h0 * 1e-3) if max(d1, d2) <= 1e-15
-          else (0.01 / max(d1, d2)) ** (1.0 / 8.0))
+          else (0.01 / max(d1, d2)) ** power)
     return min(100 * h0, h1, span)
-
-
-def _interpolant(f, K: np.ndarray, t: float, h: float, y: np.ndarray, y_new: np.ndarray,
-                 fy: np.ndarray, f_new: np.ndarray) -> Callable[[float], np.ndarray]:
-    """DOP853's continuous extension over the step (three more stages): y(t + x h) for x in
-    [0, 1], of order 7."""
-    for s in range(_STAGES + 1, dop.N_STAGES_EXTENDED):
-        K[s] = f(t + _C_FLOAT[s] * h, y + h * (_A[s] @ K[:s]))
-    dy = y_new - y
-    F = np.empty((dop.INTERPOLATOR_POWER, len(y)))
-    F[0] = dy
-    F[1] = h * fy - dy
-    F[2] = 2 * dy - h * (f_new + fy)
-    F[3:] = h * (_D @ K)
-    rev = F[::-1]
-
-    def at(x: float) -> np.ndarray:
-        out = np.zeros(len(y))
-        for i, row in enumerate(rev):
-            out += row
-            out *= x if i % 2 == 0 else 1 - x
-        return out + y
-
-    return at
