@@ -1,17 +1,25 @@
 """Explicit Runge-Kutta integration with error control, dense output and projection.
 
-The method is Dormand and Prince's 8(5,3) (Hairer, Norsett and Wanner, Solving Ordinary
-Differential Equations I, 2nd ed., sec. II.10, code DOP853), with its published coefficients
-(the tableau scipy ships, :mod:`scipy.integrate._ivp.dop853_coefficients`): an 8th-order
-step from 12 stages, an error estimate that combines the embedded 5th- and 3rd-order
-solutions,
+Two embedded pairs of Dormand and Prince (Hairer, Norsett and Wanner, Solving Ordinary
+Differential Equations I, 2nd ed.), both first-same-as-last:
 
-    err = h |e5|^2 / sqrt(|e5|^2 + 0.01 |e3|^2) / sqrt(N),   |e|^2 = sum (e_i / sc_i)^2,
-    sc_i = atol_i + rtol max(|y_i|, |y_new,i|),
+* :data:`DOP853`, their 8(5,3) (sec. II.10, code DOP853), with its published coefficients
+  (the tableau scipy ships, :mod:`scipy.integrate._ivp.dop853_coefficients`): an 8th-order
+  step from 12 stages, an error estimate that combines the embedded 5th- and 3rd-order
+  solutions,
 
-a step accepted where err <= 1 and the next step h_new = h min(10, max(0.2, 0.9 err^(-1/8)))
-(not larger than h after a rejection), and a 7th-order interpolant over each step (three
-more stages, computed only for steps that contain output instants).
+      err = h |e5|^2 / sqrt(|e5|^2 + 0.01 |e3|^2) / sqrt(N),   |e|^2 = sum (e_i / sc_i)^2,
+
+  and a 7th-order interpolant over each step (three more stages, computed only for steps
+  that contain output instants);
+* :data:`DOPRI5`, their 5(4) (sec. II.5, code DOPRI5): a 5th-order step from 6 stages,
+  err = h |sum_s E_s K_s / sc|_rms with E the difference of the 5th- and 4th-order weights,
+  and a 4th-order interpolant without extra stages. Fewer evaluations where the tolerance
+  is loose.
+
+With sc_i = atol_i + rtol max(|y_i|, |y_new,i|), a step is accepted where err <= 1 and the
+next step is h_new = h min(10, max(0.2, 0.9 err^(-1/(q+1)))) (q the order of the error
+estimate: 7, or 4), not larger than h after a rejection.
 
 What is specific to constrained mechanical systems: after every accepted step the state is
 passed through ``settle`` (onto the constraint manifolds, to the precision the next step
