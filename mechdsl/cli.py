@@ -90,7 +90,7 @@ def _parser() -> argparse.ArgumentParser:
                               "the model's size (overrides the simulate statement's; default 1e-10)")
         run.add_argument("--method", metavar="NAME",
                          help="forward dynamics: the integrator, auto (default: dopri5 for an "
-                              "rtol of 1e-5 or more, else dop853), dop853 or dopri5")
+                              "rtol of 1e-4 or more, else vern9), vern9, dop853 or dopri5")
         run.add_argument("--through-singular", action="store_true",
                          help="at a singular position (dead point, change point) continue on the "
                               "branch the motion was on, instead of stopping")

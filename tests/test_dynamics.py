@@ -287,22 +287,24 @@ def test_the_integrator_is_chosen_by_the_tolerance_unless_named():
     from mechdsl.solve.dynamic import DynamicRun
 
     system = mechdsl.loads(pendulum(1.0), "p.mech").compile()
-    assert DynamicRun(system).method == "dop853"  # the file's rtol, 1e-12
-    for rtol, method, chosen in ((1e-3, "auto", "dopri5"), (1e-5, "auto", "dopri5"),
-                                 (1e-6, "auto", "dop853"), (1e-3, "dop853", "dop853"),
-                                 (1e-9, "dopri5", "dopri5")):
+    assert DynamicRun(system).method == "vern9"  # the file's rtol, 1e-12
+    for rtol, method, chosen in ((1e-3, "auto", "dopri5"), (1e-4, "auto", "dopri5"),
+                                 (9e-5, "auto", "vern9"), (1e-3, "dop853", "dop853"),
+                                 (1e-9, "dopri5", "dopri5"), (1e-2, "vern9", "vern9")):
         run = DynamicRun(system, SolverOptions(rtol=rtol, method=method))
         assert run.method == chosen, (rtol, method)
     with pytest.raises(ValueError, match="method must be"):
         SolverOptions(method="rk4")
 
 
-def test_the_pendulum_period_by_dopri5():
-    """The lower-order pair reaches the elliptic integral's period too, at its own cost."""
+@pytest.mark.parametrize("method", ["dopri5", "dop853"])
+def test_the_pendulum_period_by_the_other_pairs(method):
+    """The pairs that are not the default at this tolerance reach the elliptic integral's
+    period too, at their own cost."""
     length = 1.5
     T = 4 * np.sqrt(length / G) * ellipk(0.5)
     res = mechdsl.loads(pendulum(length, per_period=40), "pendulum.mech").simulate(
-        options=SolverOptions(method="dopri5", rtol=1e-11, atol=1e-13))
+        options=SolverOptions(method=method, rtol=1e-11, atol=1e-13))
     assert res.status == "ok", res.messages
     t, phi, w = res["t"], res["rod.phi"], res["rod.omega"]
     for k, when in ((10, T / 4), (30, 3 * T / 4)):
@@ -316,7 +318,7 @@ def test_the_command_line_names_the_integrator(tmp_path):
     import sys
 
     runs = {}
-    for method in ("dop853", "dopri5"):
+    for method in ("dop853", "dopri5", "vern9"):
         out = tmp_path / f"{method}.csv"
         subprocess.run([sys.executable, "-m", "mechdsl", "run", str(EXAMPLES / "andrews.mech"),
                         "-o", str(out), "-q", "--rtol", "1e-4", "--atol", "1e-6", "--method",
@@ -324,6 +326,7 @@ def test_the_command_line_names_the_integrator(tmp_path):
         runs[method] = np.loadtxt(out, delimiter=",", comments="#", skiprows=1)[-1]
     # the same tolerance, two methods: two different approximations, each near the reference
     assert np.abs(runs["dop853"] - runs["dopri5"]).max() > 1e-9
+    assert np.abs(runs["vern9"] - runs["dop853"]).max() > 1e-9
     bad = subprocess.run([sys.executable, "-m", "mechdsl", "run", str(EXAMPLES / "andrews.mech"),
                           "-o", "-", "-q", "--method", "rk4"], capture_output=True, text=True)
     assert bad.returncode == 1 and "--method: method must be" in bad.stderr

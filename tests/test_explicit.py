@@ -148,3 +148,125 @@ def test_dopri5_holds_the_oscillator_to_its_tolerance_between_steps():
     assert sol.status == "ok" and sol.steps < len(t)  # outputs inside steps, interpolated
     np.testing.assert_allclose(sol.y[:, 0], np.cos(t), rtol=0, atol=2e-8)
     np.testing.assert_allclose(sol.y[:, 1], -np.sin(t), rtol=0, atol=2e-8)
+
+
+def _trees(order: int) -> list[tuple]:
+    """The rooted trees with ``order`` vertices, each a sorted tuple of its subtrees."""
+    if order == 1:
+        return [()]
+    out = set()
+
+    def forests(total: int, smallest: tuple) -> list[tuple]:
+        # multisets of trees (as sorted tuples) with ``total`` vertices in all
+        if total == 0:
+            return [()]
+        found = []
+        for size in range(1, total + 1):
+            for tree in _trees(size):
+                if (size, tree) < smallest:
+                    continue
+                for rest in forests(total - size, (size, tree)):
+                    found.append(((size, tree),) + rest)
+        return found
+
+    for forest in forests(order - 1, (0, ())):
+        out.add(tuple(sorted(forest)))
+    return sorted(out)
+
+
+def _order_conditions(A: np.ndarray, weights, upto: int) -> float:
+    """The largest residual of the order conditions sum_i b_i Phi_i(t) = 1 / gamma(t) over
+    every rooted tree t with at most ``upto`` vertices (Butcher's theory: Hairer, Norsett
+    and Wanner, sec. II.2); ``weights(order)`` gives b, scaled as it must be for trees of
+    that order (an interpolant's weights at x carry x^order)."""
+    s = A.shape[0]
+    cache = {}
+
+    def phi_gamma(tree):
+        if tree not in cache:
+            phi, gamma, size = np.ones(s), 1.0, 1
+            for sub_size, sub in tree:
+                p, g = phi_gamma(sub)
+                phi = phi * (A @ p)
+                gamma *= g
+                size += sub_size
+            cache[tree] = (phi, gamma * size)
+        return cache[tree]
+
+    worst = 0.0
+    for order in range(1, upto + 1):
+        b, scale = weights(order)
+        for tree in _trees(order):
+            phi, gamma = phi_gamma(tree)
+            worst = max(worst, abs(b @ phi - scale / gamma) * gamma)
+    return worst
+
+
+def _matrix(method) -> np.ndarray:
+    s = len(method.a)
+    A = np.zeros((s, s))
+    for i, row in enumerate(method.a):
+        A[i, : len(row)] = row
+    return A
+
+
+def test_every_pair_meets_its_order_conditions():
+    """Each tableau against Butcher's conditions for every rooted tree up to its order: 1,
+    2, 4, 9, 20, 48, 115 and 286 trees of orders 1 .. 9 (a wrong digit in a coefficient
+    breaks some condition by far more than round-off). The embedded solutions meet theirs
+    up to their own orders, and not beyond."""
+    from mechdsl.solve import tableaus as T
+    from mechdsl.solve.explicit import DOP853, DOPRI5, VERN9, _E5_4, _E9_8
+
+    assert [len(_trees(k)) for k in range(1, 10)] == [1, 1, 2, 4, 9, 20, 48, 115, 286]
+    for method, order, embedded, e in ((DOP853, 8, None, None), (DOPRI5, 5, 4, _E5_4),
+                                       (VERN9, 9, 8, _E9_8)):
+        A = _matrix(method)
+        b = np.zeros(len(A))
+        b[: len(method.b)] = method.b
+        assert _order_conditions(A, lambda k: (b, 1.0), order) < 1e-12, method.name
+        assert _order_conditions(A, lambda k: (b, 1.0), order + 1) > 1e-6, method.name
+        if embedded is not None:
+            bhat = b.copy()
+            bhat[: len(e)] -= e
+            assert _order_conditions(A, lambda k: (bhat, 1.0), embedded) < 1e-12
+            assert _order_conditions(A, lambda k: (bhat, 1.0), embedded + 1) > 1e-6
+    # Verner's interpolant is of order 8 at every x: sum_i b_i(x) Phi_i(t) = x^|t| / gamma(t)
+    A = _matrix(VERN9)
+    for x in (0.3, 0.77):
+        bx = np.array(T.P9) @ (x ** np.arange(1, 9))
+        assert _order_conditions(A, lambda k: (bx, x**k), 8) < 1e-11, x
+    # and DOPRI5's of order 4
+    A = _matrix(DOPRI5)
+    bx = np.array(T.P5) @ (0.4 ** np.arange(1, 5))
+    assert _order_conditions(A, lambda k: (bx, 0.4**k), 4) < 1e-12
+
+
+def test_vern9_steps_are_of_ninth_order_and_so_is_its_output_inside_a_step():
+    """Fixed steps over 30 s of the harmonic oscillator: halving the step divides the error
+    by about 2^9, at the step's end and at 0.4 of the last step (there the interpolant's
+    local error, O(h^9), adds to the steps' global one; its own order 8 is checked by the
+    order conditions)."""
+    from mechdsl.solve.explicit import VERN9
+
+    for at in (None, 0.4):
+        errors = []
+        for steps in (60, 120):
+            h = 30.0 / steps
+            grid = [0.0, 30.0] if at is None else [0.0, 30.0 - (1 - at) * h, 30.0]
+            sol = integrate(Problem(oscillator), [1.0, 0.0], grid, rtol=1.0 - 1e-9, atol=1e9,
+                            h0=h, max_step=h, method=VERN9)
+            assert sol.steps == steps
+            k = 1 if at is not None else -1
+            errors.append(abs(sol.y[k, 0] - np.cos(sol.t[k])))
+        assert 8.5 <= np.log2(errors[0] / errors[1]) <= 10.0, (at, errors)
+
+
+def test_vern9_holds_the_oscillator_to_its_tolerance_between_steps():
+    from mechdsl.solve.explicit import VERN9
+
+    t = np.linspace(0.0, 10.0, 201)
+    sol = integrate(Problem(oscillator), [1.0, 0.0], t, rtol=1e-11, atol=1e-13, method=VERN9)
+    assert sol.status == "ok" and sol.steps < len(t) / 2  # outputs inside steps
+    np.testing.assert_allclose(sol.y[:, 0], np.cos(t), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(sol.y[:, 1], -np.sin(t), rtol=0, atol=1e-9)

@@ -5,8 +5,9 @@ Haug's constrained equations of motion (1989, ch. 6) in the index-1 form: at eve
     [ M(q)   Phi_q^T ] [ qdd    ]   [ Q(q, qd, t) ]
     [ Phi_q  0       ] [ lambda ] = [ gamma       ]
 
-gives the accelerations and the multipliers, and y = (q, qd) is integrated by the explicit
-Dormand-Prince 8(5,3) method with step-size control (:mod:`mechdsl.solve.explicit`). At
+gives the accelerations and the multipliers, and y = (q, qd) is integrated by an explicit
+Runge-Kutta pair with step-size control (:mod:`mechdsl.solve.explicit`: Verner's 9(8), or
+Dormand and Prince's 5(4) at loose tolerances, or their 8(5,3), as the options ask). At
 every output instant the state is projected back onto both constraint manifolds: q by
 Gauss-Newton on Phi(q, t) = 0 with the minimum-norm correction, iterated to newton_tol, then
 qd onto Phi_q qd = nu; after every other step, by one such correction of q and qd together
@@ -74,7 +75,7 @@ class DynamicRun(Run):
         self.atol = self.opts.atol or tol.get("atol", ATOL)
         method = self.opts.method
         if method == "auto":
-            method = "dopri5" if self.rtol >= self.opts.dopri5_from else "dop853"
+            method = "dopri5" if self.rtol >= self.opts.dopri5_from else "vern9"
         #: the integrator's name (:data:`mechdsl.solve.explicit.METHODS`)
         self.method = method
 

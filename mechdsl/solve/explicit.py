@@ -1,25 +1,27 @@
 """Explicit Runge-Kutta integration with error control, dense output and projection.
 
-Two embedded pairs of Dormand and Prince (Hairer, Norsett and Wanner, Solving Ordinary
-Differential Equations I, 2nd ed.), both first-same-as-last:
+Three embedded pairs (coefficients in :mod:`mechdsl.solve.tableaus`), the derivative at the
+step's end serving as the next step's first stage in each:
 
-* :data:`DOP853`, their 8(5,3) (sec. II.10, code DOP853), with its published coefficients
-  (the tableau scipy ships, :mod:`scipy.integrate._ivp.dop853_coefficients`): an 8th-order
-  step from 12 stages, an error estimate that combines the embedded 5th- and 3rd-order
-  solutions,
+* :data:`VERN9`, Verner's "most efficient" 9(8): a 9th-order step from 16 stages, the error
+  estimated against the embedded 8th-order solution, err = h |sum_s E_s K_s / sc|_rms, and
+  Verner's interpolant of order 8 (four more stages, computed only for steps that contain
+  output instants). The fewest evaluations for a tight tolerance.
+* :data:`DOP853`, Dormand and Prince's 8(5,3) (Hairer, Norsett and Wanner, Solving Ordinary
+  Differential Equations I, 2nd ed., sec. II.10, code DOP853): an 8th-order step from 12
+  stages, an error estimate that combines the embedded 5th- and 3rd-order solutions,
 
       err = h |e5|^2 / sqrt(|e5|^2 + 0.01 |e3|^2) / sqrt(N),   |e|^2 = sum (e_i / sc_i)^2,
 
-  and a 7th-order interpolant over each step (three more stages, computed only for steps
-  that contain output instants);
+  and a 7th-order interpolant (three more stages).
 * :data:`DOPRI5`, their 5(4) (sec. II.5, code DOPRI5): a 5th-order step from 6 stages,
   err = h |sum_s E_s K_s / sc|_rms with E the difference of the 5th- and 4th-order weights,
-  and a 4th-order interpolant without extra stages. Fewer evaluations where the tolerance
-  is loose.
+  and a 4th-order interpolant without extra stages. The fewest evaluations for a loose
+  tolerance.
 
 With sc_i = atol_i + rtol max(|y_i|, |y_new,i|), a step is accepted where err <= 1 and the
 next step is h_new = h min(10, max(0.2, 0.9 err^(-1/(q+1)))) (q the order of the error
-estimate: 7, or 4), not larger than h after a rejection.
+estimate: 8, 7 or 4), not larger than h after a rejection.
 
 What is specific to constrained mechanical systems: after every accepted step the state is
 passed through ``settle`` (onto the constraint manifolds, to the precision the next step
@@ -36,40 +38,26 @@ array, a handful of numpy calls per stage besides the derivative.
 
 from __future__ import annotations
 
-import importlib.util
-import os
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
+from . import tableaus as T
 
-def _coefficients():
-    """scipy's table of the DOP853 coefficients, read from its file: importing it as
-    ``scipy.integrate._ivp.dop853_coefficients`` would import all of scipy.integrate first
-    (a quarter of a second of every start-up)."""
-    root = os.path.dirname(importlib.util.find_spec("scipy").origin)
-    path = os.path.join(root, "integrate", "_ivp", "dop853_coefficients.py")
-    spec = importlib.util.spec_from_file_location("_mechdsl_dop853_coefficients", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)  # numbers only: it imports numpy
-    return module
-
-
-dop = _coefficients()
 
 _SAFETY, _MIN_FACTOR, _MAX_FACTOR = 0.9, 0.2, 10.0
 
 
 @dataclass(frozen=True)
 class Method:
-    """An embedded explicit Runge-Kutta pair with first-same-as-last: ``stages`` stages per
-    step (the derivative at the step's end, stage ``stages``, is the next step's first),
+    """An embedded explicit Runge-Kutta pair whose step's end is the next step's first stage:
+    ``stages`` stages per step (stage ``stages`` + 1 is the derivative at the step's end),
     nodes ``c`` and rows ``a`` of its matrix (a[s] (s,); rows past ``stages`` + 1 are the
     dense output's extra stages), weights ``b``; ``error(K, h, sc)`` the scaled error norm
     of a step (``inf`` where it is not a number) and ``exponent`` = -1 / (q + 1), q the
     order of that estimate; ``interpolant(f, K, t, h, y, y_new)`` its continuous extension,
-    y(t + x h) for x in [0, 1]."""
+    y(t + x h) for x in [0, 1], computing the extra stages it needs into K."""
 
     name: str
     order: int
@@ -82,11 +70,45 @@ class Method:
     interpolant: Callable[..., Callable[[float], np.ndarray]]
 
 
+def _rows(table: dict[int, dict[int, float]], first: int, last: int) -> list[np.ndarray]:
+    """Rows ``first`` .. ``last`` of a matrix A given by stage as {column: value} (from 1)."""
+    out = []
+    for i in range(first, last + 1):
+        row = np.zeros(i - 1)
+        for j, v in table[i].items():
+            row[j - 1] = v
+        out.append(row)
+    return out
+
+
+def _extra_stages(method: "Method", f, K: np.ndarray, t: float, h: float, y: np.ndarray,
+                  first: int) -> None:
+    """The interpolant's stages ``first`` .. (0-based rows of K) beyond the step's end."""
+    for s in range(first, len(method.a)):
+        K[s] = f(t + method.c[s] * h, y + h * (method.a[s] @ K[:s]))
+
+
+def _polynomial(K: np.ndarray, P: np.ndarray, h: float, y: np.ndarray
+                ) -> Callable[[float], np.ndarray]:
+    """y(t + x h) = y + h sum_j (K^T P)[:, j] x^(j + 1) (scipy's and Verner's form)."""
+    Q = h * (K[: len(P)].T @ P)  # (N, degree)
+    powers = np.arange(1, P.shape[1] + 1)
+
+    def at(x: float) -> np.ndarray:
+        return y + Q @ (x ** powers)
+
+    return at
+
+
+# -- DOP853 ------------------------------------------------------------------------------------
+_D8 = T.DOP853
+
+
 def _dop853_error(K: np.ndarray, h: float, sc: np.ndarray) -> float:
     """err = h |e5|^2 / sqrt(|e5|^2 + 0.01 |e3|^2) / sqrt(N), the 5th- and 3rd-order
     estimates combined (Hairer, Norsett and Wanner, sec. II.10)."""
-    e5 = (dop.E5 @ K[: dop.N_STAGES + 1]) / sc
-    e3 = (dop.E3 @ K[: dop.N_STAGES + 1]) / sc
+    e5 = (_D8.E5 @ K[: _D8.N_STAGES + 1]) / sc
+    e3 = (_D8.E3 @ K[: _D8.N_STAGES + 1]) / sc
     n5, n3 = float(e5 @ e5), float(e3 @ e3)
     denom = n5 + 0.01 * n3
     if not np.isfinite(denom):
@@ -98,14 +120,13 @@ def _dop853_interpolant(f, K: np.ndarray, t: float, h: float, y: np.ndarray,
                         y_new: np.ndarray) -> Callable[[float], np.ndarray]:
     """DOP853's continuous extension over the step (three more stages): y(t + x h) for x in
     [0, 1], of order 7."""
-    for s in range(dop.N_STAGES + 1, dop.N_STAGES_EXTENDED):
-        K[s] = f(t + DOP853.c[s] * h, y + h * (DOP853.a[s] @ K[:s]))
+    _extra_stages(DOP853, f, K, t, h, y, _D8.N_STAGES + 1)
     dy = y_new - y
-    F = np.empty((dop.INTERPOLATOR_POWER, len(y)))
+    F = np.empty((_D8.INTERPOLATOR_POWER, len(y)))
     F[0] = dy
     F[1] = h * K[0] - dy
-    F[2] = 2 * dy - h * (K[dop.N_STAGES] + K[0])
-    F[3:] = h * (dop.D @ K)
+    F[2] = 2 * dy - h * (K[_D8.N_STAGES] + K[0])
+    F[3:] = h * (_D8.D @ K)
     rev = F[::-1]
 
     def at(x: float) -> np.ndarray:
@@ -118,33 +139,14 @@ def _dop853_interpolant(f, K: np.ndarray, t: float, h: float, y: np.ndarray,
     return at
 
 
-#: Dormand and Prince's 8(5,3), with its published coefficients as scipy ships them
+#: Dormand and Prince's 8(5,3)
 DOP853 = Method(
-    "dop853", 8, dop.N_STAGES, tuple(dop.C.tolist()),
-    tuple(np.ascontiguousarray(dop.A[s, :s]) for s in range(dop.N_STAGES_EXTENDED)),
-    dop.B, -1.0 / 8.0, _dop853_error, _dop853_interpolant)
+    "dop853", 8, _D8.N_STAGES, tuple(_D8.C.tolist()),
+    tuple(np.ascontiguousarray(_D8.A[s, :s]) for s in range(_D8.N_STAGES_EXTENDED)),
+    _D8.B, -1.0 / 8.0, _dop853_error, _dop853_interpolant)
 
-# Dormand and Prince's 5(4) (Hairer, Norsett and Wanner, sec. II.5, table 5.2; code DOPRI5):
-# six stages, the seventh (the step's end) first-same-as-last
-_C5 = (0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0, 1.0)
-_A5 = ((), (1 / 5,), (3 / 40, 9 / 40), (44 / 45, -56 / 15, 32 / 9),
-       (19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729),
-       (9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656),
-       (35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84))
-#: the weights of the 5th-order solution minus those of the embedded 4th-order one
-_E5_4 = np.array([71 / 57600, 0.0, -71 / 16695, 71 / 1920, -17253 / 339200, 22 / 525, -1 / 40])
-#: the continuous extension of order 4 (Shampine's, as in DOPRI5 and scipy's RK45):
-#: y(t + x h) = y + h sum_s K_s sum_j P[s, j] x^(j + 1)
-_P5 = np.array([
-    [1.0, -8048581381 / 2820520608, 8663915743 / 2820520608, -12715105075 / 11282082432],
-    [0.0, 0.0, 0.0, 0.0],
-    [0.0, 131558114200 / 32700410799, -68118460800 / 10900136933,
-     87487479700 / 32700410799],
-    [0.0, -1754552775 / 470086768, 14199869525 / 1410260304, -10690763975 / 1880347072],
-    [0.0, 127303824393 / 49829197408, -318862633887 / 49829197408,
-     701980252875 / 199316789632],
-    [0.0, -282668133 / 205662961, 2019193451 / 616988883, -1453857185 / 822651844],
-    [0.0, 40617522 / 29380423, -110615467 / 29380423, 69997945 / 29380423]])
+# -- DOPRI5 ------------------------------------------------------------------------------------
+_E5_4, _P5 = np.array(T.E5_4), np.array(T.P5)
 
 
 def _dopri5_error(K: np.ndarray, h: float, sc: np.ndarray) -> float:
@@ -157,20 +159,51 @@ def _dopri5_error(K: np.ndarray, h: float, sc: np.ndarray) -> float:
 def _dopri5_interpolant(f, K: np.ndarray, t: float, h: float, y: np.ndarray,
                         y_new: np.ndarray) -> Callable[[float], np.ndarray]:
     """DOPRI5's continuous extension of order 4 (no extra stage)."""
-    Q = h * (K[:7].T @ _P5)  # (N, 4)
-
-    def at(x: float) -> np.ndarray:
-        return y + Q @ np.array([x, x * x, x**3, x**4])
-
-    return at
+    return _polynomial(K, _P5, h, y)
 
 
 #: Dormand and Prince's 5(4)
-DOPRI5 = Method("dopri5", 5, 6, _C5, tuple(np.array(row) for row in _A5),
-                np.array(_A5[6][:6]), -1.0 / 5.0, _dopri5_error, _dopri5_interpolant)
+DOPRI5 = Method("dopri5", 5, 6, T.C5, tuple(np.array(row) for row in T.A5),
+                np.array(T.A5[6][:6]), -1.0 / 5.0, _dopri5_error, _dopri5_interpolant)
+
+# -- Verner's 9(8) -----------------------------------------------------------------------------
+
+
+def _weights(w: dict[int, float], count: int) -> np.ndarray:
+    out = np.zeros(count)
+    for k, v in w.items():
+        out[k - 1] = v
+    return out
+
+
+_E9_8 = _weights(T.B9_8[9], 16) - _weights(T.B9_8[8], 16)
+_P9 = np.array(T.P9)
+
+
+def _vern9_error(K: np.ndarray, h: float, sc: np.ndarray) -> float:
+    """err = h |sum_s (b_s - bhat_s) K_s / sc|_rms over the sixteen stages (b the 9th-order
+    weights, bhat the 8th-order ones)."""
+    e = (_E9_8 @ K[:16]) / sc
+    n = float(e @ e)
+    return abs(h) * np.sqrt(n / len(sc)) if np.isfinite(n) else np.inf
+
+
+def _vern9_interpolant(f, K: np.ndarray, t: float, h: float, y: np.ndarray,
+                       y_new: np.ndarray) -> Callable[[float], np.ndarray]:
+    """Verner's interpolant of order 8: four more stages after the step's end (stage 17)."""
+    _extra_stages(VERN9, f, K, t, h, y, 17)
+    return _polynomial(K, _P9, h, y)
+
+
+#: Verner's "most efficient" 9(8)
+VERN9 = Method(
+    "vern9", 9, 16, tuple(float(c) for c in T.C9) + (1.0,) + T.C9_INTERPOLANT,
+    tuple([np.zeros(0), *_rows(T.A9, 2, 16), _weights(T.B9_8[9], 16),
+           *_rows(T.A9_INTERPOLANT, 18, 21)]),
+    _weights(T.B9_8[9], 16), -1.0 / 9.0, _vern9_error, _vern9_interpolant)
 
 #: The methods by name.
-METHODS = {m.name: m for m in (DOP853, DOPRI5)}
+METHODS = {m.name: m for m in (DOP853, DOPRI5, VERN9)}
 
 
 @dataclass(frozen=True)
@@ -246,7 +279,7 @@ def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: flo
 
     stages, c, a, b, error = method.stages, method.c, method.a, method.b, method.error
     exponent = method.exponent
-    K = np.empty((len(a), n))
+    K = np.empty((max(len(a), stages + 1), n))
     k_next = 1
     try:
         emit(0, t, y.copy())
@@ -289,13 +322,12 @@ def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: flo
                 continue
             counts["steps"] += 1
             t_new = t + h if t + h < t_end else t_end
-            # -- outputs inside the step, by the 7th-order interpolant ----------------------
-            if k_next < len(t_eval) and t_eval[k_next] <= t_new:
+            # -- outputs inside the step, by the method's interpolant (one at the step's
+            # end is the projected end state, below) -----------------------------------------
+            if k_next < len(t_eval) and t_eval[k_next] < t_new:
                 dense = method.interpolant(f, K, t, h, y, y_new)
-                while k_next < len(t_eval) and t_eval[k_next] <= t_new:
+                while k_next < len(t_eval) and t_eval[k_next] < t_new:
                     te = float(t_eval[k_next])
-                    if te >= t_new:
-                        break  # the step's end: the projected end state, below
                     yo = dense((te - t) / h)
                     emit(k_next, te, project(te, yo) if project is not None else yo)
                     k_next += 1

@@ -27,11 +27,46 @@ def basis(s):
 def quintic_hermite(tn: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                     t: np.ndarray) -> np.ndarray:
     """Interpolate the states ``q, qd, qdd`` (V, N, n) at increasing node times ``tn`` (N,)
-    to the times ``t`` (b,) in [tn[0], tn[-1]]: returns (V, b, n)."""
+    to the times ``t`` (b,) in [tn[0], tn[-1]]: returns (V, b, n).
+
+    Each gap's quintic is expanded in powers of s once, p = c0 + c1 s + ... + c5 s^5 with
+    (D = q_b - q_a, A = h qd_a, B = h qd_b, E = h^2 qdd_a, F = h^2 qdd_b)
+
+        c0 = q_a,  c1 = A,  c2 = E / 2,
+        c3 = 10 D - 6 A - 4 B - 3/2 E + F / 2,
+        c4 = -15 D + 8 A + 7 B + 3/2 E - F,
+        c5 = 6 D - 3 A - 3 B - E / 2 + F / 2
+
+    (the basis above collected by powers), and the instants take their gap's coefficients in
+    Horner's rule, gap by gap on the instants it holds, in the layout the batched Newton
+    works in (:func:`mechdsl.solve.batch.settle`): coordinates, instants, variants. The
+    result is a (V, b, n) view of that (n, b, V) array."""
     i = np.clip(np.searchsorted(tn, t, side="right") - 1, 0, len(tn) - 2)
-    h = tn[i + 1] - tn[i]
-    h0, h1, h2, h3, h4, h5 = basis(((t - tn[i]) / h)[None, :, None])
-    h = h[None, :, None]
-    return (q[:, i] * h0 + q[:, i + 1] * h3
-            + h * (qd[:, i] * h1 + qd[:, i + 1] * h4)
-            + h * h * (qdd[:, i] * h2 + qdd[:, i + 1] * h5))
+    # only the gaps the instants fall in (a batch of a long run spans a few of many), their
+    # nodes gathered into (n, nodes, V) at once
+    lo, hi = (int(i[0]), int(i[-1]) + 2) if len(i) else (0, 2)  # (t increases)
+    tn, i = tn[lo:hi], i - lo
+    h = np.diff(tn)[:, None]  # (gaps, 1)
+    qT, qdT, qddT = (np.ascontiguousarray(a[:, lo:hi].T) for a in (q, qd, qdd))
+    qa = qT[:, :-1]
+    A, B = h * qdT[:, :-1], h * qdT[:, 1:]
+    E, F = h * h * qddT[:, :-1], h * h * qddT[:, 1:]
+    D = qT[:, 1:] - qa
+    coef = (qa, A, 0.5 * E, 10.0 * D - 6.0 * A - 4.0 * B - 1.5 * E + 0.5 * F,
+            -15.0 * D + 8.0 * A + 7.0 * B + 1.5 * E - F,
+            6.0 * D - 3.0 * A - 3.0 * B - 0.5 * E + 0.5 * F)  # each (n, gaps, V)
+    s = ((t - tn[i]) / (tn[i + 1] - tn[i]))[:, None]  # (b, 1)
+    out = np.empty((q.shape[2], len(t), q.shape[0]))
+    # the instants of each gap: i does not decrease along t
+    cuts = [0, *(np.flatnonzero(np.diff(i)) + 1).tolist(), len(t)]
+    for j0, j1 in zip(cuts[:-1], cuts[1:]):
+        g = int(i[j0])
+        c = [k[:, g : g + 1] for k in coef]  # (n, 1, V)
+        sg = s[j0:j1]
+        p = out[:, j0:j1]
+        np.multiply(c[5], sg, out=p)
+        for k in (4, 3, 2, 1):
+            p += c[k]
+            p *= sg
+        p += c[0]
+    return out.T

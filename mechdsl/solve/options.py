@@ -40,13 +40,13 @@ class SolverOptions:
     #: given here (``--rtol``, ``--atol``) overrides the file's.
     rtol: float | None = None
     atol: float | None = None
-    #: Forward dynamics: the integrator (:mod:`mechdsl.solve.explicit`): "dop853" (Dormand
-    #: and Prince's 8(5,3)), "dopri5" (their 5(4)) or "auto": dopri5 where rtol is at least
-    #: ``dopri5_from``, dop853 below (the lower-order pair takes fewer evaluations for a
-    #: loose tolerance, the higher-order one for a tight tolerance).
+    #: Forward dynamics: the integrator (:mod:`mechdsl.solve.explicit`): "vern9" (Verner's
+    #: 9(8) pair), "dop853" (Dormand and Prince's 8(5,3)), "dopri5" (their 5(4)) or "auto":
+    #: dopri5 where rtol is at least ``dopri5_from``, vern9 below (the lower-order pair takes
+    #: the fewest evaluations for a loose tolerance, the highest-order one for a tight one).
     method: str = "auto"
     #: The rtol from which "auto" integrates with dopri5.
-    dopri5_from: float = 1e-5
+    dopri5_from: float = 1e-4
     #: Newton iterations allowed per attempt at an instant.
     max_iterations: int = 12
     #: Assembly stops when its step is at most this (scaled as newton_tol).
@@ -161,8 +161,8 @@ class SolverOptions:
             raise ValueError(f"predictor_order must be 1 or 2, not {self.predictor_order!r}")
         if self.at_singular not in ("stop", "continue"):
             raise ValueError(f"at_singular must be 'stop' or 'continue', not {self.at_singular!r}")
-        if self.method not in ("auto", "dop853", "dopri5"):
-            raise ValueError(f"method must be 'auto', 'dop853' or 'dopri5', not "
+        if self.method not in ("auto", "vern9", "dop853", "dopri5"):
+            raise ValueError(f"method must be 'auto', 'vern9', 'dop853' or 'dopri5', not "
                              f"{self.method!r}")
         if not 0 < self.dopri5_from <= 1:
             raise ValueError(f"dopri5_from must be in (0, 1], not {self.dopri5_from!r}")

@@ -18,6 +18,9 @@ def absmax(x: np.ndarray) -> np.ndarray:
     """max |x| over the last axis (NaN where a value is NaN)."""
     if x.shape[-1] > SHORT or x.shape[-1] == 0:
         return np.abs(x).max(axis=-1)
+    if x.ndim > 1 and x.T.flags.c_contiguous:
+        # entry-major underneath (the batched Newton's arrays): whole rows, one reduction
+        return np.abs(x.T).max(axis=0).T
     out = np.abs(x[..., 0])
     for i in range(1, x.shape[-1]):
         np.maximum(out, np.abs(x[..., i]), out=out)
@@ -28,6 +31,8 @@ def allfinite(x: np.ndarray) -> np.ndarray:
     """Whether every value along the last axis is a finite number."""
     if x.shape[-1] > SHORT or x.shape[-1] == 0:
         return np.isfinite(x).all(axis=-1)
+    if x.ndim > 1 and x.T.flags.c_contiguous:
+        return np.isfinite(x.T).all(axis=0).T
     out = np.isfinite(x[..., 0])
     for i in range(1, x.shape[-1]):
         out &= np.isfinite(x[..., i])
