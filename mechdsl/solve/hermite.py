@@ -38,35 +38,32 @@ def quintic_hermite(tn: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarr
         c5 = 6 D - 3 A - 3 B - E / 2 + F / 2
 
     (the basis above collected by powers), and the instants take their gap's coefficients in
-    Horner's rule, gap by gap on the instants it holds, in the layout the batched Newton
-    works in (:func:`mechdsl.solve.batch.settle`): coordinates, instants, variants. The
-    result is a (V, b, n) view of that (n, b, V) array."""
+    one matrix product per gap: [1, s, .., s^5] of its instants times its coefficients,
+    written in the layout the batched Newton works in (:func:`mechdsl.solve.batch.settle`):
+    coordinates, instants, variants. The result is a (V, b, n) view of that (n, b, V)
+    array."""
     i = np.clip(np.searchsorted(tn, t, side="right") - 1, 0, len(tn) - 2)
-    # only the gaps the instants fall in (a batch of a long run spans a few of many), their
-    # nodes gathered into (n, nodes, V) at once
+    # only the gaps the instants fall in (a batch of a long run spans a few of many)
     lo, hi = (int(i[0]), int(i[-1]) + 2) if len(i) else (0, 2)  # (t increases)
     tn, i = tn[lo:hi], i - lo
-    h = np.diff(tn)[:, None]  # (gaps, 1)
-    qT, qdT, qddT = (np.ascontiguousarray(a[:, lo:hi].T) for a in (q, qd, qdd))
-    qa = qT[:, :-1]
-    A, B = h * qdT[:, :-1], h * qdT[:, 1:]
-    E, F = h * h * qddT[:, :-1], h * h * qddT[:, 1:]
-    D = qT[:, 1:] - qa
-    coef = (qa, A, 0.5 * E, 10.0 * D - 6.0 * A - 4.0 * B - 1.5 * E + 0.5 * F,
-            -15.0 * D + 8.0 * A + 7.0 * B + 1.5 * E - F,
-            6.0 * D - 3.0 * A - 3.0 * B - 0.5 * E + 0.5 * F)  # each (n, gaps, V)
-    s = ((t - tn[i]) / (tn[i + 1] - tn[i]))[:, None]  # (b, 1)
-    out = np.empty((q.shape[2], len(t), q.shape[0]))
+    h = np.diff(tn)[:, None, None]  # (gaps, 1, 1)
+    qa, qb = q[:, lo : hi - 1].transpose(1, 2, 0), q[:, lo + 1 : hi].transpose(1, 2, 0)
+    A, B = (h * a[:, r].transpose(1, 2, 0) for a, r in ((qd, slice(lo, hi - 1)),
+                                                        (qd, slice(lo + 1, hi))))
+    E, F = (h * h * a[:, r].transpose(1, 2, 0) for a, r in ((qdd, slice(lo, hi - 1)),
+                                                            (qdd, slice(lo + 1, hi))))
+    D = qb - qa  # each (gaps, n, V)
+    coef = np.stack((qa, A, 0.5 * E, 10.0 * D - 6.0 * A - 4.0 * B - 1.5 * E + 0.5 * F,
+                     -15.0 * D + 8.0 * A + 7.0 * B + 1.5 * E - F,
+                     6.0 * D - 3.0 * A - 3.0 * B - 0.5 * E + 0.5 * F), axis=1)
+    gaps, _, n, V = coef.shape
+    coef = coef.reshape(gaps, 6, n * V)
+    s = (t - tn[i]) / (tn[i + 1] - tn[i])
+    powers = s[:, None] ** np.arange(6)  # (b, 6)
+    out = np.empty((n, len(t), V))
     # the instants of each gap: i does not decrease along t
     cuts = [0, *(np.flatnonzero(np.diff(i)) + 1).tolist(), len(t)]
     for j0, j1 in zip(cuts[:-1], cuts[1:]):
-        g = int(i[j0])
-        c = [k[:, g : g + 1] for k in coef]  # (n, 1, V)
-        sg = s[j0:j1]
-        p = out[:, j0:j1]
-        np.multiply(c[5], sg, out=p)
-        for k in (4, 3, 2, 1):
-            p += c[k]
-            p *= sg
-        p += c[0]
+        values = powers[j0:j1] @ coef[int(i[j0])]  # (instants, n V)
+        out[:, j0:j1] = values.reshape(j1 - j0, n, V).transpose(1, 0, 2)
     return out.T
