@@ -247,7 +247,8 @@ def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: flo
     """Integrate from ``y0`` at ``t_eval[0]`` to ``t_eval[-1]``, returning the state at every
     instant of ``t_eval`` (increasing). ``atol`` (times ``scale``, per component, if given)
     and ``rtol`` bound the local error of each step (see the module); ``h0`` is the first
-    step (else Hairer's choice) and ``max_step`` the longest. ``on_output(k, t,
+    step (else Hairer's choice) and ``max_step`` the longest; ``method`` the pair that takes
+    the steps (:data:`METHODS`; the forward dynamics chooses it by rtol). ``on_output(k, t,
     y)`` is called with each output as soon as it is known; a KeyboardInterrupt raised
     there or in ``rhs`` ends the integration ("interrupted") with the outputs before it.
     A singular system (``rhs`` raising numpy's LinAlgError), a derivative that is not
@@ -286,8 +287,8 @@ def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: flo
         if t_end <= t:
             return done("ok")
         fy = f(t, y)
-        h = h0 if h0 is not None else _first_step(f, t, y, fy, rtol, atol_v, t_end - t,
-                                                          -exponent)
+        h = (h0 if h0 is not None
+             else _first_step(f, t, y, fy, rtol, atol_v, t_end - t, -exponent))
         rejected = False
         while k_next < len(t_eval):
             if counts["steps"] >= max_steps:
