@@ -134,3 +134,18 @@ def test_the_residual_and_correction_ratio_are_measured_where_the_run_measures_t
     np.testing.assert_allclose(out.ratio, expected, rtol=1e-12)
     # the correction of a 1e-5 perturbation against 0.0067 s of motion: small, not zero
     assert 1e-5 < out.ratio.max() < 0.1
+
+
+def test_rowwise_reductions_are_numpys_in_either_layout():
+    """max |x| and all-finite over the coordinates: the same answers on a states-major array
+    and on the entry-major views the batched Newton hands out (NaN and inf included)."""
+    from mechdsl.solve.rowwise import absmax, allfinite
+
+    rng = np.random.default_rng(7)
+    base = rng.normal(size=(9, 3, 50, 4))  # (n, right-hand sides, b, V)
+    base[2, 1, 7, 3] = np.nan
+    base[5, 1, 9, 0] = np.inf
+    base[0, 1, 11, 2] = -np.inf
+    for x in (base[:, 1].T, np.ascontiguousarray(base[:, 1].T), base[:, 1, :, 0].T[None]):
+        np.testing.assert_array_equal(allfinite(x), np.isfinite(x).all(axis=-1))
+        np.testing.assert_array_equal(absmax(x), np.abs(x).max(axis=-1))

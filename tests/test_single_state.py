@@ -200,3 +200,12 @@ def test_float_and_batched_assembly_agree_from_guesses_off_the_closure(load_exam
     x, vx, ax = slider_crank(2.0, 3.5, np.pi / 4 + 4 * np.pi * res["t"], 4 * np.pi, 0)
     np.testing.assert_allclose(res["slider.vx"][:1], vx[:1], rtol=1e-13, atol=1e-13)
     np.testing.assert_allclose(res["slider.ax"][:1], ax[:1], rtol=1e-13, atol=1e-12)
+
+
+def test_the_float_finiteness_check_is_isfinite_of_every_term():
+    from mechdsl.solve.single import _all_finite
+
+    inf, nan = float("inf"), float("nan")
+    for values in ([], [1.0, -2.0], [1e308, 1e308], [1.0, inf], [inf, -inf], [nan, 1.0],
+                   [-1e308, -1e308, 1.0], [0.0, -inf]):
+        assert _all_finite(values) == all(np.isfinite(values)), values

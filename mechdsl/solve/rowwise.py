@@ -14,11 +14,17 @@ import numpy as np
 SHORT = 32
 
 
+def _entry_major(x: np.ndarray) -> bool:
+    """Whether the last axis is the slowest in memory (a view of an array whose coordinates
+    come first, as the batched Newton keeps them)."""
+    return x.ndim > 1 and x.size > 0 and x.strides[-1] == max(map(abs, x.strides))
+
+
 def absmax(x: np.ndarray) -> np.ndarray:
     """max |x| over the last axis (NaN where a value is NaN)."""
     if x.shape[-1] > SHORT or x.shape[-1] == 0:
         return np.abs(x).max(axis=-1)
-    if x.ndim > 1 and x.T.flags.c_contiguous:
+    if _entry_major(x):
         # entry-major underneath (the batched Newton's arrays): whole rows, one reduction
         return np.abs(x.T).max(axis=0).T
     out = np.abs(x[..., 0])
@@ -31,7 +37,7 @@ def allfinite(x: np.ndarray) -> np.ndarray:
     """Whether every value along the last axis is a finite number."""
     if x.shape[-1] > SHORT or x.shape[-1] == 0:
         return np.isfinite(x).all(axis=-1)
-    if x.ndim > 1 and x.T.flags.c_contiguous:
+    if _entry_major(x):
         return np.isfinite(x.T).all(axis=0).T
     out = np.isfinite(x[..., 0])
     for i in range(1, x.shape[-1]):

@@ -106,9 +106,9 @@ class KinematicRun(Run):
             compiled = False  # "auto": the numpy path fits where numba would not
             budget = plan(system, opts.max_memory, opts.max_batch_elements, sparse=sparse,
                           poses=poses or rates, rates=rates, extra=extra_memory)
-        if not compiled:
-            opts = replace(opts, backend="numpy")
-        self.opts = replace(opts, max_batch_elements=budget.batch_elements)
+        # (one replace: each validates every option again)
+        self.opts = replace(opts, max_batch_elements=budget.batch_elements,
+                            backend=opts.backend if compiled else "numpy")
         self.keep_poses, self.keep_rates = poses or rates, rates
         #: sqrt(newton_tol): the smallest motion the branch check measures corrections by
         self.floor = np.sqrt(self.opts.newton_tol)
