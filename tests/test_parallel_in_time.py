@@ -116,3 +116,11 @@ def test_a_single_mechanism_is_predicted_from_its_coarse_states_without_levels(
     for name, exact in zip(("slider.x", "slider.vx", "slider.ax"),
                            slider_crank(2.0, 3.5, th, 4 * np.pi, 0.0)):
         assert rel_err(res[name], exact) < 1e-13, name
+
+
+def test_hermite_of_no_instant_is_empty_and_of_unordered_instants_is_refused():
+    tn = np.linspace(0.0, 1.0, 5)
+    q, qd, qdd = (np.ones((2, 5, 3)) for _ in range(3))
+    assert quintic_hermite(tn, q, qd, qdd, np.zeros(0)).shape == (2, 0, 3)
+    with pytest.raises(ValueError, match="increase"):
+        quintic_hermite(tn, q, qd, qdd, np.array([0.9, 0.1, 0.95]))

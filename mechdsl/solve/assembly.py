@@ -63,10 +63,12 @@ def _lm_step(a: np.ndarray, r: np.ndarray) -> np.ndarray:
 def _lm_step_one(a: np.ndarray, r: np.ndarray) -> np.ndarray:
     """:func:`_lm_step` for one state (``a`` (k, n) with k <= n, ``r`` (k,)) through the
     identity (a^T a + lam I)^-1 a^T = a^T (a a^T + lam I)^-1: one Cholesky factorisation of
-    the k x k matrix G = a a^T + lam I, six times cheaper than the SVD. Where G is not
-    clearly well conditioned (its factor's diagonal spans more than 1e5: cond(G) >= 1e10;
-    rows redundant or nearly so, a singular position), and for more rows than columns,
-    by the SVD of :func:`_lm_step`."""
+    the k x k matrix G = a a^T + lam I, six times cheaper than the SVD. Where G does not
+    look well conditioned (its factor's diagonal spans more than 1e5, so cond(G) >= 1e10:
+    rows redundant or nearly so, a singular position; a heuristic, as a factor's diagonal
+    can look tame on a worse matrix, where the step is only less accurate and the line
+    search and the next iterations correct it), and for more rows than columns, by the SVD
+    of :func:`_lm_step`."""
     if a.shape[0] <= a.shape[1] and np.isfinite(a).all() and np.isfinite(r).all():
         g = a @ a.T
         g.flat[:: len(g) + 1] += r @ r

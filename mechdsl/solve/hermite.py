@@ -27,7 +27,7 @@ def basis(s):
 def quintic_hermite(tn: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                     t: np.ndarray) -> np.ndarray:
     """Interpolate the states ``q, qd, qdd`` (V, N, n) at increasing node times ``tn`` (N,)
-    to the times ``t`` (b,) in [tn[0], tn[-1]]: returns (V, b, n).
+    to the increasing times ``t`` (b,) in [tn[0], tn[-1]]: returns (V, b, n).
 
     Each gap's quintic is expanded in powers of s once, p = c0 + c1 s + ... + c5 s^5 with
     (D = q_b - q_a, A = h qd_a, B = h qd_b, E = h^2 qdd_a, F = h^2 qdd_b)
@@ -42,9 +42,14 @@ def quintic_hermite(tn: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarr
     written in the layout the batched Newton works in (:func:`mechdsl.solve.batch.settle`):
     coordinates, instants, variants. The result is a (V, b, n) view of that (n, b, V)
     array."""
+    V, n = q.shape[0], q.shape[2]
+    if len(t) == 0:
+        return np.empty((n, 0, V)).T
     i = np.clip(np.searchsorted(tn, t, side="right") - 1, 0, len(tn) - 2)
+    if len(i) > 1 and (np.diff(i) < 0).any():
+        raise ValueError("quintic_hermite: the times must increase")
     # only the gaps the instants fall in (a batch of a long run spans a few of many)
-    lo, hi = (int(i[0]), int(i[-1]) + 2) if len(i) else (0, 2)  # (t increases)
+    lo, hi = int(i[0]), int(i[-1]) + 2
     tn, i = tn[lo:hi], i - lo
     h = np.diff(tn)[:, None, None]  # (gaps, 1, 1)
     qa, qb = q[:, lo : hi - 1].transpose(1, 2, 0), q[:, lo + 1 : hi].transpose(1, 2, 0)
@@ -56,7 +61,7 @@ def quintic_hermite(tn: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarr
     coef = np.stack((qa, A, 0.5 * E, 10.0 * D - 6.0 * A - 4.0 * B - 1.5 * E + 0.5 * F,
                      -15.0 * D + 8.0 * A + 7.0 * B + 1.5 * E - F,
                      6.0 * D - 3.0 * A - 3.0 * B - 0.5 * E + 0.5 * F), axis=1)
-    gaps, _, n, V = coef.shape
+    gaps = coef.shape[0]
     coef = coef.reshape(gaps, 6, n * V)
     s = (t - tn[i]) / (tn[i + 1] - tn[i])
     powers = s[:, None] ** np.arange(6)  # (b, 6)
