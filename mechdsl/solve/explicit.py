@@ -70,15 +70,30 @@ class Method:
     interpolant: Callable[..., Callable[[float], np.ndarray]]
 
 
+def _row(entries: dict[int, float], length: int) -> np.ndarray:
+    """A row of ``length`` from its non-zero entries {column: value} (columns from 1)."""
+    row = np.zeros(length)
+    for j, v in entries.items():
+        row[j - 1] = v
+    return row
+
+
 def _rows(table: dict[int, dict[int, float]], first: int, last: int) -> list[np.ndarray]:
     """Rows ``first`` .. ``last`` of a matrix A given by stage as {column: value} (from 1)."""
-    out = []
-    for i in range(first, last + 1):
-        row = np.zeros(i - 1)
-        for j, v in table[i].items():
-            row[j - 1] = v
-        out.append(row)
-    return out
+    return [_row(table[i], i - 1) for i in range(first, last + 1)]
+
+
+def _rms_error(E: np.ndarray) -> Callable[[np.ndarray, float, np.ndarray], float]:
+    """The error norm err = h |sum_s E_s K_s / sc|_rms of a pair whose error weights are
+    ``E`` (the higher-order weights minus the embedded solution's)."""
+    stages = len(E)
+
+    def error(K: np.ndarray, h: float, sc: np.ndarray) -> float:
+        e = (E @ K[:stages]) / sc
+        n = float(e @ e)
+        return abs(h) * np.sqrt(n / len(sc)) if np.isfinite(n) else np.inf
+
+    return error
 
 
 def _extra_stages(method: "Method", f, K: np.ndarray, t: float, h: float, y: np.ndarray,
@@ -149,13 +164,6 @@ DOP853 = Method(
 _E5_4, _P5 = np.array(T.E5_4), np.array(T.P5)
 
 
-def _dopri5_error(K: np.ndarray, h: float, sc: np.ndarray) -> float:
-    """err = h |E K / sc|_rms, E the difference of the 5th- and 4th-order weights."""
-    e = (_E5_4 @ K[:7]) / sc
-    n = float(e @ e)
-    return abs(h) * np.sqrt(n / len(sc)) if np.isfinite(n) else np.inf
-
-
 def _dopri5_interpolant(f, K: np.ndarray, t: float, h: float, y: np.ndarray,
                         y_new: np.ndarray) -> Callable[[float], np.ndarray]:
     """DOPRI5's continuous extension of order 4 (no extra stage)."""
@@ -164,28 +172,13 @@ def _dopri5_interpolant(f, K: np.ndarray, t: float, h: float, y: np.ndarray,
 
 #: Dormand and Prince's 5(4)
 DOPRI5 = Method("dopri5", 5, 6, T.C5, tuple(np.array(row) for row in T.A5),
-                np.array(T.A5[6][:6]), -1.0 / 5.0, _dopri5_error, _dopri5_interpolant)
+                np.array(T.A5[6][:6]), -1.0 / 5.0, _rms_error(_E5_4), _dopri5_interpolant)
 
 # -- Verner's 9(8) -----------------------------------------------------------------------------
-
-
-def _weights(w: dict[int, float], count: int) -> np.ndarray:
-    out = np.zeros(count)
-    for k, v in w.items():
-        out[k - 1] = v
-    return out
-
-
-_E9_8 = _weights(T.B9_8[9], 16) - _weights(T.B9_8[8], 16)
+#: the 9th-order weights (stages 1 .. 15) and the error weights against the 8th-order ones
+_B9 = _row(T.B9_8[9], 16)
+_E9_8 = _B9 - _row(T.B9_8[8], 16)
 _P9 = np.array(T.P9)
-
-
-def _vern9_error(K: np.ndarray, h: float, sc: np.ndarray) -> float:
-    """err = h |sum_s (b_s - bhat_s) K_s / sc|_rms over the sixteen stages (b the 9th-order
-    weights, bhat the 8th-order ones)."""
-    e = (_E9_8 @ K[:16]) / sc
-    n = float(e @ e)
-    return abs(h) * np.sqrt(n / len(sc)) if np.isfinite(n) else np.inf
 
 
 def _vern9_interpolant(f, K: np.ndarray, t: float, h: float, y: np.ndarray,
@@ -198,9 +191,8 @@ def _vern9_interpolant(f, K: np.ndarray, t: float, h: float, y: np.ndarray,
 #: Verner's "most efficient" 9(8)
 VERN9 = Method(
     "vern9", 9, 16, tuple(float(c) for c in T.C9) + (1.0,) + T.C9_INTERPOLANT,
-    tuple([np.zeros(0), *_rows(T.A9, 2, 16), _weights(T.B9_8[9], 16),
-           *_rows(T.A9_INTERPOLANT, 18, 21)]),
-    _weights(T.B9_8[9], 16), -1.0 / 9.0, _vern9_error, _vern9_interpolant)
+    tuple([np.zeros(0), *_rows(T.A9, 2, 16), _B9, *_rows(T.A9_INTERPOLANT, 18, 21)]),
+    _B9, -1.0 / 9.0, _rms_error(_E9_8), _vern9_interpolant)
 
 #: The methods by name.
 METHODS = {m.name: m for m in (DOP853, DOPRI5, VERN9)}

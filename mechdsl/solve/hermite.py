@@ -52,12 +52,13 @@ def quintic_hermite(tn: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarr
     lo, hi = int(i[0]), int(i[-1]) + 2
     tn, i = tn[lo:hi], i - lo
     h = np.diff(tn)[:, None, None]  # (gaps, 1, 1)
-    qa, qb = q[:, lo : hi - 1].transpose(1, 2, 0), q[:, lo + 1 : hi].transpose(1, 2, 0)
-    A, B = (h * a[:, r].transpose(1, 2, 0) for a, r in ((qd, slice(lo, hi - 1)),
-                                                        (qd, slice(lo + 1, hi))))
-    E, F = (h * h * a[:, r].transpose(1, 2, 0) for a, r in ((qdd, slice(lo, hi - 1)),
-                                                            (qdd, slice(lo + 1, hi))))
-    D = qb - qa  # each (gaps, n, V)
+
+    def ends(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The nodes' values at the start and at the end of each gap: (gaps, n, V) each."""
+        return a[:, lo : hi - 1].transpose(1, 2, 0), a[:, lo + 1 : hi].transpose(1, 2, 0)
+
+    (qa, qb), (va, vb), (aa, ab) = ends(q), ends(qd), ends(qdd)
+    A, B, E, F, D = h * va, h * vb, h * h * aa, h * h * ab, qb - qa
     coef = np.stack((qa, A, 0.5 * E, 10.0 * D - 6.0 * A - 4.0 * B - 1.5 * E + 0.5 * F,
                      -15.0 * D + 8.0 * A + 7.0 * B + 1.5 * E - F,
                      6.0 * D - 3.0 * A - 3.0 * B - 0.5 * E + 0.5 * F), axis=1)
