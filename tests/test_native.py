@@ -142,3 +142,35 @@ def test_asking_for_the_compiled_backend_where_it_does_not_apply_says_so():
     assert res.ok
     assert any("backend 'compiled' asked for" in w and "solved on numpy" in w
                for w in res.warnings)
+
+
+@pytest.mark.parametrize("drive", ["pi/4 + 1e-3*sqrt(t)", "pi/4 + omega*t + 1e-3*t*sqrt(t)"])
+def test_a_failure_at_instant_0_is_reported_as_on_the_numpy_path(drive):
+    # f' (first) or f'' (second) infinite at t = 0: the compiled march, which would solve
+    # instant 0 too, hands it to the numpy solver, which reports it
+    text = (EXAMPLES / "slider_crank.mech").read_text().replace("pi/4 + omega*t", drive)
+    system = mechdsl.loads(text, "s.mech").compile()
+    fast, slow = simulate(system, COMPILED), simulate(system, NUMPY)
+    assert fast.status == slow.status == "failed"
+    assert list(fast.n_solved) == list(slow.n_solved) == [0]
+    assert fast.messages == slow.messages
+    assert "at t = 0 (instant 1 of 1001)" in fast.messages[0]
+
+
+def test_the_angles_cosines_are_carried_across_a_step_to_round_off():
+    # trig_step: cos and sin at q from their values at qo by the angle-addition formulas,
+    # against numpy's cos and sin at q, for steps from round-off to beyond the series' range
+    system = mechdsl.load(EXAMPLES / "slider_crank.mech").compile()
+    module = native._module(native.source(system))
+    rng = np.random.default_rng(7)
+    angles = [2, 5]  # the crank's and the rod's phi (the slider's enters no cosine)
+    worst = 0.0
+    for h in (1e-16, 1e-12, 1e-8, 1e-5, 9e-4, 1.1e-3, 0.3):
+        qo = rng.uniform(-10, 10, system.n)
+        q = qo + h * rng.choice([-1.0, 1.0], system.n)
+        cs = np.empty(2 * len(angles))
+        module.trig(qo, cs)
+        module.trig_step(q, qo, cs)
+        exact = np.ravel([(np.cos(q[k]), np.sin(q[k])) for k in angles])
+        worst = max(worst, float(np.abs(cs - exact).max()))
+    assert worst <= 4e-16

@@ -374,14 +374,21 @@ def _source(steps: list, n: int, nnz: int, slots: int, order_cols: list[int],
     return "\n\n".join("\n".join(x) for x in (src, solve, tsolve)) + "\n"
 
 
-def scalar_lines(lu: LUPlan, a, y, x, c, w, fail: str) -> tuple[list, list, list]:
+def scalar_lines(lu: LUPlan, a, y, x, c, w, fail: str, recip=None) -> tuple[list, list, list]:
     """The plan's factorisation and solves as scalar statements (for code on one state: the
     float code of :mod:`mechdsl.compiled.scalar`, the compiled backend's march), with the
     names each caller gives: ``a(k)`` the factor in slot k, ``y(i)``, ``x(i)`` the right-hand
     side and the solution of A x = y, ``c(i)``, ``w(i)`` those of A^T w = c (the right-hand
     sides are overwritten); ``fail`` the statement where a pivot of the fixed order became
-    small. Returns the bodies (one statement per line, unindented) of factor, solve and
-    solve_t."""
+    small; ``recip(k)``, where given, the place where the factorisation keeps 1 / pivot of
+    the pivot in slot k, so that the solves multiply by it (a division costs three to four
+    multiplications' time on the solves' chains of dependent operations; the result differs
+    by one rounding at most). Returns the bodies (one statement per line, unindented) of
+    factor, solve and solve_t."""
+
+    def over(value: str, slot: int) -> str:
+        return f"{value} * {recip(slot)}" if recip else f"{value} / {a(slot)}"
+
     factor = []
     for pr, pc, below, right, p_slot in lu.steps:
         if below:
@@ -391,8 +398,10 @@ def scalar_lines(lu: LUPlan, a, y, x, c, w, fail: str) -> tuple[list, list, list
         else:
             factor.append(f"if not {a(p_slot)} != 0.0:")
         factor.append(f"    {fail}")
+        if recip:
+            factor.append(f"{recip(p_slot)} = 1.0 / {a(p_slot)}")
         for i, l in below:
-            factor.append(f"{a(l)} = {a(l)} / {a(p_slot)}")
+            factor.append(f"{a(l)} = {over(a(l), p_slot)}")
             for u, t in right[i]:
                 factor.append(f"{a(t)} = {a(t)} - {a(l)} * {a(u)}")
     solve = []
@@ -401,10 +410,10 @@ def scalar_lines(lu: LUPlan, a, y, x, c, w, fail: str) -> tuple[list, list, list
             solve.append(f"{y(i)} = {y(i)} - {a(l)} * {y(pr)}")
     for pr, pc, terms, p_slot in reversed(lu.back):
         rest = "".join(f" - {a(u)} * {x(col)}" for u, col in terms)
-        solve.append(f"{x(pc)} = ({y(pr)}{rest}) / {a(p_slot)}")
+        solve.append(f"{x(pc)} = {over(f'({y(pr)}{rest})', p_slot)}")
     solve_t = []
     for pr, pc, terms, p_slot in lu.back:
-        solve_t.append(f"{w(pr)} = {c(pc)} / {a(p_slot)}")
+        solve_t.append(f"{w(pr)} = {over(c(pc), p_slot)}")
         for u, col in terms:
             solve_t.append(f"{c(col)} = {c(col)} - {a(u)} * {w(pr)}")
     for pr, pc, below, right, p_slot in reversed(lu.steps):

@@ -64,12 +64,56 @@ def _read(key: tuple) -> str:
     return f"{kind}[{key[1]}]"
 
 
-def _scalar_code(graph: Graph, outputs: list[tuple[str, Node]], indent: str) -> list[str]:
+def _scalar_code(graph: Graph, outputs: list[tuple[str, Node]], indent: str,
+                 given: dict[int, str] | None = None) -> list[str]:
     """Straight-line scalar code assigning each output ``target = node``; variables read
-    ``q[k]``, ``qd[k]`` and ``p[j]`` (the numpy kernels' code generator, on scalars)."""
-    lines, names = assignments(graph, [node for _, node in outputs], _read)
+    ``q[k]``, ``qd[k]`` and ``p[j]`` (the numpy kernels' code generator, on scalars), the
+    nodes of ``given`` their expressions."""
+    lines, names = assignments(graph, [node for _, node in outputs], _read, given=given)
     lines += [f"{target} = {names[node.id]}" for target, node in outputs]
     return [indent + ln for ln in lines]
+
+
+def _angles(graph: Graph, roots: list[Node]) -> tuple[list[int], dict[int, str]]:
+    """The coordinates whose cosine or sine the graphs of ``roots`` take (the bodies'
+    angles), in increasing order, and the expressions that read those values from ``cs``
+    (cos q_k at ``cs[2 j]``, sin q_k at ``cs[2 j + 1]``, j the coordinate's place in the
+    list)."""
+    trig = [node for node in graph.subgraph(roots)
+            if node.op in ("cos", "sin") and node.args[0].op == "var"
+            and node.args[0].value[0] == "q"]
+    coords = sorted({int(node.args[0].value[1]) for node in trig})
+    given = {node.id: f"cs[{2 * coords.index(int(node.args[0].value[1])) + (node.op == 'sin')}]"
+             for node in trig}
+    return coords, given
+
+
+def _trig_code(coords: list[int]) -> list[str]:
+    """``trig(q, cs)``: cos and sin of the angles ``coords`` at q; ``trig_step(q, qo, cs)``:
+    the same from their values at qo by the angle-addition formulas,
+    cos(a + h) = cos a cos h - sin a sin h, sin(a + h) = sin a cos h + cos a sin h, with
+    cos h and sin h from their series where |h| <= 1e-3 (truncated after h^4 and h^5: the
+    error is below 1e-20), else anew. A Newton step from a converged prediction moves the
+    angles by about 1e-10: the evaluations that confirm it and the rates at the solution
+    take no new cosine or sine."""
+    code = [JIT, "def trig(q, cs):", "    pass"]
+    for j, k in enumerate(coords):
+        code += [f"    cs[{2 * j}] = cos(q[{k}])", f"    cs[{2 * j + 1}] = sin(q[{k}])"]
+    code += ["", JIT, "def trig_step(q, qo, cs):", "    pass"]
+    for j, k in enumerate(coords):
+        c, s = f"cs[{2 * j}]", f"cs[{2 * j + 1}]"
+        code += [f"    h = q[{k}] - qo[{k}]",
+                 "    if abs(h) <= 1e-3:",
+                 "        h2 = h * h",
+                 "        ch = 1.0 - h2 / 2 * (1.0 - h2 / 12)",
+                 "        sh = h * (1.0 - h2 / 6 * (1.0 - h2 / 20))",
+                 f"        c = {c}",
+                 f"        {c} = c * ch - {s} * sh",
+                 f"        {s} = {s} * ch + c * sh",
+                 "    else:",
+                 f"        {c} = cos(q[{k}])",
+                 f"        {s} = sin(q[{k}])"]
+    return code
 
 
 def source(system) -> str | None:
@@ -82,16 +126,21 @@ def source(system) -> str | None:
     m, n, nnz, slots = f.m, f.n, len(f.rows), lu.slots
     code = ["import numpy as np", f"from numpy import {', '.join(CALLED)}, inf, nan",
             "from numba import njit, prange", ""]
-    code += [JIT, "def phi_jac(q, p, phi, a):"]
+    coords, given = _angles(graph, [*f.phi_nodes, *f.jac_nodes, *f.gamma_nodes])
+    code += _trig_code(coords)
+    code += ["", JIT, "def phi_jac(q, cs, p, phi, a):"]
     code += _scalar_code(graph, [(f"phi[{i}]", x) for i, x in enumerate(f.phi_nodes)]
-                         + [(f"a[{k}]", x) for k, x in enumerate(f.jac_nodes)], "    ")
-    code += ["", JIT, "def gamma(q, qd, p, g):"]
-    code += _scalar_code(graph, [(f"g[{i}]", x) for i, x in enumerate(f.gamma_nodes)], "    ")
+                         + [(f"a[{k}]", x) for k, x in enumerate(f.jac_nodes)], "    ", given)
+    code += ["", JIT, "def gamma(q, cs, qd, p, g):"]
+    code += _scalar_code(graph, [(f"g[{i}]", x) for i, x in enumerate(f.gamma_nodes)], "    ",
+                         given)
+    # the pivots' reciprocals after the factor's slots
+    place = {int(k): slots + j for j, k in enumerate(lu.pivots)}
     factor, solve, solve_t = scalar_lines(
         lu, "a[{}]".format, "y[{}]".format, "x[{}]".format, "c[{}]".format, "w[{}]".format,
-        "return False")
+        "return False", recip=lambda k: f"a[{place[k]}]")
     code += ["", JIT, "def factor(a, threshold):",
-             f"    a[{nnz}:] = 0.0" if slots > nnz else "    pass"]
+             f"    a[{nnz}:{slots}] = 0.0" if slots > nnz else "    pass"]
     code += [f"    {ln}" for ln in factor] + ["    return True"]
     # the solves overwrite their right-hand side (no allocation inside the march)
     code += ["", JIT, "def solve(a, y, x):", "    pass"] + [f"    {ln}" for ln in solve]
@@ -102,17 +151,19 @@ def source(system) -> str | None:
              f"DRIVES = np.array([{drive_rows}], dtype=np.int64)",
              f"ROWS = np.array([{', '.join(str(int(r)) for r in f.rows)}], dtype=np.int64)",
              f"COLS = np.array([{', '.join(str(int(c)) for c in f.cols)}], dtype=np.int64)",
-             "", MARCH.format(m=m, n=n, nnz=nnz, slots=slots, parity=float(lu.parity))]
+             "", MARCH.format(m=m, n=n, nnz=nnz, width=slots + len(place),
+                              parity=float(lu.parity),
+                              angles=max(1, 2 * len(coords)))]
     return "\n".join(code) + "\n"
 
 
 MARCH = '''
 @njit(cache=True, error_model="numpy", inline="always")
-def evaluate(x, p, f, d, threshold, phi, a, r, col):
+def evaluate(x, cs, p, f, d, threshold, phi, a, r, col):
     """Phi(x) - f at the drive rows, and the scaled Jacobian A = R Phi_q D (R: the
-    reciprocal row norms of Phi_q D) factorised in place; returns ||A||_1, or -1 where a
-    pivot of the fixed order became small."""
-    phi_jac(x, p, phi, a)
+    reciprocal row norms of Phi_q D) factorised in place (``cs``: the angles' cos and sin
+    at x); returns ||A||_1, or -1 where a pivot of the fixed order became small."""
+    phi_jac(x, cs, p, phi, a)
     for j in range(DRIVES.shape[0]):
         phi[DRIVES[j]] -= f[j]
     for i in range({m}):
@@ -138,15 +189,16 @@ def evaluate(x, p, f, d, threshold, phi, a, r, col):
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, threshold,
-          branch_ratio, singular_rcond, Q, QD, QDD, RC, SG, status, RES):
-    """Instants 1.. of every variant from instant 0 (see the module documentation);
-    status[v] = the first instant not solved (len(TT) when all are); RES[v] the largest
-    |Phi| of the solved states."""
+          branch_ratio, singular_rcond, first, Q, QD, QDD, RC, SG, status, RES):
+    """Instants 1.. of every variant from instant 0 (see the module documentation), and
+    with ``first`` instant 0 too: Newton from Q0 (the assembled configuration), whose
+    det(Phi_q) sign the march then keeps; status[v] = the first instant not solved
+    (len(TT) when all are); RES[v] the largest |Phi| of the solved states."""
     V, K = Q0.shape[0], TT.shape[0]
     floor = np.sqrt(tol)
     for v in prange(V):  # the variants are independent: one thread each, on every core
         phi = np.empty({m})
-        a = np.empty({slots})
+        a = np.empty({width})
         g = np.empty({m})
         rhs = np.empty({n})
         dx = np.empty({n})
@@ -156,6 +208,8 @@ def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, thre
         z = np.empty({n})
         pred = np.empty({n})
         x = np.empty({n})
+        xo = np.empty({n})
+        cs = np.empty({angles})
         jerk = np.zeros({n})
         p = P[:, v].copy()
         d = D[v].copy()
@@ -164,8 +218,8 @@ def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, thre
         qdd = QDD0[v].copy()
         sign = SIGN0[v]
         status[v] = K
-        for k in range(1, K):
-            tau = TT[k] - TT[k - 1]
+        for k in range(1 - first, K):
+            tau = TT[k] - TT[k - 1] if k > 0 else 0.0
             # Taylor to the third order, d3q/dt3 from the last two accelerations: Newton's
             # first step then lands at round-off, and its second confirms it (settled)
             for i in range({n}):
@@ -175,7 +229,11 @@ def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, thre
             final = False
             prev = np.inf
             for it in range(maxit):
-                norm_a = evaluate(x, p, FD[v, k, 0], d, threshold, phi, a, r, col)
+                if it == 0:
+                    trig(x, cs)
+                else:
+                    trig_step(x, xo, cs)
+                norm_a = evaluate(x, cs, p, FD[v, k, 0], d, threshold, phi, a, r, col)
                 if norm_a < 0:
                     break
                 for i in range({m}):
@@ -190,6 +248,7 @@ def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, thre
                     conv = final = True
                     break
                 for i in range({n}):
+                    xo[i] = x[i]
                     x[i] += d[i] * dx[i]
                 if step <= tol or (prev < np.inf and step < 0.25 * prev
                                    and step ** 3 / prev ** 2 <= err_tol):
@@ -202,7 +261,8 @@ def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, thre
                 status[v] = k
                 break
             if not final:  # the factorisation at the converged position
-                norm_a = evaluate(x, p, FD[v, k, 0], d, threshold, phi, a, r, col)
+                trig_step(x, xo, cs)
+                norm_a = evaluate(x, cs, p, FD[v, k, 0], d, threshold, phi, a, r, col)
                 if norm_a < 0:
                     status[v] = k
                     break
@@ -249,6 +309,8 @@ def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, thre
                 moved = max(moved, abs(x[i] - q[i]) / d[i], abs(pred[i] - q[i]) / d[i])
                 corr = max(corr, abs(x[i] - pred[i]) / d[i])
             ratio = corr / max(moved, floor)
+            if k == 0:  # the sign the march keeps
+                sign, ratio = det, 0.0
             if not (det == sign and rcond >= singular_rcond and ratio <= branch_ratio):
                 status[v] = k
                 break
@@ -262,7 +324,7 @@ def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, thre
             solve(a, rhs, dx)
             for i in range({n}):
                 qd[i] = d[i] * dx[i]
-            gamma(x, qd, p, g)
+            gamma(x, cs, qd, p, g)
             for j in range(DRIVES.shape[0]):
                 g[DRIVES[j]] += FD[v, k, 2, j]
             for i in range({m}):
@@ -271,7 +333,7 @@ def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, thre
             finite = True
             for i in range({n}):
                 qdd_i = d[i] * dx[i]
-                jerk[i] = (qdd_i - qdd[i]) / tau
+                jerk[i] = (qdd_i - qdd[i]) / tau if k > 0 else 0.0
                 qdd[i] = qdd_i
                 finite = finite and np.isfinite(qd[i]) and np.isfinite(qdd[i])
             if not finite:  # the numpy march reports it, or keeps it, as asked

@@ -129,8 +129,16 @@ class KinematicRun(Run):
         status = "ok"
         try:
             if self.active.any():
-                self._first_instant(asm)
-                self.advance()
+                march = self._native()
+                # the compiled march solves instant 0 too, from the assembled configuration;
+                # where it stops there, the numpy solver looks at instant 0 and reports
+                k = self.native_march(march, 0) if march is not None else 0
+                if k == 0:
+                    self._first_instant(asm)
+                    k = 1
+                    if march is not None and self.active.any():
+                        k = self.native_march(march, 1)
+                self.advance(k)
         except KeyboardInterrupt:
             status = "interrupted"
         elapsed = time.perf_counter() - start
@@ -228,20 +236,16 @@ class KinematicRun(Run):
         self.accept(q0, t0, np.array([0]), fac, self.active.copy(), rates,
                     checked=rates is not None)
 
-    def advance(self) -> None:
-        """March from the state at instant 0 to the last instant, window by window.
+    def advance(self, k: int = 1) -> None:
+        """March from the state at instant k - 1 to the last instant, window by window
+        (the compiled march, where it applies, has solved the instants before k).
 
-        The compiled march (:meth:`native_march`) goes first where it applies. Each window is
-        then tried parallel in time (:meth:`parallel`); what that does not settle is marched
-        instant by instant (:meth:`march`), which reports any failure exactly."""
+        Each window is tried parallel in time (:meth:`parallel`); what that does not settle
+        is marched instant by instant (:meth:`march`), which reports any failure exactly."""
         system, opts, progress = self.system, self.opts, self.progress
         K = len(self.times)
         stride = opts.coarse_stride
         parallel = stride > 1 and not use_sparse(system, opts, self.rows)
-        k = 1
-        march = self._native()
-        if march is not None:
-            k = self.native_march(march)
         lean = large.applies(self)
         while k < K and self.active.any():
             end = min(K, k + max(opts.window, 2 * stride))
@@ -583,13 +587,13 @@ class KinematicRun(Run):
             self.warnings.append(f"backend 'compiled' asked for, but {why}: solved on numpy")
         return march
 
-    def native_march(self, march) -> int:
-        """The instants by the compiled march (:mod:`mechdsl.compiled.native`), a chunk of
-        ``native.chunk_instants`` at a time from the last state (so that progress is shown
-        and an interrupt is taken between chunks); each chunk's instants up to the first
-        where some variant stops are accepted (with their rates, condition numbers and
-        signs), and the numpy march goes on from there. Returns the first instant not
-        solved."""
+    def native_march(self, march, k: int) -> int:
+        """The instants from k by the compiled march (:mod:`mechdsl.compiled.native`), a
+        chunk of ``native.chunk_instants`` at a time from the last state (so that progress
+        is shown and an interrupt is taken between chunks; k = 0: from the assembled
+        configuration, instant 0 included); each chunk's instants up to the first where
+        some variant stops are accepted (with their rates, condition numbers and signs),
+        and the numpy march goes on from there. Returns the first instant not solved."""
         system, opts, times, progress = self.system, self.opts, self.times, self.progress
         K, V, n = len(times), system.n_variants, system.n
         live = np.flatnonzero(self.active)
@@ -599,26 +603,26 @@ class KinematicRun(Run):
         c = np.ascontiguousarray
         P, D = c(P[:, live]), c(self.D[live, 0])
         step = native.chunk_instants(len(live))
-        k = 1
         while k < K:
-            end = min(K, k + step)
-            T = np.broadcast_to(times[k - 1 : end], (V, end - k + 1))
+            first = int(k == 0)  # column 0: the state's instant, or instant 0 to solve
+            start, end = k - 1 + first, min(K, k + step)
+            T = np.broadcast_to(times[start:end], (V, end - start))
             values = _drive_values(system, T)
             if (_undefined_drives(system, T, values) & self.active[:, None]).any():
                 return k
-            fd = np.zeros((len(live), end - k + 1, 3, len(system.drive_rows)))
+            L, C = len(live), end - start
+            fd = np.zeros((L, C, 3, len(system.drive_rows)))
             for i, v in enumerate(values or ()):
                 fd[:, :, i] = v[live]
-            L, C = len(live), end - k + 1
             # every column before a variant's status is written by the march; only those
             # are read
             out = [np.empty((L, C, n)) for _ in range(3)] + [np.empty((L, C)) for _ in range(2)]
             status, residual = np.zeros(L, np.int64), np.zeros(L)
             _call_compiled(march, c(self.q[live]), c(self.qd[live]), c(self.qdd[live]),
-                  c(self.sign[live], dtype=float), c(times[k - 1 : end]), fd, P, D,
+                  c(self.sign[live], dtype=float), c(times[start:end]), fd, P, D,
                   opts.newton_tol, opts.newton_error, opts.settled_step,
                   opts.max_iterations, THRESHOLD,
-                  opts.branch_ratio, opts.singular_rcond, *out, status, residual)
+                  opts.branch_ratio, opts.singular_rcond, first, *out, status, residual)
             if L == V:  # the usual case: no copies of the results
                 Q, QD, QDD, RC, SG = out
             else:
@@ -627,13 +631,13 @@ class KinematicRun(Run):
                 for full, part in zip((Q, QD, QDD, RC, SG), out):
                     full[live] = part
             reached = int(status.min())  # the first column of the chunk not solved
-            if reached > 1:
-                cols = slice(1, reached)
+            if reached > 1 - first:
+                cols = slice(1 - first, reached)
                 self.residual = max(self.residual, float(residual.max(initial=0.0)))
-                self.accept(Q[:, cols], T[:, cols], np.arange(k, k + reached - 1),
+                self.accept(Q[:, cols], T[:, cols], np.arange(k, start + reached),
                             Factor(None, RC[:, cols], SG[:, cols]), self.active.copy(),
                             (QD[:, cols], QDD[:, cols]), checked=True)
-            k += reached - 1
+            k = start + reached
             if progress is not None:
                 progress(k, K)
             if reached < C:

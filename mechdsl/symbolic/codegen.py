@@ -59,21 +59,26 @@ CALLED = sorted(set(_CALLS.values()))
 
 
 def assignments(graph: Graph, outputs: Sequence[Node], read: Callable[[tuple], str],
-                major: bool = False, prefix: str = "", functions: str = "F"
-                ) -> tuple[list[str], dict[int, str]]:
+                major: bool = False, prefix: str = "", functions: str = "F",
+                given: dict[int, str] | None = None) -> tuple[list[str], dict[int, str]]:
     """Assignments for every operation node the outputs need, in topological order, and the
     name of each node (``prefix`` before every name, to join the code of two graphs);
     ``read(key)`` is the expression that reads a variable, ``functions`` the name of the
-    table of function arguments that calls index. Numpy's
+    table of function arguments that calls index, ``given`` the expressions that read nodes
+    the caller has computed (by node id: they are read, not computed). Numpy's
     functions are called by their names in :data:`CALLED` (and constants may be ``nan``,
     ``inf``): the namespace the code runs in provides them. (Also the compiled backend's.)"""
     names: dict[int, str] = {}
     lines: list[str] = []
+    given = given or {}
     for n in graph.subgraph(outputs):
         if n.op == "const":
             names[n.id] = _const(n.value)
             continue
-        if n.op == "var":
+        if n.id in given:
+            name = f"{prefix}n{n.id}"
+            lines.append(f"{name} = {given[n.id]}")
+        elif n.op == "var":
             name = f"{prefix}v_" + "_".join(map(str, n.value))
             lines.append(f"{name} = {read(n.value)}")
         else:
