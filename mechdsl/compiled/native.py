@@ -151,9 +151,10 @@ def source(system) -> str | None:
              f"DRIVES = np.array([{drive_rows}], dtype=np.int64)",
              f"ROWS = np.array([{', '.join(str(int(r)) for r in f.rows)}], dtype=np.int64)",
              f"COLS = np.array([{', '.join(str(int(c)) for c in f.cols)}], dtype=np.int64)",
-             "", MARCH.format(m=m, n=n, nnz=nnz, width=slots + len(place),
-                              parity=float(lu.parity),
-                              angles=max(1, 2 * len(coords)))]
+             ""]
+    sizes = dict(m=m, n=n, nnz=nnz, width=slots + len(place), parity=float(lu.parity),
+                 angles=max(1, 2 * len(coords)), drives=max(1, len(system.drive_rows)))
+    code += [MARCH.format(**sizes), CARRY.format(**sizes)]
     return "\n".join(code) + "\n"
 
 
@@ -350,19 +351,151 @@ def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, thre
 '''
 
 
+CARRY = '''
+@njit(cache=True, error_model="numpy")
+def inverse_norm(a, n_cols, e, w):
+    """||A^-1||_1 exactly, from the solves of the unit vectors."""
+    norm = 0.0
+    for j in range(n_cols):
+        for i in range(n_cols):
+            e[i] = 0.0
+        e[j] = 1.0
+        solve(a, e, w)
+        s = 0.0
+        for i in range(n_cols):
+            s += abs(w[i])
+        if not s <= norm:
+            norm = s
+    return norm
+
+
+@njit(cache=True, error_model="numpy")
+def carry(x0, f, p, d, tol, err_tol, maxit, threshold, branch_ratio, singular_rcond,
+          max_bisections, x, info):
+    """The drives carried from their values g(x0) at x0 (the joints closed) to f(t0):
+    :func:`mechdsl.solve.assembly._continue_drives` for one state, the same steps and
+    checks (Newton on Phi(q, t0) + (1 - s)(f - g) = 0 for s from 0 to 1, each step
+    started from the tangent, shortened when Newton struggles, refused where the Jacobian
+    turns singular or changes sign, or Newton's correction is large against the motion).
+    x: the configuration reached; info[0] = 1 carried, 0 refused, -1 a pivot of the fixed
+    order became small (the float code decides); info[1] the Newton iterations."""
+    phi = np.empty({m})
+    a = np.empty({width})
+    ax = np.empty({width})
+    r = np.empty({m})
+    rx = np.empty({m})
+    col = np.empty({n})
+    cs = np.empty({angles})
+    dx = np.empty({n})
+    rhs = np.empty({n})
+    e = np.empty({n})
+    pred = np.empty({n})
+    xn = np.empty({n})
+    delta = np.zeros({m})
+    g = np.zeros({drives})
+    target = np.zeros({drives})
+    floor = np.sqrt(tol)
+    info[0], info[1] = -1, 0
+    for i in range({n}):
+        x[i] = x0[i]
+    trig(x, cs)
+    if evaluate(x, cs, p, target, d, threshold, phi, a, r, col) < 0:
+        return
+    for j in range(DRIVES.shape[0]):
+        g[j] = phi[DRIVES[j]]
+        step = f[j] - g[j]
+        delta[DRIVES[j]] = step if np.isfinite(step) else 0.0
+    sign = {parity}
+    for j in range(PIVOTS.shape[0]):
+        sign *= np.sign(a[PIVOTS[j]])
+    ax[:] = a
+    rx[:] = r
+    s, ds, iterations = 0.0, 1.0, 0
+    while s < 1.0:
+        s_new = min(1.0, s + ds)
+        for i in range({m}):  # the tangent: Phi_q dq/ds = delta at x
+            rhs[i] = delta[i] * rx[i]
+        solve(ax, rhs, dx)
+        for i in range({n}):
+            step = (s_new - s) * d[i] * dx[i]
+            pred[i] = x[i] + step if np.isfinite(step) else x[i]
+            xn[i] = pred[i]
+        for j in range(DRIVES.shape[0]):
+            target[j] = g[j] - (g[j] - f[j]) * s_new
+        conv, prev, it = False, np.inf, 0
+        for it in range(1, maxit + 1):
+            trig(xn, cs)
+            if evaluate(xn, cs, p, target, d, threshold, phi, a, r, col) < 0:
+                return
+            for i in range({m}):
+                rhs[i] = -phi[i] * r[i]
+            solve(a, rhs, dx)
+            step = 0.0
+            for i in range({n}):
+                if not abs(dx[i]) <= step:
+                    step = abs(dx[i])
+            if not np.isfinite(step):
+                break
+            for i in range({n}):
+                xn[i] += d[i] * dx[i]
+            left = step ** 3 / prev ** 2 if step < 0.25 * prev and prev < np.inf else np.inf
+            if step <= tol or left <= err_tol:
+                conv = True
+                break
+            if it >= 3 and not step <= 0.5 * prev:
+                break
+            prev = step
+        iterations += it
+        info[1] = iterations
+        trig(xn, cs)
+        norm_a = evaluate(xn, cs, p, target, d, threshold, phi, a, r, col)
+        if norm_a < 0:
+            return
+        inv_norm = inverse_norm(a, {n}, e, dx)
+        rcond = 1.0 / (norm_a * inv_norm) if inv_norm > 0 else 0.0
+        if not np.isfinite(rcond):
+            rcond = 0.0
+        det = {parity}
+        for j in range(PIVOTS.shape[0]):
+            det *= np.sign(a[PIVOTS[j]])
+        moved, corr = 0.0, 0.0
+        finite = True
+        for i in range({n}):
+            moved = max(moved, abs(xn[i] - x[i]) / d[i], abs(pred[i] - x[i]) / d[i])
+            corr = max(corr, abs(xn[i] - pred[i]) / d[i])
+            finite = finite and np.isfinite(xn[i]) and np.isfinite(pred[i])
+        ratio = corr / max(moved, floor) if finite else np.inf
+        if not (conv and rcond >= singular_rcond and det == sign and ratio <= branch_ratio):
+            if ds > 2.0 ** -max_bisections:
+                ds /= 2
+                continue
+            info[0] = 0
+            return
+        for i in range({n}):
+            x[i] = xn[i]
+        ax[:] = a
+        rx[:] = r
+        s = s_new
+        if it <= 3:
+            ds = min(1.0, 2 * ds)
+    info[0] = 1
+'''
+
+
 def _cache_folder() -> str | None:
     from ..grammar.cache import safe_folder
 
     return safe_folder("native")
 
 
-def load(system) -> Callable | None:
-    """The compiled march of ``system`` (numba imported, the module compiled or loaded from
-    the cache), or None where the backend does not apply or numba is missing."""
+def load(system):
+    """The compiled module of ``system``: its ``march`` and its ``carry`` (numba imported,
+    the module compiled or loaded from the cache), or None where the backend does not apply
+    or numba is missing."""
     text = source(system)
     if text is None or not available():
         return None
-    return _module(text).march
+    return _module(text)
 
 
 def _module(text: str):

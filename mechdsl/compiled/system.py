@@ -196,9 +196,9 @@ class System:
 
     @functools.cached_property
     def native(self):
-        """The compiled march of this model (:mod:`mechdsl.compiled.native`: numba imported,
-        the march compiled or loaded from the disk cache), or None where the backend does
-        not apply or numba is missing. Loaded on first use only."""
+        """The compiled module of this model (:mod:`mechdsl.compiled.native`: numba
+        imported, the march compiled or loaded from the disk cache), or None where the
+        backend does not apply or numba is missing. Loaded on first use only."""
         from . import native
 
         return native.load(self)

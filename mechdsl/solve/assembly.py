@@ -9,6 +9,7 @@ from typing import Callable
 import numpy as np
 
 from ..compiled import equations as eq
+from ..compiled.lu import THRESHOLD
 from ..compiled.sparse import SparseJac
 from ..compiled.system import System
 from .diagnose import (
@@ -302,8 +303,11 @@ def _continue_drives(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray
     if system.drive_rows.size == 0 or not ok.any():
         return q, ok, 0, None
     if system.one_state is not None and len(rows) == system.n:
-        done = _continue_one(OneState(system, system.one_state, D[0, 0], opts), q[0, 0],
-                             float(t[0, 0]), opts)
+        done = (_continue_compiled(system, q[0, 0], float(t[0, 0]), D[0, 0], opts)
+                if opts.backend == "compiled" else None)
+        if done is None:
+            done = _continue_one(OneState(system, system.one_state, D[0, 0], opts), q[0, 0],
+                                 float(t[0, 0]), opts)
         if done is not None:
             qn, good, it, start = done
             return np.array(qn).reshape(q.shape), np.array([good]), it, start
@@ -387,6 +391,28 @@ def _continue_one(one, q: np.ndarray, t0: float, opts: SolverOptions
         if it <= 3:
             ds = min(1.0, 2 * ds)
     return x, True, iterations, OneStart(f, fd, fdd, fac)
+
+
+def _continue_compiled(system: System, q: np.ndarray, t0: float, D: np.ndarray,
+                       opts: SolverOptions) -> tuple[list, bool, int, None] | None:
+    """:func:`_continue_one` by the compiled backend (``carry`` of
+    :mod:`mechdsl.compiled.native`), where the run is compiled: the same steps and checks
+    in machine code; None where the model does not compile or a pivot of the fixed order
+    became small (the float code decides)."""
+    module = system.native
+    if module is None:
+        return None
+    f = np.ascontiguousarray(
+        eq.drive_values(system, np.array([[t0]]), "f", (1, 1))[0, 0], dtype=float)
+    params = system.fused.params
+    p = np.array([float(np.ravel(v)[0]) for v in params]) if params else np.zeros(0)
+    x, info = np.empty(system.n), np.zeros(2, np.int64)
+    module.carry(np.ascontiguousarray(q, dtype=float), f, p, np.ascontiguousarray(D),
+                 opts.newton_tol, opts.newton_error, opts.max_iterations, THRESHOLD,
+                 opts.branch_ratio, opts.singular_rcond, opts.max_bisections, x, info)
+    if info[0] < 0:
+        return None
+    return x.tolist(), bool(info[0]), int(info[1]), None
 
 
 def _one_equations(one: OneState, t: float, rows: np.ndarray) -> OneEquations:

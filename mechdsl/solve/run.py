@@ -579,13 +579,13 @@ class KinematicRun(Run):
         arguments, numba installed); else None."""
         if not _wants_native(self.system, self.opts) or len(self.rows) != self.system.n:
             return None
-        march = self.system.native
-        if march is None and self.opts.backend == "compiled":
+        module = self.system.native
+        if module is None and self.opts.backend == "compiled":
             why = ("numba is not installed (pip install mechdsl[fast])" if not native.available()
                    else "the compiled backend does not compile this model (a function "
                    "argument, or more than a small mechanism's constraints)")
             self.warnings.append(f"backend 'compiled' asked for, but {why}: solved on numpy")
-        return march
+        return module.march if module is not None else None
 
     def native_march(self, march, k: int) -> int:
         """The instants from k by the compiled march (:mod:`mechdsl.compiled.native`), a
