@@ -61,14 +61,8 @@ def resident_bytes() -> int:
             return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
     except (OSError, ValueError, IndexError, AttributeError):
         pass
-    try:
-        import resource
-        import sys
-
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        return peak if sys.platform == "darwin" else peak * 1024
-    except (ImportError, OSError):
-        return 0
+    peak = peak_bytes()
+    return 0 if peak is None else peak
 
 
 def size_text(n: float, exact: bool = False) -> str:
@@ -88,13 +82,43 @@ def results_bytes(system: System, *, poses: bool, rates: bool) -> int:
     return BYTES * V * K * (per_instant + 1)
 
 
+def peak_bytes() -> int | None:
+    """The peak resident memory of this process so far (at least its resident memory now:
+    one system call where reading /proc costs ten times more); None where unknown."""
+    try:
+        import resource
+        import sys
+
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        return peak if sys.platform == "darwin" else peak * 1024
+    except (ImportError, OSError):
+        return None
+
+
 def plan(system: System, limit: int, max_batch_elements: int, *, sparse: bool,
          poses: bool = False, rates: bool = False, extra: int = 0,
          compiled: bool = False) -> Plan:
     """The batch cap for a run of ``system`` within ``limit`` bytes of resident memory, or a
-    MechError with the estimate when it does not fit (see the module's docstring)."""
+    MechError with the estimate when it does not fit (see the module's docstring). The
+    process's peak so far stands for its present size where the run fits beside it with
+    the full batch cap; else the present size is read."""
+    args = (system, limit, max_batch_elements, sparse, poses, rates, extra, compiled)
+    peak = peak_bytes()
+    if peak is not None:
+        try:
+            upper = _plan(peak, *args)
+        except MechError:
+            pass
+        else:
+            if upper.batch_elements == max_batch_elements:
+                return upper
+    return _plan(resident_bytes(), *args)
+
+
+def _plan(so_far: int, system: System, limit: int, max_batch_elements: int, sparse: bool,
+          poses: bool, rates: bool, extra: int, compiled: bool) -> Plan:
     V, m, n = system.n_variants, system.m, system.n
-    parts = {"the process so far": resident_bytes(),
+    parts = {"the process so far": so_far,
              "the results": results_bytes(system, poses=poses, rates=rates),
              "libraries to load": IMPORT_BYTES["scipy.sparse"] if sparse else 0,
              "drawings and exports": extra}

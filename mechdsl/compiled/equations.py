@@ -25,7 +25,9 @@ def drive_values(system: System, t: np.ndarray, which: str, shape) -> np.ndarray
     env = dict(system.env)
     env["t"] = t
     with np.errstate(all="ignore"):
-        cols = [np.broadcast_to(getattr(d, which)(env), shape) for d in system.drive_functions]
+        cols = [getattr(d, which)(env) for d in system.drive_functions]
+    # (a value of the shape already is taken as it is: broadcast_to costs microseconds)
+    cols = [c if np.shape(c) == shape else np.broadcast_to(c, shape) for c in cols]
     if len(cols) == 1:  # the common case, without the copy of a stack
         return cols[0][..., None]
     return np.stack(cols, axis=-1)

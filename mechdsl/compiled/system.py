@@ -246,13 +246,15 @@ class System:
     def n_bodies(self) -> int:
         return len(self.body_names)
 
-    @property
+    @functools.cached_property
     def joint_rows(self) -> np.ndarray:
-        """The equations that are not drives, in order."""
+        """The equations that are not drives, in order (read-only)."""
         # a mask, not np.setdiff1d: that imports numpy.ma (10 ms of every start-up)
         mask = np.ones(self.m, bool)
         mask[self.drive_rows] = False
-        return np.flatnonzero(mask)
+        rows = np.flatnonzero(mask)
+        rows.flags.writeable = False
+        return rows
 
     def row_owner(self, row: int) -> Constraint:
         """The joint or drive that owns equation ``row`` (by bisection: messages about large

@@ -33,12 +33,12 @@ def count_check(system: System) -> None:
     src = system.source
     if n == 0:
         raise MechError("the model has no moving body", source=src)
-    attached = {b for c in system.constraints for b in c.bodies}
-    loose = [b for b in system.body_names if b not in attached]
-    notes = [f"body '{b}' is attached to nothing" for b in loose[:MAX_NAMED]]
-    if len(loose) > MAX_NAMED:
-        notes.append(f"and {len(loose) - MAX_NAMED} more bodies are attached to nothing")
     if m < n:
+        attached = {b for c in system.constraints for b in c.bodies}
+        loose = [b for b in system.body_names if b not in attached]
+        notes = [f"body '{b}' is attached to nothing" for b in loose[:MAX_NAMED]]
+        if len(loose) > MAX_NAMED:
+            notes.append(f"and {len(loose) - MAX_NAMED} more bodies are attached to nothing")
         dof = n - m
         s = "s" if dof > 1 else ""
         raise MechError(

@@ -142,6 +142,13 @@ class SolverOptions:
         return replace(self, singular_rcond=self.singular_rcond / factor,
                        warn_rcond=self.warn_rcond / factor)
 
+    def derived(self, **changes) -> "SolverOptions":
+        """A copy with ``changes`` that the solver derived from valid options (a batch cap,
+        the backend it chose), without checking every option again as ``replace`` does."""
+        new = object.__new__(SolverOptions)
+        new.__dict__.update(self.__dict__, **changes)
+        return new
+
     def __post_init__(self) -> None:
         if not 0 < self.newton_tol <= 1e-4:
             raise ValueError(f"newton_tol must be in (0, 1e-4], not {self.newton_tol!r}")

@@ -29,7 +29,7 @@ Refused states are bisected towards, then reported with the instant and the join
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -106,9 +106,8 @@ class KinematicRun(Run):
             compiled = False  # "auto": the numpy path fits where numba would not
             budget = plan(system, opts.max_memory, opts.max_batch_elements, sparse=sparse,
                           poses=poses or rates, rates=rates, extra=extra_memory)
-        # (one replace: each validates every option again)
-        self.opts = replace(opts, max_batch_elements=budget.batch_elements,
-                            backend=opts.backend if compiled else "numpy")
+        self.opts = opts.derived(max_batch_elements=budget.batch_elements,
+                                 backend=opts.backend if compiled else "numpy")
         self.keep_poses, self.keep_rates = poses or rates, rates
         #: sqrt(newton_tol): the smallest motion the branch check measures corrections by
         self.floor = np.sqrt(self.opts.newton_tol)
@@ -302,14 +301,17 @@ class KinematicRun(Run):
                 phi = eq.constraint_values(system, q, t)
             self.residual = max(self.residual, float(np.abs(phi[mask]).max(initial=0.0)))
             self._watch_redundant(phi, t, mask)
-        worst = np.argmin(fac.rcond, axis=1)
-        lowest = fac.rcond[np.arange(len(worst)), worst]
-        lower = mask & (lowest < self.min_rcond)
-        self.min_rcond[lower] = lowest[lower]
-        self.min_rcond_t[lower] = t[lower, worst[lower]]
-        self.q[mask], self.t[mask] = q[mask, -1], t[mask, -1]
-        self.qd[mask], self.qdd[mask] = qd[mask, -1], qdd[mask, -1]
-        self.sign[mask] = fac.sign[mask, -1]
+        lower = mask & (fac.rcond.min(axis=1) < self.min_rcond)
+        if lower.any():
+            worst = np.argmin(fac.rcond[lower], axis=1)
+            sub = np.arange(len(worst))
+            self.min_rcond[lower] = fac.rcond[lower][sub, worst]
+            self.min_rcond_t[lower] = t[lower][sub, worst]
+        # (every variant, the usual case: slices, not copies through a mask)
+        at = slice(None) if mask.all() else mask
+        self.q[at], self.t[at] = q[at, -1], t[at, -1]
+        self.qd[at], self.qdd[at] = qd[at, -1], qdd[at, -1]
+        self.sign[at] = fac.sign[at, -1]
         # per variant: the variants that stopped are skipped by Newton, whatever their entry
         if fac.lus is not None and mask.any() and (fac.rcond[mask, -1] > 0).all():
             self.fac = fac.columns(slice(c - 1, c))
@@ -322,6 +324,7 @@ class KinematicRun(Run):
         if not keep.any():
             return
         k = rec[keep]
+        whole = (isinstance(at, slice) and keep.all() and k[-1] - k[0] == len(k) - 1)
         if self.poses is not None:
             self.poses[np.ix_(mask, k)] = q[mask][:, keep]
         if self.pose_rates is not None:
@@ -329,8 +332,7 @@ class KinematicRun(Run):
             self.pose_rates[np.ix_(mask, k, [1])] = qdd[mask][:, keep][:, :, None]
         full_qd = qd if order >= 1 else None
         full_qdd = qdd if order >= 2 else None
-        # the usual case, every variant and a run of instants, by slices rather than copies
-        whole = (mask.all() and keep.all() and k[-1] - k[0] == len(k) - 1)
+        # the usual case, every variant and a run of instants: by slices rather than copies
         cache: dict = {}  # the multipliers, once for all the reactions asked for
         for spec in system.outputs:
             values = eq.output_values(system, spec, q, full_qd, full_qdd, t, cache)
@@ -608,7 +610,8 @@ class KinematicRun(Run):
             start, end = k - 1 + first, min(K, k + step)
             T = np.broadcast_to(times[start:end], (V, end - start))
             values = _drive_values(system, T)
-            if (_undefined_drives(system, T, values) & self.active[:, None]).any():
+            if values is not None and not all(np.isfinite(v).all() for v in values) and (
+                    _undefined_drives(system, T, values) & self.active[:, None]).any():
                 return k
             L, C = len(live), end - start
             fd = np.zeros((L, C, 3, len(system.drive_rows)))
