@@ -232,8 +232,10 @@ def gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
     if rows.size == 0:
         return q.copy(), np.ones(V, bool), 0
     if one is None and system.one_state is not None:
-        one = _one_equations(OneState(system, system.one_state, D[0, 0], opts),
-                             float(t[0, 0]), rows)
+        solver = OneState(system, system.one_state, D[0, 0], opts)
+        if V == 1 and _closed_exactly(solver, q[0, 0], rows):
+            return q.copy(), np.ones(1, bool), 1
+        one = _one_equations(solver, float(t[0, 0]), rows)
     if one is not None and V == 1:
         out = _gauss_newton_one(one, q[0, 0], D[0, 0], rows, opts)
         if out is not None:
@@ -413,6 +415,18 @@ def _continue_compiled(system: System, q: np.ndarray, t0: float, D: np.ndarray,
     if info[0] < 0:
         return None
     return x.tolist(), bool(info[0]), int(info[1]), None
+
+
+def _closed_exactly(one: OneState, q: np.ndarray, rows: np.ndarray) -> bool:
+    """Whether the joint equations ``rows`` (no drive among them: else False) hold exactly
+    at ``q``, guesses written from the drawing: Gauss-Newton's step would be zero."""
+    if not set(one.drive_rows).isdisjoint(rows.tolist()):
+        return False
+    try:
+        phi, _ = one.residual(q.tolist(), [0.0] * len(one.drive_rows))
+    except FLOAT_ERRORS:
+        return False
+    return not any(phi[r] for r in rows.tolist())
 
 
 def _one_equations(one: OneState, t: float, rows: np.ndarray) -> OneEquations:

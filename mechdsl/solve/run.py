@@ -598,13 +598,15 @@ class KinematicRun(Run):
         and the numpy march goes on from there. Returns the first instant not solved."""
         system, opts, times, progress = self.system, self.opts, self.times, self.progress
         K, V, n = len(times), system.n_variants, system.n
-        live = np.flatnonzero(self.active)
+        every = bool(self.active.all())
+        live = slice(None) if every else np.flatnonzero(self.active)  # (a slice copies nothing)
         params = system.fused.params
         P = (np.stack([np.broadcast_to(p, (V, 1))[:, 0] for p in params]) if params
              else np.zeros((0, V)))
         c = np.ascontiguousarray
         P, D = c(P[:, live]), c(self.D[live, 0])
-        step = native.chunk_instants(len(live))
+        L = V if every else len(live)
+        step = native.chunk_instants(L)
         while k < K:
             first = int(k == 0)  # column 0: the state's instant, or instant 0 to solve
             start, end = k - 1 + first, min(K, k + step)
@@ -613,10 +615,9 @@ class KinematicRun(Run):
             if values is not None and not all(np.isfinite(v).all() for v in values) and (
                     _undefined_drives(system, T, values) & self.active[:, None]).any():
                 return k
-            L, C = len(live), end - start
-            fd = np.zeros((L, C, 3, len(system.drive_rows)))
-            for i, v in enumerate(values or ()):
-                fd[:, :, i] = v[live]
+            C = end - start
+            fd = (np.stack([v[live] for v in values], axis=2) if values is not None
+                  else np.zeros((L, C, 3, 0)))
             # every column before a variant's status is written by the march; only those
             # are read
             out = [np.empty((L, C, n)) for _ in range(3)] + [np.empty((L, C)) for _ in range(2)]
