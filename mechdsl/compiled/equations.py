@@ -14,6 +14,8 @@ function (:mod:`mechdsl.compiled.fused`): no plugin code runs during a solve.
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 import numpy as np
 
 from .sparse import LU_BATCH, LUJac, SparseJac
@@ -172,6 +174,11 @@ def reaction_values(system: System, spec: ReactionOutput, q: np.ndarray, lam: np
     return torque
 
 
+#: the coordinate (x, y, phi) each body quantity reads
+_AXIS = MappingProxyType({"x": 0, "y": 1, "phi": 2, "vx": 0, "vy": 1, "omega": 2,
+                          "ax": 0, "ay": 1, "alpha": 2})
+
+
 def output_values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
                   qdd: np.ndarray | None, t: np.ndarray | None = None,
                   cache: dict | None = None) -> np.ndarray:
@@ -202,6 +209,12 @@ def output_values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
     i = spec.body
     k = 3 * i
     shape = q.shape[:-1]
+    name = spec.quantity
+    if spec.point is None:  # a coordinate of the body, or its rate
+        source = (q, qd, qdd)[spec.order]
+        if i == system.n_bodies or source is None:  # the ground does not move
+            return np.zeros(shape)
+        return source[..., k + _AXIS[name]].copy()
 
     def part(a: np.ndarray | None) -> np.ndarray:
         if i == system.n_bodies or a is None:  # the ground does not move
@@ -209,11 +222,6 @@ def output_values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
         return a[..., k : k + 3]
 
     pose = part(q)
-    name = spec.quantity
-    if spec.point is None:
-        source = {0: pose, 1: part(qd), 2: part(qdd)}[spec.order]
-        return source[..., {"x": 0, "y": 1, "phi": 2, "vx": 0, "vy": 1, "omega": 2,
-                            "ax": 0, "ay": 1, "alpha": 2}[name]].copy()
     c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
     sx, sy = spec.point[..., 0], spec.point[..., 1]
     asx, asy = c * sx - s * sy, s * sx + c * sy

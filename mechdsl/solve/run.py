@@ -319,6 +319,7 @@ class KinematicRun(Run):
         if self.regular is None:
             self.regular = _Regular(self.t.copy(), self.qd.copy(), self.qdd.copy())
         g = self.regular
+        well = slice(None) if well.all() else well
         g.t[well], g.qd[well], g.qdd[well] = t[well, -1], qd[well, -1], qdd[well, -1]
         keep = rec >= 0
         if not keep.any():
