@@ -212,3 +212,73 @@ def test_the_compiled_assembly_refuses_a_dead_point_as_the_float_code():
         res = simulate(system, options)
         assert res.status == "failed" and res.n_solved[0] == 0
         assert "the drives cannot reach their values at t0" in res.messages[0]
+
+
+@pytest.mark.parametrize("m", [1, 2, 5, 8, 10])
+def test_the_predictors_weights_integrate_polynomials_exactly(m):
+    # q(t + tau) = q + tau qd + tau^2 sum_j beta_j qdd(t - j tau) holds exactly for every
+    # polynomial q of degree up to m + 1 (its acceleration of degree m - 1 is extrapolated
+    # exactly): checked in rational arithmetic on q = s^p, tau = 1, t = 0
+    from fractions import Fraction
+
+    beta = native.stormer(m)
+    for p in range(m + 2):
+        q1 = Fraction(1) ** p  # q(1)
+        q0 = Fraction(1 if p == 0 else 0)
+        qd0 = Fraction(1 if p == 1 else 0)
+        acc = [Fraction(p * (p - 1)) * Fraction(-j) ** (p - 2) if p >= 2 else Fraction(0)
+               for j in range(m)]
+        assert q0 + qd0 + sum(b * a for b, a in zip(beta, acc)) == q1
+    # and not for degree m + 2: the formula is of order m + 1, no more
+    p = m + 2
+    acc = [Fraction(p * (p - 1)) * Fraction(-j) ** (p - 2) for j in range(m)]
+    assert sum(b * a for b, a in zip(beta, acc)) != 1
+
+
+@pytest.mark.parametrize("t1", [0.5, 1.0])
+def test_a_drive_with_a_kink_is_exact_on_the_compiled_march(t1):
+    # the crank's acceleration jumps at t1: the predictor's history spans the kink there,
+    # and the march must still land on the closed form at every instant
+    from closed_forms import start_from_rest
+
+    system = mechdsl.load(EXAMPLES / "start_from_rest.mech").compile(
+        mechdsl.api.Overrides(params={"t1": t1}))
+    res = simulate(system, COMPILED)
+    assert res.ok and not res.warnings
+    th, w, al = start_from_rest(res["t"], t1, 4 * np.pi / t1)
+    x, v, a = slider_crank(2.0, 3.5, th, w, al)
+    np.testing.assert_allclose(res["slider.x"], x, rtol=0, atol=1e-13 * np.abs(x).max())
+    np.testing.assert_allclose(res["slider.vx"], v, rtol=0, atol=1e-13 * np.abs(v).max())
+    np.testing.assert_allclose(res["slider.ax"], a, rtol=0, atol=1e-12 * np.abs(a).max())
+
+
+def test_the_compiled_march_evaluates_most_instants_once():
+    # the predictor lands within settled_step of the solution: one evaluation of Phi and
+    # Phi_q for most instants, counted by an instrumented copy of the generated march (each
+    # evaluation adds 1 to the residual it keeps, whose own value is below 1e-14)
+    from mechdsl.solve.assembly import assemble
+    from mechdsl.solve.diagnose import col_scale
+    from mechdsl.solve.run import _drive_values
+
+    system = mechdsl.load(EXAMPLES / "slider_crank.mech").compile()
+    counted = native.source(system).replace("norm_a = evaluate(x, cs",
+                                            "RES[v] += 1.0; norm_a = evaluate(x, cs")
+    assert counted.count("RES[v] += 1.0") == 2
+    module = native._module(counted)
+    K, n, opts = len(system.times), system.n, COMPILED
+    fd = np.stack(_drive_values(system, system.times[None, :]), axis=2)
+    asm = assemble(system, float(system.times[0]), opts)
+    Q, QD, QDD = (np.empty((1, K, n)) for _ in range(3))
+    RC, SG = np.empty((1, K)), np.empty((1, K))
+    status, counter = np.zeros(1, np.int64), np.zeros(1)
+    module.march(asm.q, np.zeros((1, n)), np.zeros((1, n)), np.ones(1), system.times.copy(),
+                 fd, np.zeros((0, 1)), np.ascontiguousarray(col_scale(system)[:, 0]),
+                 opts.newton_tol, opts.newton_error, opts.settled_step, opts.max_iterations,
+                 0.1, opts.branch_ratio, opts.singular_rcond, 1, Q, QD, QDD, RC, SG, status,
+                 counter)
+    assert status[0] == K
+    assert K <= int(counter[0]) <= 1.35 * K
+    x, v, a = slider_crank(2.0, 3.5, np.pi / 4 + OMEGA * system.times, OMEGA, 0.0)
+    np.testing.assert_allclose(Q[0, :, 6], x, rtol=0, atol=1e-15 * np.abs(x).max())
+    np.testing.assert_allclose(QD[0, :, 6], v, rtol=0, atol=1e-15 * np.abs(v).max())
+    np.testing.assert_allclose(QDD[0, :, 6], a, rtol=0, atol=1e-15 * np.abs(a).max())

@@ -18,10 +18,13 @@ class SolverOptions:
     #: newton_tol), is at most this: the step that would only confirm convergence is saved.
     newton_error: float = 1e-18
     #: A Newton step at most this (scaled as newton_tol) shows that the position it starts
-    #: from is solved to round-off: the compiled march then keeps that position and the
-    #: factorisation the step was computed with as the final ones (the rates solved with it
-    #: are exact) instead of evaluating and factorising the Jacobian once more.
-    settled_step: float = 1e-15
+    #: from is solved to round-off: the step is taken and the factorisation it was computed
+    #: with is kept as the final one (the rates solved with it are exact to round-off)
+    #: instead of evaluating and factorising the Jacobian once more. The compiled march's
+    #: predictor usually lands within it, so that most instants take one evaluation;
+    #: measured on the seed, 5e-16 leaves the rates within 6e-16 of the closed form where
+    #: 1e-15 left them within 1.2e-15 (two evaluations at every instant: 4.9e-16).
+    settled_step: float = 5e-16
     #: A large mechanism's simplified Newton (:mod:`mechdsl.solve.large`) may stall at the
     #: noise of its equations, above settled_step (steps below newton_tol that stop
     #: contracting); its position then counts as solved if the Newton step of the Jacobian
