@@ -129,6 +129,9 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
     step = np.zeros((b, V))
     with np.errstate(all="ignore"):
         for it in range(1, opts.max_iterations + 1):
+            # (the last iteration's arrays let go before this one's are made: every page the
+            # process touches anew costs a fault, a quarter of a microsecond each)
+            E = F = dq = None
             E = fused.phi_jac(X.T, None, None, P, Fn).T  # (m + nnz, b, V)
             if drives is not None:
                 for i, row in enumerate(drive_rows):
@@ -161,6 +164,7 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
         # at the converged positions (every state: one pass of the kernels)
         vals = E[m:]
         if not (step[moved & ok] <= opts.settled_step).all():
+            E = F = vals = dq = None
             E = fused.phi_jac(X.T, None, None, P, Fn).T
             F, fixed = plan.raw_factor_fn(E[m:])
             if not fixed.all():
@@ -178,11 +182,14 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
         # the condition number is that of the scaled A = R Phi_q D (R the reciprocal row
         # norms of Phi_q D), never formed: A^-1 y = D^-1 Phi_q^-1 R^-1 y and
         # A^-T c = R^-1 Phi_q^-T D^-1 c, with Phi_q's own factors
-        a = np.abs(vals * dcols)
+        a = vals * dcols
+        np.abs(a, out=a)
+        E = vals = phi = dq = None  # (the peak of the memory a batch takes: see above)
         norms = np.sqrt(_sums(a * a, p.rows, m))
         finite = np.isfinite(norms).all(axis=0)
         inv_r = np.where(norms > 0, norms, 1.0)  # R^-1 (an empty row: 1)
         norm_a = np.maximum.reduce(_sums(a, p.cols, n, 1.0 / inv_r, p.rows), axis=0)
+        a = None
         # Hager's and Higham's vectors of the estimate (as LUPlan.inverse_norm1) and nu, one
         # pass over the factors
         cols = 3 if rates else 2
@@ -195,12 +202,13 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
             if drives is not None:
                 Y[drive_rows, 2] = drives[1]
         S = plan.raw_solve_fn(F[:, None], Y)
+        Y = None
         x0 = S[:, 0] / Dt
         est = np.maximum(np.abs(x0).sum(axis=0), 2 * np.abs(S[:, 1] / Dt).sum(axis=0) / (3 * n))
-        qd = None
+        qd = S[:, 2].copy() if rates else None
+        S = None
         rhs = []
         if rates:
-            qd = S[:, 2]
             gamma = np.asarray(fused.gamma(X.T, qd.T, None, P, Fn)).T  # fresh: added to in place
             if drives is not None:
                 for k, row in enumerate(drive_rows):
@@ -215,14 +223,18 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
             # vector of 1-norm one, so the estimate stays a lower bound)
             e = (az == top).astype(float)
             e /= e.sum(axis=0)
-            rhs.append(e * inv_r)
+            e *= inv_r
+            rhs.append(e)
+        z = az = e = gamma = x0 = None
         qdd = None
         if rhs:
             S2 = plan.raw_solve_fn(F[:, None], np.stack(rhs, axis=1))
+            rhs = None
             if rates:
-                qdd = S2[:, 0]
+                qdd = S2[:, 0].copy()
             if better.any():
                 est = np.where(better, np.maximum(est, np.abs(S2[:, -1] / Dt).sum(axis=0)), est)
+            S2 = None
         rcond = 1.0 / (norm_a * est)
         rcond = np.where(np.isfinite(rcond) & finite, rcond, 0.0)
         sign = np.where(rcond > 0, plan.parity * np.prod(np.sign(F[plan.pivots]), axis=0), 0.0)
