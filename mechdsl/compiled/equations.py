@@ -35,6 +35,18 @@ def drive_values(system: System, t: np.ndarray, which: str, shape) -> np.ndarray
     return np.stack(cols, axis=-1)
 
 
+def drive_table(system: System, t: np.ndarray, shape) -> np.ndarray:
+    """f, f' and f'' of every drive at ``t``, as one array: shape + (3, D) (D drives)."""
+    env = dict(system.env)
+    env["t"] = t
+    out = np.empty(tuple(shape) + (3, len(system.drive_functions)))
+    with np.errstate(all="ignore"):
+        for j, d in enumerate(system.drive_functions):
+            for i, f in enumerate((d.f, d.fd, d.fdd)):
+                out[..., i, j] = f(env)
+    return out
+
+
 def constraint_values(system: System, q: np.ndarray, t: np.ndarray,
                       f: np.ndarray | None = None) -> np.ndarray:
     """Phi(q, t), shape ``(V, b, m)``; ``f``: the drives' f(t) where the caller has them."""

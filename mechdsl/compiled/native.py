@@ -192,7 +192,11 @@ def source(system) -> str | None:
                  history=HISTORY)
     beta = ", ".join(repr(float(b)) for b in stormer(HISTORY))
     code += [f"BETA = np.array([{beta}])", ""]
-    code += [MARCH.format(**sizes), CARRY.format(**sizes)]
+    # the variants in parallel, and one mechanism without waking numba's threads (measured
+    # 20 us less on the seed, called between other work)
+    code += [MARCH.format(name="march", parallel=True, loop="prange", **sizes),
+             MARCH.format(name="march_one", parallel=False, loop="range", **sizes),
+             CARRY.format(**sizes)]
     return "\n".join(code) + "\n"
 
 
@@ -226,8 +230,8 @@ def evaluate(x, cs, p, f, d, threshold, phi, a, r, col):
     return norm_a
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, threshold,
+@njit(cache=True, parallel={parallel}, error_model="numpy")
+def {name}(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, threshold,
           branch_ratio, singular_rcond, first, Q, QD, QDD, RC, SG, status, RES):
     """Instants 1.. of every variant from instant 0 (see the module documentation), and
     with ``first`` instant 0 too: Newton from Q0 (the assembled configuration), whose
@@ -235,7 +239,7 @@ def march(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, thre
     (len(TT) when all are); RES[v] the largest |Phi| of the solved states."""
     V, K = Q0.shape[0], TT.shape[0]
     floor = np.sqrt(tol)
-    for v in prange(V):  # the variants are independent: one thread each, on every core
+    for v in {loop}(V):  # the variants are independent: one thread each, on every core
         phi = np.empty({m})
         a = np.empty({width})
         g = np.empty({m})

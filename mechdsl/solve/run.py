@@ -128,15 +128,15 @@ class KinematicRun(Run):
         status = "ok"
         try:
             if self.active.any():
-                march = self._native()
+                module = self._native()
                 # the compiled march solves instant 0 too, from the assembled configuration;
                 # where it stops there, the numpy solver looks at instant 0 and reports
-                k = self.native_march(march, 0) if march is not None else 0
+                k = self.native_march(module, 0) if module is not None else 0
                 if k == 0:
                     self._first_instant(asm)
                     k = 1
-                    if march is not None and self.active.any():
-                        k = self.native_march(march, 1)
+                    if module is not None and self.active.any():
+                        k = self.native_march(module, 1)
                 self.advance(k)
         except KeyboardInterrupt:
             status = "interrupted"
@@ -577,9 +577,9 @@ class KinematicRun(Run):
 
     # -- the compiled march ----------------------------------------------------------------------
     def _native(self):
-        """The compiled march of the model, where the options ask for it and it applies (a
-        square system without redundant equations, the member layout, no function
-        arguments, numba installed); else None."""
+        """The compiled module of the model (:mod:`mechdsl.compiled.native`), where the
+        options ask for it and it applies (a square system without redundant equations, the
+        member layout, no function arguments, numba installed); else None."""
         if not _wants_native(self.system, self.opts) or len(self.rows) != self.system.n:
             return None
         module = self.system.native
@@ -588,9 +588,9 @@ class KinematicRun(Run):
                    else "the compiled backend does not compile this model (a function "
                    "argument, or more than a small mechanism's constraints)")
             self.warnings.append(f"backend 'compiled' asked for, but {why}: solved on numpy")
-        return module.march if module is not None else None
+        return module
 
-    def native_march(self, march, k: int) -> int:
+    def native_march(self, module, k: int) -> int:
         """The instants from k by the compiled march (:mod:`mechdsl.compiled.native`), a
         chunk of ``native.chunk_instants`` at a time from the last state (so that progress
         is shown and an interrupt is taken between chunks; k = 0: from the assembled
@@ -607,18 +607,21 @@ class KinematicRun(Run):
         c = np.ascontiguousarray
         P, D = c(P[:, live]), c(self.D[live, 0])
         L = V if every else len(live)
+        march = module.march if L > 1 else module.march_one
         step = native.chunk_instants(L)
         while k < K:
             first = int(k == 0)  # column 0: the state's instant, or instant 0 to solve
             start, end = k - 1 + first, min(K, k + step)
             T = np.broadcast_to(times[start:end], (V, end - start))
-            values = _drive_values(system, T)
-            if values is not None and not all(np.isfinite(v).all() for v in values) and (
-                    _undefined_drives(system, T, values) & self.active[:, None]).any():
-                return k
             C = end - start
-            fd = (np.stack([v[live] for v in values], axis=2) if values is not None
-                  else np.zeros((L, C, 3, 0)))
+            fd = (eq.drive_table(system, T, T.shape) if system.drive_functions
+                  else np.zeros((V, C, 3, 0)))
+            if not np.isfinite(fd).all() and (_undefined_drives(
+                    system, T, tuple(fd[..., i, :] for i in range(3)))
+                    & self.active[:, None]).any():
+                return k
+            if not every:
+                fd = np.ascontiguousarray(fd[live])
             # every column before a variant's status is written by the march; only those
             # are read
             out = [np.empty((L, C, n)) for _ in range(3)] + [np.empty((L, C)) for _ in range(2)]
@@ -943,5 +946,5 @@ def _drive_values(system: System, T: np.ndarray) -> tuple[np.ndarray, ...] | Non
     """f, f', f'' of every drive at ``T`` (V, b), each (V, b, drives); None without drives."""
     if not system.drive_functions:
         return None
-    return tuple(np.asarray(eq.drive_values(system, T, w, T.shape))
-                 for w in ("f", "fd", "fdd"))
+    table = eq.drive_table(system, T, T.shape)
+    return tuple(table[..., i, :] for i in range(3))
