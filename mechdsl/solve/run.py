@@ -466,6 +466,8 @@ class KinematicRun(Run):
         cap = self._batch_cap()
         j0 = k
         while j0 < end:
+            # the last batch's arrays let go before this one's are made (as in batch.settle)
+            T = values = pred = done = q = fac = rates = ratio = good = None
             idx = np.arange(j0, min(j0 + cap, end))
             T = np.where(act, times[idx][None, :], self.t[:, None])
             values = _drive_values(system, T)

@@ -137,26 +137,19 @@ def kernel(graph: Graph, outputs: Sequence[Node], name: str = "kernel",
         if kind in used:
             body.append(f"    {src}x = concatenate(({src}, zeros({src}.shape[:-1] + (1,))), "
                         "axis=-1)")
-    body += [f"    {ln}" for ln in lines]
     width = len(outputs) if width is None else width
     if positions is None:
         # entry-major: output k is the contiguous row out[k] (what the generated LU reads),
         # handed back as the transposed view, batch axes first
         body.append(f"    out = empty(({width},) + Q.shape[-2::-1])")
-        consts = []
-        for k, n in enumerate(outputs):
-            if n.op == "const":
-                consts.append((k, names[n.id]))
-            else:
-                body.append(f"    out[{k}] = {names[n.id]}")
-        for k, v in consts:
-            body.append(f"    out[{k}] = {v}")
-        body.append("    return out.T")
+        writes = [(f"out[{k}]", n) for k, n in enumerate(outputs)]
+        ending = "    return out.T"
     else:
         body.append(f"    out = empty(Q.shape[:-1] + ({width},))")
-        for k, n in zip(positions, outputs):
-            body.append(f"    out[..., {k}] = {names[n.id]}")
-        body.append("    return out")
+        writes = [(f"out[..., {k}]", n) for k, n in zip(positions, outputs)]
+        ending = "    return out"
+    body += [f"    {ln}" for ln in _written_early(lines, names, writes)]
+    body.append(ending)
     source = "\n".join(body) + "\n"
     namespace = dict(_NAMESPACE, empty=np.empty, zeros=np.zeros, concatenate=np.concatenate,
                      nan=np.nan, inf=np.inf, _T=lambda a: np.asarray(a).T)
@@ -165,6 +158,43 @@ def kernel(graph: Graph, outputs: Sequence[Node], name: str = "kernel",
     exec(code, namespace)  # noqa: S102 - our own generated source, from the model's graph
     return Kernel(namespace[name], source, width,
                   hashlib.sha256(source.encode()).hexdigest()[:16])
+
+
+_VALUE = re.compile(r"\b(n\d+|v_\w+)\b")
+
+
+def _written_early(lines: list[str], names: dict[int, str],
+                   writes: list[tuple[str, Node]]) -> list[str]:
+    """The assignments ``lines`` with each output written as soon as its value is computed
+    (``target = name``; constants last) and each computed value let go after its last use:
+    a batch's temporaries then take the memory of a few rows, not of all of them (every
+    page a process touches anew is a fault)."""
+    defined = {ln.split(" = ", 1)[0]: i for i, ln in enumerate(lines)}
+    after: dict[int, list[str]] = {}
+    consts = []
+    for target, node in writes:
+        name = names[node.id]
+        if name in defined:
+            after.setdefault(defined[name], []).append(f"{target} = {name}")
+        else:  # a constant, or a variable read straight into the output
+            consts.append(f"{target} = {name}")
+    ordered = []
+    for i, ln in enumerate(lines):
+        ordered.append(ln)
+        ordered += after.get(i, [])
+    ordered += consts
+    last: dict[str, int] = {}
+    for i, ln in enumerate(ordered):
+        for name in _VALUE.findall(ln):
+            last[name] = i
+    out = []
+    for i, ln in enumerate(ordered):
+        out.append(ln)
+        dead = [name for name in dict.fromkeys(_VALUE.findall(ln))
+                if last[name] == i and name.startswith("n")]
+        if dead:
+            out.append(f"del {', '.join(dead)}")
+    return out
 
 
 def _read_scalar(key: tuple) -> str:
