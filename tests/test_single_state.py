@@ -158,21 +158,30 @@ def test_a_jacobian_without_a_usable_pivot_is_no_factorisation(load_example):
 
 
 def test_the_cholesky_step_is_the_svd_step_and_gives_way_to_it_on_redundant_rows():
-    """The Levenberg-Marquardt step of one state through a a^T + lam I equals the SVD's
-    (the identity (a^T a + lam I)^-1 a^T = a^T (a a^T + lam I)^-1); with a repeated row it
-    is the SVD's own (the Cholesky factor's diagonal then spans far more than 1e5)."""
-    from mechdsl.solve.assembly import _lm_step, _lm_step_one
+    """The Levenberg-Marquardt step through a a^T + lam I, of one state and of a batch,
+    equals the SVD's (the identity (a^T a + lam I)^-1 a^T = a^T (a a^T + lam I)^-1); with a
+    repeated row it is the SVD's own (the Cholesky factor's diagonal then spans far more
+    than 1e5)."""
+    from mechdsl.solve.assembly import _lm_step, _lm_step_one, _lm_step_svd
 
     rng = np.random.default_rng(3)
     for k, n in ((4, 6), (6, 6), (20, 21)):
         a, r = rng.normal(size=(k, n)), 1e-3 * rng.normal(size=k)
-        want = _lm_step(a[None], r[None])[0]
+        want = _lm_step_svd(a[None], r[None])[0]
         np.testing.assert_allclose(_lm_step_one(a, r), want, rtol=1e-10, atol=1e-16)
+        batch = rng.normal(size=(7, 1, k, n))
+        rb = 1e-3 * rng.normal(size=(7, 1, k))
+        np.testing.assert_allclose(_lm_step(batch, rb), _lm_step_svd(batch, rb), rtol=1e-9,
+                                   atol=1e-16)
     a = rng.normal(size=(5, 7))
     a[4] = a[1]
     r = np.zeros(5)
     r[[1, 4]] = 1e-9
-    np.testing.assert_allclose(_lm_step_one(a, r), _lm_step(a[None], r[None])[0], rtol=1e-12,
+    want = _lm_step_svd(a[None], r[None])[0]
+    np.testing.assert_allclose(_lm_step_one(a, r), want, rtol=1e-12, atol=1e-20)
+    batch = np.stack([rng.normal(size=(5, 7)), a])[:, None]
+    rb = np.stack([1e-3 * rng.normal(size=5), r])[:, None]
+    np.testing.assert_allclose(_lm_step(batch, rb), _lm_step_svd(batch, rb), rtol=1e-12,
                                atol=1e-20)
 
 

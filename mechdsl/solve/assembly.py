@@ -40,11 +40,30 @@ class Assembly:
 
 def _lm_step(a: np.ndarray, r: np.ndarray) -> np.ndarray:
     """The Levenberg-Marquardt step dz = -(a^T a + lam I)^-1 a^T r with lam = |r|^2
-    (Yamashita and Fukushima), by SVD. As r -> 0 it becomes the Gauss-Newton step, and it
+    (Yamashita and Fukushima). As r -> 0 it becomes the Gauss-Newton step, and it
     converges quadratically even where the solutions are not isolated (redundant joints,
     a mechanism with free coordinates), where a plain minimum-norm step would divide noise
-    by a vanishing singular value and creep along the solution set."""
+    by a vanishing singular value and creep along the solution set. Each state by the
+    Cholesky factorisation of a a^T + lam I where that looks well conditioned (as
+    :func:`_lm_step_one`), the others by SVD."""
     a = np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
+    if a.shape[-2] <= a.shape[-1] and a.ndim > 2 and np.isfinite(r).all():
+        g = a @ np.swapaxes(a, -1, -2)
+        k = g.shape[-1]
+        g[..., np.arange(k), np.arange(k)] += np.sum(r * r, axis=-1, keepdims=True)
+        try:
+            d = np.diagonal(np.linalg.cholesky(g), axis1=-2, axis2=-1)
+        except np.linalg.LinAlgError:  # some state's G is not positive definite
+            d = None
+        if d is not None:
+            good = d.min(axis=-1) > 1e-5 * d.max(axis=-1)
+            if good.all():
+                return -np.einsum("...ji,...j->...i", a, np.linalg.solve(g, r[..., None])[..., 0])
+    return _lm_step_svd(a, r)
+
+
+def _lm_step_svd(a: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """:func:`_lm_step` by SVD (``a`` without NaN)."""
     lam = np.sum(r * r, axis=-1, keepdims=True)
     try:
         u, s, vt = np.linalg.svd(a, full_matrices=False)
@@ -79,7 +98,7 @@ def _lm_step_one(a: np.ndarray, r: np.ndarray) -> np.ndarray:
             d = None
         if d is not None and d.min() > 1e-5 * d.max():
             return -(a.T @ np.linalg.solve(g, r))
-    return _lm_step(a[None], r[None])[0]
+    return _lm_step_svd(np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)[None], r[None])[0]
 
 
 def assemble(system: System, t0: float, options: SolverOptions | None = None) -> Assembly:
