@@ -32,7 +32,6 @@ import hashlib
 import importlib.util
 import os
 import sys
-from fractions import Fraction
 from typing import Callable
 
 import numpy as np
@@ -127,12 +126,14 @@ def _trig_code(coords: list[int]) -> list[str]:
 HISTORY = 8
 
 
-def stormer(m: int) -> list[Fraction]:
+def stormer(m: int) -> list:
     """beta_j = integral_0^1 (1 - s) L_j(s) ds, j = 0 .. m-1, exactly: L_j the Lagrange
     basis of the nodes s = 0, -1, .., -(m - 1) (the last m instants, in steps). With equal
     steps tau, q(t + tau) = q + tau qd + tau^2 sum_j beta_j qdd_(-j) + O(tau^(m + 2)): the
     accelerations' extrapolating polynomial integrated twice (Stormer's explicit formula in
-    its one-step form)."""
+    its one-step form). Fractions, exact."""
+    from fractions import Fraction  # (only where the backend is built: not at start-up)
+
     nodes = [Fraction(-j) for j in range(m)]
     betas = []
     for j in range(m):

@@ -24,6 +24,12 @@ def basis(s):
             s3 * (-4.0 + s * (7.0 - 3.0 * s)), 0.5 * s3 * (1.0 + s * (-2.0 + s)))
 
 
+#: c3, c4, c5 of the expansion below from (D, A, B, E, F)
+_HIGH = np.array([[10.0, -6.0, -4.0, -1.5, 0.5], [-15.0, 8.0, 7.0, 1.5, -1.0],
+                  [6.0, -3.0, -3.0, -0.5, 0.5]])
+_HIGH.flags.writeable = False
+
+
 def quintic_hermite(tn: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                     t: np.ndarray) -> np.ndarray:
     """Interpolate the states ``q, qd, qdd`` (V, N, n) at increasing node times ``tn`` (N,)
@@ -58,12 +64,15 @@ def quintic_hermite(tn: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarr
         return a[:, lo : hi - 1].transpose(1, 2, 0), a[:, lo + 1 : hi].transpose(1, 2, 0)
 
     (qa, qb), (va, vb), (aa, ab) = ends(q), ends(qd), ends(qdd)
-    A, B, E, F, D = h * va, h * vb, h * h * aa, h * h * ab, qb - qa
-    coef = np.stack((qa, A, 0.5 * E, 10.0 * D - 6.0 * A - 4.0 * B - 1.5 * E + 0.5 * F,
-                     -15.0 * D + 8.0 * A + 7.0 * B + 1.5 * E - F,
-                     6.0 * D - 3.0 * A - 3.0 * B - 0.5 * E + 0.5 * F), axis=1)
-    gaps = coef.shape[0]
-    coef = coef.reshape(gaps, 6, n * V)
+    gaps = qa.shape[0]
+    # [c0 .. c5] = [q_a, A, E / 2, HIGH (D, A, B, E, F)]: the last three by one product
+    data = np.stack((qb - qa, h * va, h * vb, h * h * aa, h * h * ab)).reshape(5, -1)
+    coef = np.empty((6, gaps * n * V))
+    coef[0] = qa.reshape(-1)
+    coef[1] = data[1]
+    np.multiply(data[3], 0.5, out=coef[2])
+    np.matmul(_HIGH, data, out=coef[3:])
+    coef = coef.reshape(6, gaps, n * V).transpose(1, 0, 2)
     s = (t - tn[i]) / (tn[i + 1] - tn[i])
     powers = s[:, None] ** np.arange(6)  # (b, 6)
     out = np.empty((n, len(t), V))
