@@ -28,11 +28,19 @@ def drive_values(system: System, t: np.ndarray, which: str, shape) -> np.ndarray
     env["t"] = t
     with np.errstate(all="ignore"):
         cols = [getattr(d, which)(env) for d in system.drive_functions]
-    # (a value of the shape already is taken as it is: broadcast_to costs microseconds)
-    cols = [c if np.shape(c) == shape else np.broadcast_to(c, shape) for c in cols]
+    # (a value of the shape already is taken as it is, read-only as a broadcast is: a
+    # drive may hand back the caller's own t; broadcast_to costs microseconds)
+    cols = [_read_only(c) if np.shape(c) == shape else np.broadcast_to(c, shape)
+            for c in cols]
     if len(cols) == 1:  # the common case, without the copy of a stack
         return cols[0][..., None]
     return np.stack(cols, axis=-1)
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    view = a.view()
+    view.flags.writeable = False
+    return view
 
 
 def drive_table(system: System, t: np.ndarray, shape) -> np.ndarray:

@@ -195,13 +195,14 @@ def source(system) -> str | None:
     code += [f"BETA = np.array([{beta}])", ""]
     # the variants in parallel, and one mechanism without waking numba's threads (measured
     # 20 us less on the seed, called between other work)
-    code += [MARCH.format(name="march", parallel=True, loop="prange", **sizes),
+    code += [EVALUATE.format(**sizes),
+             MARCH.format(name="march", parallel=True, loop="prange", **sizes),
              MARCH.format(name="march_one", parallel=False, loop="range", **sizes),
              CARRY.format(**sizes)]
     return "\n".join(code) + "\n"
 
 
-MARCH = '''
+EVALUATE = '''
 @njit(cache=True, error_model="numpy", inline="always")
 def evaluate(x, cs, p, f, d, threshold, phi, a, r, col):
     """Phi(x) - f at the drive rows, and the scaled Jacobian A = R Phi_q D (R: the
@@ -231,6 +232,10 @@ def evaluate(x, cs, p, f, d, threshold, phi, a, r, col):
     return norm_a
 
 
+'''
+
+
+MARCH = '''
 @njit(cache=True, parallel={parallel}, error_model="numpy")
 def {name}(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, threshold,
           branch_ratio, singular_rcond, first, Q, QD, QDD, RC, SG, status, RES):
@@ -256,6 +261,7 @@ def {name}(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, thr
         cs = np.empty({angles})
         jerk = np.zeros({n})
         # the last accelerations (a ring, ``head`` the newest) over equal steps ``spacing``
+        # (within this call: a chunk starts with Taylor's predictor)
         past = np.zeros(({history}, {n}))
         head, known, spacing = 0, 0, 0.0
         p = P[:, v].copy()
@@ -267,7 +273,7 @@ def {name}(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, thr
         status[v] = K
         for k in range(1 - first, K):
             tau = TT[k] - TT[k - 1] if k > 0 else 0.0
-            if not abs(tau - spacing) <= 1e-9 * spacing:  # the steps changed: a new history
+            if not abs(tau - spacing) <= 1e-9 * abs(spacing):  # other steps: a new history
                 known, spacing = 0, tau
             smooth = known >= {history}
             if smooth:
@@ -314,13 +320,16 @@ def {name}(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, thr
                     x[i] += d[i] * dx[i]
                 if step <= settled:
                     # converged where it started: the factorisation there is kept (as the
-                    # numpy path keeps it), the position takes the step
+                    # numpy path keeps it), the position takes the step (the residual kept,
+                    # |Phi| where it started, bounds the one there: the step is round-off)
                     trig_step(x, xo, cs)
                     conv = final = True
                     break
-                if it == 0 and smooth and not step <= floor:
-                    # far off: the accelerations' history spans a kink (a drive's piecewise
-                    # law), where their polynomial is no guide; Taylor until it is past
+                if it == 0 and smooth and not step <= tol:
+                    # off by more than Newton's tolerance (on a smooth motion it is off by
+                    # round-off): the accelerations' history spans a kink (a drive's
+                    # piecewise law), where their polynomial is no guide; Taylor until the
+                    # history is past it
                     known = 0
                 if step <= tol or (prev < np.inf and step < 0.25 * prev
                                    and step ** 3 / prev ** 2 <= err_tol):

@@ -43,9 +43,9 @@ def _lm_step(a: np.ndarray, r: np.ndarray) -> np.ndarray:
     (Yamashita and Fukushima). As r -> 0 it becomes the Gauss-Newton step, and it
     converges quadratically even where the solutions are not isolated (redundant joints,
     a mechanism with free coordinates), where a plain minimum-norm step would divide noise
-    by a vanishing singular value and creep along the solution set. Each state by the
-    Cholesky factorisation of a a^T + lam I where that looks well conditioned (as
-    :func:`_lm_step_one`), the others by SVD."""
+    by a vanishing singular value and creep along the solution set. By the Cholesky
+    factorisations of a a^T + lam I where every state's looks well conditioned (as
+    :func:`_lm_step_one` decides for one state), else every state by SVD."""
     a = np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
     if a.shape[-2] <= a.shape[-1] and a.ndim > 2 and np.isfinite(r).all():
         g = a @ np.swapaxes(a, -1, -2)
@@ -101,7 +101,8 @@ def _lm_step_one(a: np.ndarray, r: np.ndarray) -> np.ndarray:
     return _lm_step_svd(np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)[None], r[None])[0]
 
 
-def assemble(system: System, t0: float, options: SolverOptions | None = None) -> Assembly:
+def assemble(system: System, t0: float, options: SolverOptions | None = None,
+             compiled: bool = False) -> Assembly:
     """Find q with Phi(q, t0) = 0 in the assembly mode nearest the guesses.
 
     1. The joints alone, by damped Gauss-Newton from the guesses (see :func:`_gauss_newton`):
@@ -113,6 +114,9 @@ def assemble(system: System, t0: float, options: SolverOptions | None = None) ->
        Jacobian turns singular or changes sign (the path would cross a dead point and could
        come out in another assembly mode).
     3. Where that fails, Gauss-Newton on all equations at once, as a last resort.
+
+    ``compiled``: the run marches on the compiled backend, which then carries a single
+    mechanism's drives too (where the model compiles).
     """
     opts = options or SolverOptions()
     count_check(system)
@@ -131,7 +135,7 @@ def assemble(system: System, t0: float, options: SolverOptions | None = None) ->
             mob = analyse(one_variant(system, first), q1[first, 0], D[first, 0])
         else:
             mob = square(system)
-        q, ok, it2, start = _continue_drives(system, q1, t, D, ok1, opts, mob.rows)
+        q, ok, it2, start = _continue_drives(system, q1, t, D, ok1, opts, mob.rows, compiled)
         retry = ok1 & ~ok
         if retry.any():
             q2, ok2, it3 = gauss_newton(system, q1, t, D, mob.rows, opts)
@@ -316,16 +320,18 @@ def gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
 
 
 def _continue_drives(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
-                     active: np.ndarray, opts: SolverOptions, rows: np.ndarray
+                     active: np.ndarray, opts: SolverOptions, rows: np.ndarray,
+                     compiled: bool = False
                      ) -> tuple[np.ndarray, np.ndarray, int, OneStart | None]:
-    """Carry the drives from their values at ``q`` to f(t0) (step 2 of :func:`assemble`);
-    the last item is the float code's :class:`OneStart` where it carried them."""
+    """Carry the drives from their values at ``q`` to f(t0) (step 2 of :func:`assemble`;
+    ``compiled``: by the compiled backend where it applies); the last item is the float
+    code's :class:`OneStart` where it carried them."""
     ok = active.copy()
     if system.drive_rows.size == 0 or not ok.any():
         return q, ok, 0, None
     if system.one_state is not None and len(rows) == system.n:
         done = (_continue_compiled(system, q[0, 0], float(t[0, 0]), D[0, 0], opts)
-                if opts.backend == "compiled" else None)
+                if compiled else None)
         if done is None:
             done = _continue_one(OneState(system, system.one_state, D[0, 0], opts), q[0, 0],
                                  float(t[0, 0]), opts)
@@ -417,7 +423,7 @@ def _continue_one(one, q: np.ndarray, t0: float, opts: SolverOptions
 def _continue_compiled(system: System, q: np.ndarray, t0: float, D: np.ndarray,
                        opts: SolverOptions) -> tuple[list, bool, int, None] | None:
     """:func:`_continue_one` by the compiled backend (``carry`` of
-    :mod:`mechdsl.compiled.native`), where the run is compiled: the same steps and checks
+    :mod:`mechdsl.compiled.native`), for a run on that backend: the same steps and checks
     in machine code; None where the model does not compile or a pivot of the fixed order
     became small (the float code decides)."""
     module = system.native

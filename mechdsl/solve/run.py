@@ -121,7 +121,8 @@ class KinematicRun(Run):
         start = time.perf_counter()
         self.data = {o.label: np.full((V, K), np.nan) for o in system.outputs}
         try:
-            asm = assemble(system, float(times[0]), opts)
+            asm = assemble(system, float(times[0]), opts,
+                           compiled=_wants_native(system, opts))
         except KeyboardInterrupt:
             return self.results("interrupted", time.perf_counter() - start)
         self._start(asm)
