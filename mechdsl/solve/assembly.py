@@ -43,23 +43,37 @@ def _lm_step(a: np.ndarray, r: np.ndarray) -> np.ndarray:
     (Yamashita and Fukushima). As r -> 0 it becomes the Gauss-Newton step, and it
     converges quadratically even where the solutions are not isolated (redundant joints,
     a mechanism with free coordinates), where a plain minimum-norm step would divide noise
-    by a vanishing singular value and creep along the solution set. By the Cholesky
-    factorisations of a a^T + lam I where every state's looks well conditioned (as
-    :func:`_lm_step_one` decides for one state), else every state by SVD."""
+    by a vanishing singular value and creep along the solution set. By
+    :func:`_cholesky_step` where every state's system looks well conditioned, else every
+    state by SVD."""
     a = np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
-    if a.shape[-2] <= a.shape[-1] and a.ndim > 2 and np.isfinite(r).all():
-        g = a @ np.swapaxes(a, -1, -2)
-        k = g.shape[-1]
-        g[..., np.arange(k), np.arange(k)] += np.sum(r * r, axis=-1, keepdims=True)
-        try:
-            d = np.diagonal(np.linalg.cholesky(g), axis1=-2, axis2=-1)
-        except np.linalg.LinAlgError:  # some state's G is not positive definite
-            d = None
-        if d is not None:
-            good = d.min(axis=-1) > 1e-5 * d.max(axis=-1)
-            if good.all():
-                return -np.einsum("...ji,...j->...i", a, np.linalg.solve(g, r[..., None])[..., 0])
+    if a.ndim > 2 and np.isfinite(r).all():
+        step = _cholesky_step(a, r)
+        if step is not None:
+            return step
     return _lm_step_svd(a, r)
+
+
+def _cholesky_step(a: np.ndarray, r: np.ndarray) -> np.ndarray | None:
+    """:func:`_lm_step` of one state (``a`` (k, n), ``r`` (k,)) or of a batch (``a``
+    (..., k, n)) through the identity (a^T a + lam I)^-1 a^T = a^T (a a^T + lam I)^-1: the
+    Cholesky factorisation of the k x k matrix G = a a^T + lam I, six times cheaper than
+    the SVD. None for more rows than columns, and where some G does not look well
+    conditioned (its factor's diagonal spans more than 1e5, so cond(G) >= 1e10: rows
+    redundant or nearly so, a singular position; a heuristic, as a factor's diagonal can
+    look tame on a worse matrix, where the step is only less accurate and the line search
+    and the next iterations correct it): the SVD decides there."""
+    if a.shape[-2] > a.shape[-1]:
+        return None
+    g = a @ np.swapaxes(a, -1, -2)
+    np.einsum("...ii->...i", g)[...] += np.sum(r * r, axis=-1, keepdims=True)  # + lam I
+    try:
+        d = np.einsum("...ii->...i", np.linalg.cholesky(g))
+    except np.linalg.LinAlgError:  # some G is not positive definite
+        return None
+    if not (d.min(axis=-1) > 1e-5 * d.max(axis=-1)).all():
+        return None
+    return -(np.swapaxes(a, -1, -2) @ np.linalg.solve(g, r[..., None]))[..., 0]
 
 
 def _lm_step_svd(a: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -81,23 +95,13 @@ def _lm_step_svd(a: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 
 def _lm_step_one(a: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """:func:`_lm_step` for one state (``a`` (k, n) with k <= n, ``r`` (k,)) through the
-    identity (a^T a + lam I)^-1 a^T = a^T (a a^T + lam I)^-1: one Cholesky factorisation of
-    the k x k matrix G = a a^T + lam I, six times cheaper than the SVD. Where G does not
-    look well conditioned (its factor's diagonal spans more than 1e5, so cond(G) >= 1e10:
-    rows redundant or nearly so, a singular position; a heuristic, as a factor's diagonal
-    can look tame on a worse matrix, where the step is only less accurate and the line
-    search and the next iterations correct it), and for more rows than columns, by the SVD
-    of :func:`_lm_step`."""
-    if a.shape[0] <= a.shape[1] and np.isfinite(a).all() and np.isfinite(r).all():
-        g = a @ a.T
-        g.flat[:: len(g) + 1] += r @ r
-        try:
-            d = np.diagonal(np.linalg.cholesky(g))
-        except np.linalg.LinAlgError:
-            d = None
-        if d is not None and d.min() > 1e-5 * d.max():
-            return -(a.T @ np.linalg.solve(g, r))
+    """:func:`_lm_step` for one state (``a`` (k, n), ``r`` (k,)), without a batch's
+    overhead: :func:`_cholesky_step` where its entries are numbers and it applies, else
+    the SVD."""
+    if np.isfinite(a).all() and np.isfinite(r).all():
+        step = _cholesky_step(a, r)
+        if step is not None:
+            return step
     return _lm_step_svd(np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)[None], r[None])[0]
 
 
