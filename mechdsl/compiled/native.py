@@ -232,6 +232,16 @@ def evaluate(x, cs, p, f, d, threshold, phi, a, r, col):
     return norm_a
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def det_sign(a):
+    """The sign of det Phi_q from the factors ``a``: the permutations' parity times the
+    pivots' signs."""
+    det = {parity}
+    for j in range(PIVOTS.shape[0]):
+        det *= np.sign(a[PIVOTS[j]])
+    return det
+
+
 '''
 
 
@@ -350,9 +360,7 @@ def {name}(Q0, QD0, QDD0, SIGN0, TT, FD, P, D, tol, err_tol, settled, maxit, thr
             for i in range({m}):
                 if not abs(phi[i]) <= RES[v]:
                     RES[v] = abs(phi[i])
-            det = {parity}
-            for j in range(PIVOTS.shape[0]):
-                det *= np.sign(a[PIVOTS[j]])
+            det = det_sign(a)
             # ||A^-1||_1 by Hager's method with Higham's safeguard, as the numpy path
             for i in range({n}):
                 e[i] = 1.0 / {n}
@@ -488,9 +496,7 @@ def carry(x0, f, p, d, tol, err_tol, maxit, threshold, branch_ratio, singular_rc
         g[j] = phi[DRIVES[j]]
         step = f[j] - g[j]
         delta[DRIVES[j]] = step if np.isfinite(step) else 0.0
-    sign = {parity}
-    for j in range(PIVOTS.shape[0]):
-        sign *= np.sign(a[PIVOTS[j]])
+    sign = det_sign(a)
     ax[:] = a
     rx[:] = r
     s, ds, iterations = 0.0, 1.0, 0
@@ -538,9 +544,7 @@ def carry(x0, f, p, d, tol, err_tol, maxit, threshold, branch_ratio, singular_rc
         rcond = 1.0 / (norm_a * inv_norm) if inv_norm > 0 else 0.0
         if not np.isfinite(rcond):
             rcond = 0.0
-        det = {parity}
-        for j in range(PIVOTS.shape[0]):
-            det *= np.sign(a[PIVOTS[j]])
+        det = det_sign(a)
         moved, corr = 0.0, 0.0
         finite = True
         for i in range({n}):
