@@ -619,9 +619,8 @@ class KinematicRun(Run):
             C = end - start
             fd = (eq.drive_table(system, T, T.shape) if system.drive_functions
                   else np.zeros((V, C, 3, 0)))
-            if not np.isfinite(fd).all() and (_undefined_drives(
-                    system, T, tuple(fd[..., i, :] for i in range(3)))
-                    & self.active[:, None]).any():
+            values = _derivatives(fd) if system.drive_functions else None
+            if (_undefined_drives(system, T, values) & self.active[:, None]).any():
                 return k
             if not every:
                 fd = np.ascontiguousarray(fd[live])
@@ -939,8 +938,11 @@ def _undefined_drives(system: System, T: np.ndarray,
     (``values``: f, f', f'' at ``T`` where the caller has them, from :func:`_drive_values`)."""
     if not system.drive_functions:
         return np.zeros(T.shape, bool)
+    values = values or _drive_values(system, T)
+    if all(np.isfinite(v).all() for v in values):  # the usual case: a reduction each
+        return np.zeros(T.shape, bool)
     ok = np.ones(T.shape, bool)
-    for v in values or _drive_values(system, T):
+    for v in values:
         ok &= allfinite(v)
     return ~ok
 
@@ -949,5 +951,10 @@ def _drive_values(system: System, T: np.ndarray) -> tuple[np.ndarray, ...] | Non
     """f, f', f'' of every drive at ``T`` (V, b), each (V, b, drives); None without drives."""
     if not system.drive_functions:
         return None
-    table = eq.drive_table(system, T, T.shape)
+    return _derivatives(eq.drive_table(system, T, T.shape))
+
+
+def _derivatives(table: np.ndarray) -> tuple[np.ndarray, ...]:
+    """f, f', f'' as views of the drives' table (:func:`mechdsl.compiled.equations.
+    drive_table`), each (..., drives)."""
     return tuple(table[..., i, :] for i in range(3))
