@@ -62,7 +62,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import mechdsl  # noqa: E402
 from mechdsl.outputs.store import open_store  # noqa: E402
 from mechdsl.solve import SolverOptions  # noqa: E402
-from mechdsl.study.run import local_client  # noqa: E402
+from mechdsl.study.cluster import local_client  # noqa: E402
 from report import Report  # noqa: E402
 
 MODEL = ROOT / "examples" / "slider_crank.mech"

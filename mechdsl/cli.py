@@ -91,6 +91,10 @@ def _parser() -> argparse.ArgumentParser:
         run.add_argument("--method", metavar="NAME",
                          help="forward dynamics: the integrator, auto (default: dopri5 for an "
                               "rtol of 1e-4 or more, else vern9), vern9, dop853 or dopri5")
+        run.add_argument("--max-steps", type=int, metavar="N",
+                         help="forward dynamics: the integrator's step budget per variant, "
+                              "accepted and rejected steps (default 1,000,000); a run that "
+                              "uses it up stops with exit 2, the instants so far written")
         run.add_argument("--through-singular", action="store_true",
                          help="at a singular position (dead point, change point) continue on the "
                               "branch the motion was on, instead of stopping")
@@ -109,7 +113,18 @@ def _parser() -> argparse.ArgumentParser:
                               "(pip install \"mechdsl[cluster]\")")
         run.add_argument("--scheduler", metavar="ADDRESS",
                          help="solve the sweep's chunks on the Dask cluster at ADDRESS "
-                              "(tcp://host:8786)")
+                              "(tcp://host:8786 or tls://host:8786), which is trusted: a Dask "
+                              "scheduler can run code in this process")
+        run.add_argument("--scheduler-timeout", metavar="SECONDS", type=float, default=10.0,
+                         help="seconds each step of connecting to the scheduler may take, and "
+                              "the longest it may stay silent during the run (default 10)")
+        run.add_argument("--tls-ca-file", metavar="FILE",
+                         help="with --scheduler tls://...: the CA that signed the cluster's "
+                              "certificates (default: Dask's configuration)")
+        run.add_argument("--tls-cert", metavar="FILE",
+                         help="with --scheduler tls://...: this client's certificate")
+        run.add_argument("--tls-key", metavar="FILE",
+                         help="with --scheduler tls://...: this client's private key")
         run.add_argument("--chunk", metavar="N", type=int,
                          help="variants per chunk of a sweep (default: chosen from the model's "
                               "size, at most 1000; the results do not depend on where a chunk runs)")

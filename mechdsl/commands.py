@@ -66,7 +66,7 @@ def _options(args):
     for name in ("backend", "method"):
         if getattr(args, name, None) is not None:
             given[name] = getattr(args, name)
-    for name in ("rtol", "atol"):
+    for name in ("rtol", "atol", "max_steps"):
         if getattr(args, name, None) is not None:
             given[name] = getattr(args, name)
     limit = _max_memory(args)
@@ -75,7 +75,8 @@ def _options(args):
     try:
         return SolverOptions(**given)
     except ValueError as err:
-        option = next((f"--{name.replace('_', '-')}" for name in ("backend", "method", "rtol", "atol")
+        option = next((f"--{name.replace('_', '-')}" for name in ("backend", "method", "rtol",
+                                                                   "atol", "max_steps")
                        if str(err).startswith(name)), "--newton-tol")
         raise MechError(f"{option}: {err}") from None
 
@@ -166,17 +167,27 @@ def _check_outputs(args, mech: Mechanism, ov: Overrides, system: System,
 
 class ProgressBar:
     """A progress bar on ``stream`` for runs longer than ``delay`` seconds, drawn only when the
-    stream is a terminal (never into a file or a pipe), at most ``rate`` times a second."""
+    stream is a terminal (never into a file or a pipe), at most ``rate`` times a second. A
+    forward dynamics feeds :meth:`motion` instead, after every step; its estimate of the
+    time left waits for ``estimate_after`` seconds of integration."""
 
-    def __init__(self, stream, delay: float = 1.0, rate: float = 10.0, width: int = 30) -> None:
+    def __init__(self, stream, delay: float = 1.0, rate: float = 10.0, width: int = 30,
+                 estimate_after: float = 1.0) -> None:
         import time
 
         self.stream, self.delay, self.period, self.width = stream, delay, 1.0 / rate, width
+        self.estimate_after = estimate_after
         self.clock = time.monotonic
         self.start = self.clock()
         self.last = 0.0
         self.shown = False
         self.live = hasattr(stream, "isatty") and stream.isatty()
+        #: the longest line drawn, blanked by the next one and by close
+        self.drawn = 0
+        #: (wall clock, fraction of the run done) at the first step of a forward dynamics
+        self.origin: tuple[float, float] | None = None
+        #: (variant, wall clock, steps) at the first step of the variant being integrated
+        self.begun: tuple[int, float, int] | None = None
 
     def __call__(self, done: int, total: int) -> None:
         now = self._due()
@@ -187,6 +198,52 @@ class ProgressBar:
         eta = (now - self.start) * (1 - frac) / frac if frac > 0 else float("nan")
         self._show(f"[{'#' * filled}{'.' * (self.width - filled)}] {100 * frac:5.1f} % "
                    f"{done}/{total} instants, {eta:.0f} s left ")
+
+    def motion(self, t: float, steps: int, t0: float, t1: float, variant: int = 0,
+               variants: int = 1, max_steps: int | None = None) -> None:
+        """A forward dynamics after a step (:meth:`mechdsl.solve.dynamic.DynamicRun.run`):
+        the simulated time t reached in t0 .. t1, the steps taken (of ``max_steps``) and the
+        wall time left, extrapolated from the simulated time per second since the first step
+        (the start-up before it is no part of the rate), "estimating" until that has been
+        measured over ``estimate_after`` seconds; and, where the step budget would end the
+        variant first at the steps per second so far, "budget: X", the wall time X until it
+        does. At most ``columns() - 1`` characters."""
+        # called after every step: what is not drawn returns at once
+        if not self.live:
+            return
+        if self.begun is None or self.begun[0] != variant:  # the budget is per variant
+            self.begun = (variant, self.clock(), steps)
+            if self.origin is None:
+                self.origin = (self.begun[1], (variant + (t - t0) / (t1 - t0)) / variants)
+        now = self._due()
+        if now is None:
+            return
+        local = (t - t0) / (t1 - t0)
+        frac = (variant + local) / variants
+        elapsed, gained = now - self.origin[0], frac - self.origin[1]
+        if elapsed < self.estimate_after or not gained > 0:
+            left = "estimating"
+        else:
+            left = f"{self.duration(elapsed * (1 - frac) / gained)} left"
+            ran, taken = now - self.begun[1], steps - self.begun[2]
+            if max_steps is not None and ran >= self.estimate_after and taken > 0:
+                out = ran * (max_steps - steps) / taken
+                if out < elapsed * (1 - local) / variants / gained:
+                    left += f", budget: {self.duration(out)}"
+        which = f"variant {variant + 1}/{variants}: " if variants > 1 else ""
+        span = f" in {t0:g} .. {t1:g}" if t0 != 0 else f"/{t1:g}"
+        budget = f"/{max_steps:,}" if max_steps is not None else ""
+        line = (f"{which}t = {t:.5g}{span} ({100 * local:.1f} %), {steps:,}{budget} steps, "
+                f"{left}")
+        # a line longer than the terminal wraps, and the next "\r" redraws only its end
+        self._show(line[: self.columns() - 1])
+
+    def columns(self) -> int:
+        """The width of the terminal behind the stream (80 where it does not say)."""
+        try:
+            return os.get_terminal_size(self.stream.fileno()).columns or 80
+        except (AttributeError, OSError, ValueError):
+            return 80
 
     def _due(self) -> float | None:
         """The time now if a line is to be drawn now (a terminal, past the delay, not
@@ -200,14 +257,24 @@ class ProgressBar:
         return now
 
     def _show(self, text: str) -> None:
-        self.stream.write("\r" + text)
+        self.stream.write("\r" + text.ljust(self.drawn))  # over the whole of a longer line
         self.stream.flush()
         self.shown = True
+        self.drawn = max(self.drawn, len(text))
 
     def close(self) -> None:
         if self.shown:
-            self.stream.write("\r" + " " * (self.width + 50) + "\r")
+            self.stream.write("\r" + " " * max(self.width + 50, self.drawn) + "\r")
             self.stream.flush()
+
+    @staticmethod
+    def duration(seconds: float) -> str:
+        """A wall time in the unit a reader takes in at a glance."""
+        for limit, unit, size in ((100, "s", 1), (6000, "min", 60), (172800, "h", 3600),
+                                  (63115200, "days", 86400)):
+            if seconds < limit:
+                return f"{seconds / size:.0f} {unit}"
+        return f"{seconds / 31557600:.3g} years"
 
 
 class SearchStatus(ProgressBar):
@@ -335,29 +402,37 @@ def _client(args):
     if args.workers is not None and args.scheduler is not None:
         raise MechError("--workers starts a local cluster and --scheduler names one; give "
                         "one of them")
-    from .study.run import local_client, remote_client
+    from .study.cluster import local_client, remote_client, security_of
 
+    timeout = args.scheduler_timeout
+    if not timeout > 0:  # NaN too
+        raise MechError(f"--scheduler-timeout {timeout}: give a number of seconds above 0")
+    tls = (args.tls_ca_file, args.tls_cert, args.tls_key)
+    if args.scheduler is None and any(tls):
+        raise MechError("--tls-ca-file, --tls-cert and --tls-key are for --scheduler: the "
+                        "cluster of --workers makes credentials of its own")
     if args.workers is not None:
-        return local_client(args.workers)
+        return local_client(args.workers, timeout)
     if args.scheduler is not None:
-        return remote_client(args.scheduler)
+        return remote_client(args.scheduler, timeout, security_of(*tls))
     return None
 
 
 def _close(client) -> None:
     """Close a client, and the local cluster it started (not a remote one)."""
-    cluster = client.cluster
-    client.close()
-    if cluster is not None and type(cluster).__name__ == "LocalCluster":
-        cluster.close()
+    from .study.cluster import close
+
+    close(client)
 
 
 def optimize_command(args, signals: SignalGuard | None = None) -> int:
     """``mechdsl optimize``: the params of the model's ``optimize`` statement at the minimum
     of its objective under its requirements (:func:`mechdsl.study.optimize.optimize`), on
     the cluster of --workers or --scheduler if given; printed, then the model run there with
-    the options of ``run`` (``-o``, ``--plot``, ...). No design satisfying the requirements:
-    exit 2, nothing run."""
+    the options of ``run`` (``-o``, ``--plot``, ...). No design satisfying the requirements
+    with a finite objective: exit 2, nothing run. SIGINT or SIGTERM during the search stops
+    it: the best design so far is printed and run as above (a second signal stops that run,
+    which keeps what it solved), and the exit status is 130 or 143."""
     from .study.optimize import optimize
 
     _check_targets(args)

@@ -24,7 +24,7 @@ LS = list(np.linspace(2.2, 4.0, 48))
 @pytest.fixture(scope="module")
 def client():
     # the LocalCluster of `--workers 2`: 2 processes of one thread on 127.0.0.1
-    from mechdsl.study.run import local_client
+    from mechdsl.study.cluster import local_client
 
     c = local_client(2)
     assert isinstance(c.cluster, distributed.LocalCluster)
@@ -49,7 +49,7 @@ def same(a, b) -> bool:
 def test_the_workers_are_processes_on_the_loopback_interface(client):
     pids = client.run(os.getpid)
     assert len(pids) == 2 and os.getpid() not in pids.values()
-    assert all(address.startswith("tcp://127.0.0.1:") for address in pids)
+    assert all(address.startswith("tls://127.0.0.1:") for address in pids)
 
 
 def test_a_sweep_on_the_cluster_equals_the_run_here(client, rods):
@@ -161,9 +161,17 @@ def test_the_command_line_with_workers_writes_the_same_file(tmp_path):
     assert here.read_bytes() == there.read_bytes()
 
 
-def test_the_command_line_reaches_a_scheduler_by_its_address(client, tmp_path):
+def test_the_command_line_reaches_a_scheduler_by_its_address(tmp_path):
+    # a cluster the user started (plain TCP, as `dask scheduler` starts one); the local
+    # cluster of --workers is this run's alone (tests/test_cluster_trust.py)
     here, there = tmp_path / "here.csv", tmp_path / "there.csv"
-    address = client.scheduler.address
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                  host="127.0.0.1", protocol="tcp://",
+                                  dashboard_address="127.0.0.1:0") as cluster:
+        scheduler_run(cluster.scheduler_address, here, there)
+
+
+def scheduler_run(address, here, there):
     assert run_cli("run", EXAMPLES / "rod_sweep.mech", "--chunk", "2", "-o", here,
                    "-q").returncode == 0
     r = run_cli("run", EXAMPLES / "rod_sweep.mech", "--chunk", "2", "--scheduler", address,
@@ -189,7 +197,7 @@ def test_the_cluster_options_fail_as_user_errors(tmp_path):
 
 
 def test_without_dask_the_options_say_how_to_install_it(monkeypatch):
-    from mechdsl.study.run import local_client
+    from mechdsl.study.cluster import local_client
 
     monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed fails
     with pytest.raises(MechError, match=r'pip install "mechdsl\[cluster\]"'):
@@ -237,7 +245,7 @@ def test_an_optimisation_on_the_cluster_finds_what_it_finds_here(client):
 def test_the_local_cluster_keeps_the_workers_allocator_and_this_process_environment():
     # distributed's nannies set MALLOC_TRIM_THRESHOLD_=65536 in their workers (which halves
     # the speed of the numpy path) and write their workers' variables into this process
-    from mechdsl.study.run import local_client
+    from mechdsl.study.cluster import local_client
 
     before = dict(os.environ)
     client = local_client(1)

@@ -270,3 +270,37 @@ def test_vern9_holds_the_oscillator_to_its_tolerance_between_steps():
     assert sol.status == "ok" and sol.steps < len(t) / 2  # outputs inside steps
     np.testing.assert_allclose(sol.y[:, 0], np.cos(t), rtol=0, atol=1e-9)
     np.testing.assert_allclose(sol.y[:, 1], -np.sin(t), rtol=0, atol=1e-9)
+
+
+def test_the_step_budget_counts_every_attempt_and_keeps_the_outputs_before_it():
+    # the oscillator over 1e6 (some 10^6 steps): a budget of 60 stops it early, with the
+    # outputs before it on the closed form and the time its steps reached
+    t = np.arange(0.0, 1e6, 0.5)
+    seen = []
+    sol = integrate(Problem(oscillator), [1.0, 0.0], t, rtol=1e-10, atol=1e-12,
+                    max_steps=60, on_step=lambda tt, steps: seen.append((tt, steps)))
+    assert sol.status == "failed" and sol.reason == "budget"
+    assert sol.steps + sol.rejected == 60
+    assert "budget of 60 steps" in sol.message and f"t = {sol.t_reached:.10g}" in sol.message
+    assert len(sol.t) >= 2 and sol.t[-1] <= sol.t_reached < sol.t[-1] + 0.5
+    np.testing.assert_allclose(sol.y[:, 0], np.cos(sol.t), rtol=0, atol=1e-8)
+    # on_step: after every accepted step, with the time reached and the attempts so far
+    assert len(seen) == sol.steps
+    assert seen[-1][0] == sol.t_reached and seen[-1][1] <= 60
+    assert all(a[0] < b[0] and a[1] < b[1] for a, b in zip(seen, seen[1:]))
+    # a step that is never accepted costs as much: rejected steps use up the budget too
+    sol = integrate(Problem(lambda tt, y: np.array([np.nan if tt > 0 else 1.0])), [0.0],
+                    [0.0, 1.0], rtol=1e-8, atol=1e-10, max_steps=5)
+    assert sol.reason == "budget" and (sol.steps, sol.rejected) == (0, 5)
+    assert len(sol.t) == 1 and sol.t_reached == 0.0
+
+
+def test_the_integration_reports_each_step_where_its_outputs_are_far_apart():
+    # one output interval of 20 periods: the outputs say nothing in between, the steps do
+    seen = []
+    sol = integrate(Problem(oscillator), [1.0, 0.0], [0.0, 40 * np.pi], rtol=1e-10,
+                    atol=1e-12, on_step=lambda tt, steps: seen.append(tt))
+    assert sol.status == "ok" and sol.reason == "" and len(sol.t) == 2
+    assert len(seen) == sol.steps > 100
+    assert seen[-1] == sol.t_reached == 40 * np.pi
+    np.testing.assert_allclose(sol.y[-1], [1.0, 0.0], atol=1e-8)

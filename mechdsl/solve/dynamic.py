@@ -138,6 +138,14 @@ class DynamicRun(Run):
 
     # -- the run -------------------------------------------------------------------------------
     def run(self) -> Results:
+        """Integrate every variant in turn (:meth:`Run.run`'s contract). Each has a budget
+        of ``max_steps`` steps, accepted and rejected: one that uses it up stops there, a
+        numerical failure whose message says the budget, the time reached and how to raise
+        it, with the output instants before it kept. ``progress(done, total)`` is called at
+        every output instant, unless it has a method ``motion(t, steps, t0, t1, variant,
+        variants, max_steps)`` (:class:`mechdsl.commands.ProgressBar`): that is called
+        after every accepted step instead, with the time reached in t0 .. t1 and the steps
+        taken so far by ``variant`` (from 0) of ``variants``."""
         sysm, times = self.system, self.times
         V, K, n = sysm.n_variants, len(times), sysm.n
         start = time.perf_counter()
@@ -259,10 +267,19 @@ class DynamicRun(Run):
                 f"{moved[k]:.3g}")
 
         V = self.system.n_variants
+        t1, budget = float(times[-1]), self.opts.max_steps
+        # a display that can show the steps is fed by them (see :meth:`run`); one output
+        # interval can take millions of steps, during which the instants stand still
+        motion = getattr(self.progress, "motion", None)
+        on_step = None
+        if motion is not None:
+            def on_step(t: float, steps: int) -> None:
+                # positional: a third of the cost of binding keywords, at every step
+                motion(t, steps, t0, t1, v, V, budget)
 
         def record(k: int, t: float, y: np.ndarray) -> None:
             self._record(k, t, y)
-            if self.progress is not None:  # the variants one after another
+            if self.progress is not None and motion is None:  # the variants in turn
                 self.progress((v * len(times) + k + 1) // V, len(times))
 
         K = len(times)
@@ -274,10 +291,21 @@ class DynamicRun(Run):
             sol = integrate(Problem(self.ev.derivative, self._project, self._settle,
                                     _velocities_carried(n)), y0, times,
                             rtol=self.rtol, atol=self.atol, scale=scale, on_output=record,
-                            method=METHODS[self.method])
+                            on_step=on_step, max_steps=budget, method=METHODS[self.method])
         finally:  # an interrupt too: the instants solved are written, complete
             self._write(v)
-        if sol.status == "failed":
+        if sol.status == "failed" and sol.reason == "budget":
+            k = len(sol.t)
+            self.failures.append(
+                f"the forward dynamics{variant_label(sysm, v)} used up its budget of "
+                f"{budget:,} steps at t = {sol.t_reached:.10g} of {t0:g} .. {t1:g} "
+                f"({sol.steps:,} steps accepted, {sol.rejected:,} rejected); the "
+                f"{f'{k} output instants' if k != 1 else 'output instant'} integrated before "
+                f"it, to t = {sol.t[-1]:.10g}, {'are' if k != 1 else 'is'} kept in the "
+                f"results. Raise the budget with "
+                f"--max-steps N (SolverOptions(max_steps=N)), or shorten the span or loosen "
+                f"--rtol")
+        elif sol.status == "failed":
             t_fail = float(sol.t[-1]) if len(sol.t) else t0
             self.failures.append(
                 f"the forward dynamics stopped after t = {t_fail:.10g}"

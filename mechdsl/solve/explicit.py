@@ -34,6 +34,15 @@ mechanism, evaluating it anew changed neither a step size nor the error at t = 0
 digits, at every rtol from 1e-4 to 1e-10, and cost 6 % more evaluations.) Every output is
 the interpolant at the output instant, projected. A lean loop: one preallocated stage
 array, a handful of numpy calls per stage besides the derivative.
+
+What belongs to the loop that drives the steps rather than to a pair's arithmetic: the
+outputs, the projections, the failures, the interrupts, a budget of ``max_steps`` attempts
+(accepted and rejected steps together: a run that can never end, over 1e12 s at rtol
+1e-12, stops there with status "failed", reason "budget", its outputs so far kept) and
+``on_step(t, steps)``, called after every accepted step with the time reached and the
+attempts so far (one output interval may take millions of steps: a display fed by the
+outputs alone would stand still). It costs a Python call per step, against the 6 to 20
+evaluations of the derivative a step takes.
 """
 
 from __future__ import annotations
@@ -216,7 +225,9 @@ class Problem:
 @dataclass(frozen=True)
 class Solution:
     """The outputs reached (``t`` a prefix of the requested instants, ``y`` their states),
-    how the integration ended ("ok", "failed", "interrupted") and why, and its counts."""
+    how the integration ended ("ok", "failed", "interrupted") and why, its counts, the time
+    the steps reached (past the last output where it stopped between two) and, for a
+    failure, its ``reason``: "budget" where ``max_steps`` ran out, "" otherwise."""
 
     t: np.ndarray
     y: np.ndarray
@@ -225,6 +236,8 @@ class Solution:
     steps: int
     rejected: int
     evaluations: int
+    t_reached: float = float("nan")
+    reason: str = ""
 
 
 def _rms(x: np.ndarray) -> float:
@@ -235,16 +248,20 @@ def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: flo
               atol: float | np.ndarray = 1e-10, scale: np.ndarray | None = None,
               h0: float | None = None, max_step: float = np.inf, max_steps: int = 1_000_000,
               on_output: Callable[[int, float, np.ndarray], None] | None = None,
+              on_step: Callable[[float, int], None] | None = None,
               method: Method = DOP853) -> Solution:
     """Integrate from ``y0`` at ``t_eval[0]`` to ``t_eval[-1]``, returning the state at every
     instant of ``t_eval`` (increasing). ``atol`` (times ``scale``, per component, if given)
     and ``rtol`` bound the local error of each step (see the module); ``h0`` is the first
     step (else Hairer's choice) and ``max_step`` the longest; ``method`` the pair that takes
     the steps (:data:`METHODS`; the forward dynamics chooses it by rtol). ``on_output(k, t,
-    y)`` is called with each output as soon as it is known; a KeyboardInterrupt raised
-    there or in ``rhs`` ends the integration ("interrupted") with the outputs before it.
-    A singular system (``rhs`` raising numpy's LinAlgError), a derivative that is not
-    finite, or a step size that underflows ends it "failed", the message saying where."""
+    y)`` is called with each output as soon as it is known, ``on_step(t, steps)`` after
+    each accepted step with the time reached and the steps taken, accepted and rejected;
+    a KeyboardInterrupt raised there or in ``rhs`` ends the integration ("interrupted")
+    with the outputs before it. A singular system (``rhs`` raising numpy's LinAlgError), a
+    derivative that is not finite, or a step size that underflows ends it "failed", the
+    message saying where; so does ``max_steps`` steps, accepted and rejected, before the
+    end (reason "budget")."""
     rhs, project = problem.rhs, problem.project
     settle = problem.settle or project
     t_eval = np.asarray(t_eval, dtype=float)
@@ -266,9 +283,10 @@ def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: flo
         if on_output is not None:
             on_output(k, tt, yy)
 
-    def done(status: str, message: str = "") -> Solution:
+    def done(status: str, message: str = "", reason: str = "") -> Solution:
         return Solution(np.array(outs_t), np.array(outs_y).reshape(len(outs_t), n), status,
-                        message, counts["steps"], counts["rejected"], counts["evaluations"])
+                        message, counts["steps"], counts["rejected"], counts["evaluations"],
+                        t, reason)
 
     stages, c, a, b, error = method.stages, method.c, method.a, method.b, method.error
     exponent = method.exponent
@@ -283,8 +301,11 @@ def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: flo
              else _first_step(f, t, y, fy, rtol, atol_v, t_end - t, -exponent))
         rejected = False
         while k_next < len(t_eval):
-            if counts["steps"] >= max_steps:
-                return done("failed", f"more than {max_steps} steps before t = {t:.10g}")
+            # the budget counts rejected steps too: they cost as much, and a step size
+            # that never passes is as endless as one that passes and never arrives
+            if counts["steps"] + counts["rejected"] >= max_steps:
+                return done("failed", f"its budget of {max_steps:,} steps (accepted and "
+                                      f"rejected) ran out at t = {t:.10g}", "budget")
             if not np.isfinite(fy).all():
                 return done("failed", f"the accelerations are not finite numbers at "
                                       f"t = {t:.10g}")
@@ -344,6 +365,8 @@ def integrate(problem: Problem, y0: np.ndarray, t_eval: np.ndarray, *, rtol: flo
             rejected = False
             t, y, fy = t_new, y_new, f_new
             h *= factor
+            if on_step is not None:
+                on_step(t, counts["steps"] + counts["rejected"])
     except KeyboardInterrupt:
         return done("interrupted")
     except np.linalg.LinAlgError as err:

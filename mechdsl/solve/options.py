@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from numbers import Integral
 
 
 @dataclass(frozen=True)
@@ -50,6 +51,16 @@ class SolverOptions:
     method: str = "auto"
     #: The rtol from which "auto" integrates with dopri5.
     dopri5_from: float = 1e-4
+    #: Forward dynamics: the integrator's step budget per variant, accepted and rejected
+    #: steps together; a variant that uses it up stops there (a numerical failure, the
+    #: output instants integrated before it kept). Real runs stay far below it: the
+    #: examples take tens to a few thousand steps (Andrews' mechanism as written 58, at
+    #: rtol 1e-12 170; a pendulum over 100 periods at rtol 1e-12, tests/test_dynamics.py,
+    #: 3,832), so the default leaves a margin of 250 over the longest, room for 26,000
+    #: pendulum periods or 6,000 times Andrews' span at rtol 1e-12, and stops a runaway
+    #: (a span of 1e12 s, a tolerance nothing can meet) after 7 to 22 minutes (0.4 to 1.3
+    #: ms a step on numpy) instead of never.
+    max_steps: int = 1_000_000
     #: Newton iterations allowed per attempt at an instant.
     max_iterations: int = 12
     #: Assembly stops when its step is at most this (scaled as newton_tol).
@@ -190,5 +201,10 @@ class SolverOptions:
                      "max_batch_elements", "coarse_stride", "window", "compiled_from"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1")
+        # a count of steps: a float (nan above all) would let a run go on without end
+        if (isinstance(self.max_steps, bool) or not isinstance(self.max_steps, Integral)
+                or self.max_steps < 1):
+            raise ValueError(f"max_steps must be a whole number of steps, at least 1, not "
+                             f"{self.max_steps!r}")
         if self.level_split < 2:
             raise ValueError("level_split must be at least 2")

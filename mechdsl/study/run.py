@@ -11,7 +11,6 @@ dask is imported here only when a client is given.
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, field, replace
 from typing import Callable
@@ -91,7 +90,14 @@ class StudyRun:
 
     def on_cluster(self, client) -> None:
         """Every chunk as a task of the Dask ``client``'s cluster, in variant order; the
-        workers lost meanwhile are noted with the chunks they were solving."""
+        workers lost meanwhile are noted with the chunks they were solving. Dask's own
+        logging is silent meanwhile (:func:`~mechdsl.study.cluster.quiet_dask`)."""
+        from .cluster import quiet_dask
+
+        with quiet_dask():
+            self._on_cluster(client)
+
+    def _on_cluster(self, client) -> None:
         from dask.base import tokenize
         from distributed import wait
 
@@ -105,6 +111,7 @@ class StudyRun:
         pending = set(futures)
         workers = set(client.scheduler_info()["workers"])
         held = client.processing()
+        alive = Liveness(client)
         try:
             while pending:
                 try:
@@ -114,6 +121,7 @@ class StudyRun:
                     finished = set()
                 for f in sorted(finished, key=lambda f: futures[f][0]):
                     self.finished(futures[f][0], f.result())
+                alive.check(bool(finished))
                 now = set(client.scheduler_info()["workers"])
                 for lost in sorted(workers - now):
                     chunks = [by_key[k] for k in held.get(lost, ()) if k in by_key]
@@ -137,6 +145,38 @@ class StudyRun:
         if status is None and any(a not in self.done for a, _ in self.ranges):
             status = "interrupted"
         return merge(parts, solve_time=elapsed, status=status, warnings=tuple(self.notes))
+
+
+class Liveness:
+    """Whether the scheduler of ``client`` still answers while no chunk ends: after
+    ``timeout`` seconds (the client's, :data:`~mechdsl.study.cluster.SCHEDULER_TIMEOUT` by
+    default) without a finished chunk, the scheduler is asked who it is and must answer
+    within ``timeout``; a MechError naming it otherwise. A chunk may take longer than that:
+    only the scheduler's silence ends the run."""
+
+    def __init__(self, client, timeout: float | None = None) -> None:
+        from .cluster import SCHEDULER_TIMEOUT
+
+        self.client = client
+        # the timeout the client was made with (distributed keeps it as _timeout)
+        given = timeout if timeout is not None else getattr(client, "_timeout", None)
+        self.timeout = float(given) if isinstance(given, (int, float)) and given > 0 \
+            else SCHEDULER_TIMEOUT
+        self.last = time.monotonic()
+
+    def check(self, progressed: bool) -> None:
+        now = time.monotonic()
+        if progressed or now - self.last < self.timeout:
+            self.last = now if progressed else self.last
+            return
+        address = getattr(self.client.scheduler, "address", "?")
+        try:
+            self.client.sync(self.client.scheduler.identity, callback_timeout=self.timeout)
+        except (TimeoutError, OSError) as err:
+            raise MechError(f"the Dask scheduler at {address} stopped answering: no reply "
+                            f"within {self.timeout:g} s ({type(err).__name__}); the chunks "
+                            "not yet solved are lost (--scheduler-timeout)") from None
+        self.last = time.monotonic()
 
 
 def run_study(study: Study, probe: System, n_variants: int, chunk: int,
@@ -172,57 +212,3 @@ def blank(system: System) -> Results:
                    sweep=dict(system.sweep), n_solved=np.zeros(V, dtype=np.int64),
                    status="interrupted", messages=(), solve_time=0.0, residual=0.0,
                    source_name=system.source.name, units=units, time_unit=system.time_unit)
-
-
-def local_client(workers: int):
-    """A Dask client of a new cluster of ``workers`` processes on this machine (one thread
-    each, on the loopback interface, no dashboard); a MechError saying how to install dask
-    where it is missing."""
-    if workers < 1:
-        raise MechError(f"--workers {workers}: give at least 1")
-    distributed = import_distributed("--workers")
-    import logging
-
-    import dask
-
-    # distributed's nannies set MALLOC_TRIM_THRESHOLD_=65536 in their workers by default,
-    # which pins glibc's mmap threshold at 128 KiB: every large temporary of the numpy path is
-    # then mapped and page-faulted afresh, and a chunk takes 1.7 times as long (measured on
-    # the slider-crank's sweep): the workers here keep glibc's own adaptive threshold
-    #
-    # The nannies also write their workers' environment into this process's os.environ
-    # (OMP_NUM_THREADS=1, ...), where it would outlive the cluster: it is put back. The
-    # scheduler's HTTP server (health checks) takes a free port, not 8787, which another
-    # cluster may hold.
-    saved = dict(os.environ)
-    os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)  # nor inherited (an earlier cluster's)
-    try:
-        with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_":
-                              None}):
-            cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1,
-                                               processes=True, host="127.0.0.1",
-                                               dashboard_address="127.0.0.1:0",
-                                               silence_logs=logging.ERROR)
-    finally:
-        os.environ.clear()
-        os.environ.update(saved)
-    return distributed.Client(cluster)
-
-
-def remote_client(address: str):
-    """A Dask client of the cluster whose scheduler is at ``address``."""
-    distributed = import_distributed("--scheduler")
-    try:
-        return distributed.Client(address, timeout=10)
-    except (OSError, TimeoutError, ValueError) as err:
-        raise MechError(f"--scheduler {address}: cannot reach a Dask scheduler there "
-                        f"({err})") from None
-
-
-def import_distributed(option: str):
-    try:
-        import distributed
-    except ImportError:
-        raise MechError(f"{option} needs Dask's distributed scheduler, which is not "
-                        "installed: pip install \"mechdsl[cluster]\"") from None
-    return distributed
