@@ -266,7 +266,9 @@ class Mechanism:
         (``distributed.Client``) if one is given, else in this process; the results are the
         same bit for bit either way. With ``store`` (a ``.zarr`` or ``.parquet`` path) each
         chunk is written there where it was solved, nothing is held whole, and the stored
-        results are returned, read lazily (:class:`mechdsl.outputs.store.StoredResults`).
+        results are returned, read lazily (:class:`mechdsl.outputs.store.StoredResults`);
+        an earlier store there is replaced only when the run is complete (an interrupted
+        run's store goes beside it, ``out.interrupted.zarr``, and is the one returned).
         """
         ov = self._overrides(span, step, sweep, {**(params or {}), **param_values}, options)
         mech = self.reducing(reduce) if reduce is not None else self
@@ -282,9 +284,10 @@ class Mechanism:
             store = os.fspath(store)
             if store_kind(store) is None:
                 raise MechError(f"store={store!r}: a store is a .zarr or .parquet path")
+        placed: list[str] = []  # where the store went: beside store if interrupted
         results = solve_sweep(mech, ov, options, client=client, store=store, poses=poses,
-                              planned=planned)
-        return results if store is None else open_store(store)
+                              planned=planned, placed=placed.append)
+        return results if store is None else open_store(placed[-1] if placed else store)
 
     def optimize(self, *, span: tuple[float, float] | None = None, step: float | None = None,
                  params: Mapping[str, float] | None = None,
@@ -295,7 +298,14 @@ class Mechanism:
         ``subject to`` statements, as ``mechdsl optimize`` finds it
         (:func:`mechdsl.study.optimize.optimize`; the options are that command's): an
         :class:`~mechdsl.study.optimize.Optimum`, with the run at the best params in
-        ``.run``. The other arguments are those of :meth:`simulate`."""
+        ``.run``. The other arguments are those of :meth:`simulate`.
+
+        Ctrl-C (KeyboardInterrupt) during the search does not propagate, as in
+        :meth:`simulate`, which returns what it solved: the search stops and the Optimum of
+        the best design solved so far is returned, its ``interrupted`` set to the signal and
+        its ``.run`` made there (a second Ctrl-C stops that run, keeping what it solved). An
+        objective that is a finite number for no design raises
+        :class:`~mechdsl.errors.NumericalError`."""
         from .study.optimize import optimize
 
         ov = self._overrides(span, step, None, {**(params or {}), **param_values}, options)

@@ -358,6 +358,7 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
                           export=args.export)
     bar = ProgressBar(sys.stderr) if not args.quiet else None
     options = _options(args)
+    placed: list[str] = []  # where the store went: beside -o if an interrupt kept the old one
     try:
         if store is None and client is None and total <= chunk:
             results = simulate(system, options, poses=drawing, rates=bool(args.export),
@@ -365,7 +366,7 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
         else:  # chunks of the sweep, here or on the cluster, merged or into the store
             results = solve_sweep(mech, ov, options, client=client, store=store,
                                   poses=drawing, rates=bool(args.export), progress=bar,
-                                  planned=planned, extra_memory=extra)
+                                  planned=planned, extra_memory=extra, placed=placed.append)
     finally:
         signals.hold()  # what was solved is written whole before any signal acts
         if bar is not None:
@@ -373,7 +374,7 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
         if client is not None:
             _close(client)
     if store is not None:
-        return _report(args, results, [store], None, signals)
+        return _report(args, results, placed[-1:] or [store], None, signals)
     if total > system.n_variants and (drawing or args.export):
         # the drawings and exports need every variant's geometry, not the first chunk's
         system = mech.compile(ov)
@@ -641,6 +642,10 @@ def _interrupted_text(args, results, written: list[str], signum: int) -> str:
     if args.output in written:
         where = "on standard output" if args.output == "-" else f"in {args.output}"
         text = f"mechdsl: {verb}; {solved} solved so far are {where}"
+    elif written and _is_store_path(args.output or ""):
+        # an earlier store was at -o: it stays, the interrupted run's store is beside it
+        return (f"mechdsl: {verb}; {solved} solved so far are in {written[0]}; "
+                f"{args.output} keeps the earlier run's results")
     elif written:
         text = f"mechdsl: {verb}; {solved} solved so far are drawn in {', '.join(written)}"
     else:
@@ -768,6 +773,10 @@ def plot_command(args) -> int:
                               ).astype(int)
             print(f"{args.file}: {stored.n_variants} variants; plotting {len(shown)} of them, "
                   "evenly spaced", file=sys.stderr)
+        if stored.reduced and not stored.sweep:
+            raise MechError("the outputs are reductions, one value for the run, nothing to "
+                            "plot without a sweep",
+                            source=Source(args.file, ""))
         results = stored.to_results(shown)
     else:
         results = read_csv(args.file)

@@ -50,10 +50,18 @@ def chunk(start: int, stop: int, *, reduced: bool = False, n_solved=N_SOLVED) ->
                    units=UNITS, time_unit="s", reduced=red)
 
 
-def create(path, *, reduced: bool = False, labels=LABELS, n_variants=V, sweep=SWEEP):
-    create_store(path, times=TIMES, labels=labels, sweep=sweep, units=UNITS, time_unit="s",
+def create(path, *, reduced: bool = False, labels=LABELS, n_variants=V, sweep=SWEEP) -> str:
+    """A new store for ``path``, built beside it: the path the writers are given."""
+    return create_store(path, times=TIMES, labels=labels, sweep=sweep, units=UNITS, time_unit="s",
                  reduced=reduced, chunk_variants=CHUNK, source_name="crank.mech",
                  n_variants=n_variants)
+
+
+def finish(work, status: str = "ok", **kwargs) -> str:
+    """Finish the store built in ``work``: it goes in place; where it went."""
+    end = dict(messages=[], warnings=[], solve_time=1.0, residual=0.0)
+    end.update(kwargs)
+    return finish_store(work, status=status, **end)
 
 
 def equal(a, b) -> bool:
@@ -72,14 +80,17 @@ def test_store_kind():
 @pytest.mark.parametrize("kind", KINDS)
 def test_chunks_out_of_order_and_retried_read_back_exactly(tmp_path, kind):
     path = tmp_path / f"run.{kind}"
-    create(path)
+    work = create(path)
+    assert not path.exists()                  # built beside it, in place when finished
     # out of order, the last chunk short, the middle one written twice (a retried task);
     # variants 0..3 are never written
-    write_chunk(path, 8, chunk(8, 10))
-    write_chunk(path, 4, chunk(4, 8))
-    write_chunk(path, 4, chunk(4, 8))
-    finish_store(path, status="interrupted", messages=["stopped by the user"],
-                 warnings=["a singular position was passed"], solve_time=3.5, residual=2e-11)
+    write_chunk(work, 8, chunk(8, 10))
+    write_chunk(work, 4, chunk(4, 8))
+    write_chunk(work, 4, chunk(4, 8))
+    where = finish_store(work, status="interrupted", messages=["stopped by the user"],
+                         warnings=["a singular position was passed"], solve_time=3.5,
+                         residual=2e-11)
+    assert where == str(path) and sorted(os.listdir(tmp_path)) == [path.name]
 
     res = open_store(path)
     assert res.kind == kind and not res.reduced
@@ -126,8 +137,9 @@ def test_zarr_layout(tmp_path):
     import zarr
 
     path = tmp_path / "run.zarr"
-    create(path)
-    write_chunk(path, 0, chunk(0, 4))
+    work = create(path)
+    write_chunk(work, 0, chunk(0, 4))
+    finish(work)
     group = zarr.open_group(path, mode="r")
     attrs = dict(group.attrs)
     assert attrs["mechdsl"] == 1 and attrs["labels"] == list(LABELS)
@@ -152,10 +164,11 @@ def test_parquet_layout(tmp_path):
     import pyarrow.parquet as pq
 
     path = tmp_path / "run.parquet"
-    create(path)
-    write_chunk(path, 4, chunk(4, 8))
-    write_chunk(path, 0, chunk(0, 4))
-    write_chunk(path, 8, chunk(8, 10))
+    work = create(path)
+    write_chunk(work, 4, chunk(4, 8))
+    write_chunk(work, 0, chunk(0, 4))
+    write_chunk(work, 8, chunk(8, 10))
+    finish(work)
     assert sorted(os.listdir(path)) == ["_mechdsl.json", "part-000000000.parquet",
                                         "part-000000004.parquet", "part-000000008.parquet"]
     meta = json.loads((path / "_mechdsl.json").read_text())
@@ -183,10 +196,10 @@ def test_parquet_layout(tmp_path):
 @pytest.mark.parametrize("kind", KINDS)
 def test_reduced_store(tmp_path, kind):
     path = tmp_path / f"peaks.{kind}"
-    create(path, reduced=True, labels=("peak", "mean"))
-    write_chunk(path, 8, chunk(8, 10, reduced=True))
-    write_chunk(path, 0, chunk(0, 4, reduced=True))
-    finish_store(path, status="ok", messages=[], warnings=[], solve_time=1.0, residual=0.0)
+    work = create(path, reduced=True, labels=("peak", "mean"))
+    write_chunk(work, 8, chunk(8, 10, reduced=True))
+    write_chunk(work, 0, chunk(0, 4, reduced=True))
+    finish(work)
     res = open_store(path)
     assert res.reduced and res.labels == ("peak", "mean") and res.status == "ok"
     expected = {k: np.full(V, np.nan) for k in ("peak", "mean")}
@@ -207,11 +220,12 @@ def test_reduced_store(tmp_path, kind):
 @pytest.mark.parametrize("kind", KINDS)
 def test_no_sweep_one_variant(tmp_path, kind):
     path = tmp_path / f"single.{kind}"
-    create(path, n_variants=1, sweep={})
+    work = create(path, n_variants=1, sweep={})
     one = Results(times=TIMES, data={k: v[:1] for k, v in truth(0, 1).items()}, sweep={},
                   n_solved=np.array([7]), status="ok", messages=(), solve_time=0.0,
                   residual=0.0, source_name="crank.mech", units=UNITS, time_unit="s")
-    write_chunk(path, 0, one)
+    write_chunk(work, 0, one)
+    finish(work)
     res = open_store(path)
     assert res.sweep == {} and res.n_variants == 1
     assert equal(res.array("slider.x"), np.sin(TIMES)[None])
@@ -241,35 +255,43 @@ def test_refuses_to_overwrite_what_is_not_a_store(tmp_path, kind, existing):
 @pytest.mark.parametrize("kind", KINDS)
 def test_replaces_an_earlier_store(tmp_path, kind):
     path = tmp_path / f"run.{kind}"
-    create(path)
-    write_chunk(path, 0, chunk(0, 4))
-    finish_store(path, status="ok", messages=[], warnings=[], solve_time=1.0, residual=0.0)
-    create(path, n_variants=4, sweep={k: v[4:8] for k, v in SWEEP.items()})
+    work = create(path)
+    write_chunk(work, 0, chunk(0, 4))
+    finish(work)
+    work = create(path, n_variants=4, sweep={k: v[4:8] for k, v in SWEEP.items()})
+    res = open_store(path)                   # the earlier store, until the new one is done
+    assert res.n_variants == V and res.status == "ok"
+    assert equal(res.array("slider.x", slice(0, 4)), truth(0, 4)["slider.x"])
+    assert finish(work, "failed") == str(path)                     # complete: replaces it
     res = open_store(path)
-    assert res.n_variants == 4 and res.status == "interrupted"      # not finished yet
+    assert res.n_variants == 4 and res.status == "failed"
     assert np.array_equal(res.n_solved, [-1] * 4)
     assert np.isnan(res.array("slider.x")).all()
     assert np.array_equal(res.sweep["l"], SWEEP["l"][4:8])
+    assert sorted(os.listdir(tmp_path)) == [path.name]             # the old one removed
 
 
 @pytest.mark.parametrize("kind", KINDS)
 def test_bad_paths_and_chunks(tmp_path, kind):
-    with pytest.raises(MechError, match="nothing-here"):
+    with pytest.raises(MechError, match="No such file") as err:
         open_store(tmp_path / f"nothing-here.{kind}")
+    assert err.value.file == str(tmp_path / f"nothing-here.{kind}")   # located at the store
     plain = tmp_path / f"plain.{kind}"
     plain.mkdir()
-    with pytest.raises(MechError, match="plain"):
+    with pytest.raises(MechError, match="not a mechdsl result store") as err:
         open_store(plain)
+    assert err.value.file == str(plain)
     with pytest.raises(MechError, match="zarr or .parquet"):
         create(tmp_path / "run.h5")
     path = tmp_path / f"run.{kind}"
-    create(path)
+    work = create(path)
     with pytest.raises(MechError, match="whole chunks"):
-        write_chunk(path, 2, chunk(2, 6))                     # not on a chunk boundary
+        write_chunk(work, 2, chunk(2, 6))                     # not on a chunk boundary
     with pytest.raises(MechError, match="whole chunks"):
-        write_chunk(path, 4, chunk(4, 6))                     # ends inside a chunk
+        write_chunk(work, 4, chunk(4, 6))                     # ends inside a chunk
     with pytest.raises(MechError, match="outputs and params"):
-        write_chunk(path, 0, chunk(0, 4, reduced=True))
+        write_chunk(work, 0, chunk(0, 4, reduced=True))
+    finish(work)
     assert np.array_equal(open_store(path).n_solved, [-1] * V)
 
 
@@ -298,7 +320,7 @@ def test_concurrent_writers(tmp_path, method):
     n_solved = np.arange(v) % (len(TIMES) + 1)
     path = tmp_path / "run.zarr"
     sweep = {"l": 100.0 + 2.5 * np.arange(v), "e": np.arange(v) % 3 - 1.0}
-    create(path, n_variants=v, sweep=sweep)
+    work = create(path, n_variants=v, sweep=sweep)
 
     def piece(start):
         stop = min(start + CHUNK, v)
@@ -311,8 +333,9 @@ def test_concurrent_writers(tmp_path, method):
     starts = [12, 0, 16, 4, 8, 4]                            # 4 twice: a retried task
     ctx = multiprocessing.get_context(method)
     with ProcessPoolExecutor(2, mp_context=ctx) as pool:
-        for future in [pool.submit(write_chunk, str(path), s, piece(s)) for s in starts]:
+        for future in [pool.submit(write_chunk, work, s, piece(s)) for s in starts]:
             future.result()                                   # a worker's error fails here
+    finish(work)
     res = open_store(path)
     assert np.array_equal(res.n_solved, n_solved)
     for label, expected in truth(0, v, n_solved).items():

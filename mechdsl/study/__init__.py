@@ -55,14 +55,18 @@ def solve_sweep(mech, ov: Overrides, options: SolverOptions | None = None, *,
                 chunk: int | None = None, client=None, store: str | None = None,
                 poses: bool = False, rates: bool = False,
                 progress: Callable[[int, int], None] | None = None,
-                planned: tuple | None = None, extra_memory: int = 0) -> Results:
+                planned: tuple | None = None, extra_memory: int = 0,
+                placed: Callable[[str], None] | None = None) -> Results:
     """Solve ``mech`` with overrides ``ov`` chunk by chunk (:mod:`mechdsl.study.run`): on the
     Dask ``client``'s cluster if given, else here; ``planned`` is :func:`plan`'s answer if
     the caller has it, ``extra_memory`` what the caller's drawings of the first chunk's
     variants will take (scaled to all of them). Returns the merged
     :class:`~mechdsl.results.Results` (the same, bit for bit, wherever the chunks ran). With ``store`` (a ``.zarr`` or ``.parquet`` path),
     each chunk is written there where it was solved, and the results returned hold no
-    arrays (read them with :func:`mechdsl.outputs.store.open_store`)."""
+    arrays (read them with :func:`mechdsl.outputs.store.open_store`); the store is built
+    beside ``store`` and put in place when the run ends, and ``placed`` is called with
+    where it went (``store``, or beside it when an interrupted run kept an earlier store:
+    :func:`mechdsl.outputs.store.finish_store`)."""
     probe, total, size, sweep = planned or plan(mech, ov, chunk)
     study = study_of(mech, ov, options, poses=poses, rates=rates)
     limit = (options or SolverOptions()).max_memory
@@ -81,15 +85,21 @@ def solve_sweep(mech, ov: Overrides, options: SolverOptions | None = None, *,
                          "reductions (--reduce), or raise the limit with --max-memory"]
             raise
         return run_study(study, probe, total, size, sweep, client=client, progress=progress)
-    from ..outputs.store import create_store, finish_store
+    from ..outputs.store import create_store, discard_store, finish_store
 
     labels, units = labels_and_units(probe)
-    create_store(store, times=probe.times, labels=labels, sweep=sweep, units=units,
-                 time_unit=probe.time_unit, reduced=bool(probe.reductions),
-                 chunk_variants=size, source_name=probe.source.name, n_variants=total)
-    results = run_study(study, probe, total, size, sweep, client=client, store=store,
-                        progress=progress)
-    finish_store(store, status=results.status, messages=results.messages,
-                 warnings=results.warnings, solve_time=results.solve_time,
-                 residual=results.residual)
+    work = create_store(store, times=probe.times, labels=labels, sweep=sweep, units=units,
+                        time_unit=probe.time_unit, reduced=bool(probe.reductions),
+                        chunk_variants=size, source_name=probe.source.name, n_variants=total)
+    try:  # the writers fill the store where it is built; the earlier one stays till the end
+        results = run_study(study, probe, total, size, sweep, client=client, store=work,
+                            progress=progress)
+        where = finish_store(work, status=results.status, messages=results.messages,
+                             warnings=results.warnings, solve_time=results.solve_time,
+                             residual=results.residual)
+    except BaseException:  # an error stopped the run: the earlier store is the last good one
+        discard_store(work)
+        raise
+    if placed is not None:
+        placed(where)
     return results

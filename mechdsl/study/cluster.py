@@ -190,10 +190,18 @@ def remote_client(address: str, timeout: float = SCHEDULER_TIMEOUT, security=Non
         raise MechError(f"--scheduler {address}: the scheduler did not finish the client's "
                         f"connection within {timeout:g} s (--scheduler-timeout)")
     err = made["error"]
-    if isinstance(err, (OSError, TimeoutError, ValueError, TypeError, ssl.SSLError)):
-        raise MechError(f"--scheduler {address}: cannot connect to a Dask scheduler there "
-                        f"({_short(err)})") from None
-    raise err
+    if isinstance(err, KeyboardInterrupt):
+        raise err
+    if isinstance(err, MemoryError):
+        # distributed allocates what a frame's header claims before reading it
+        raise MechError(f"--scheduler {address}: a reply from the scheduler claimed more "
+                        "memory than this process could allocate (distributed raised "
+                        "MemoryError while reading it): is it a Dask scheduler, of a version "
+                        "compatible with this client's?") from None
+    # whatever distributed raises while it connects (closed streams, a garbled reply, a
+    # protocol mismatch) is the scheduler's answer, not a defect of this run
+    raise MechError(f"--scheduler {address}: cannot connect to a Dask scheduler there "
+                    f"({type(err).__name__}: {_short(err)})") from None
 
 
 def probe(address: str, security, timeout: float) -> None:
@@ -291,8 +299,8 @@ def _left(deadline: float, address: str, timeout: float, step: str) -> float:
 
 
 def _silent(address: str, timeout: float, step: str) -> MechError:
-    return MechError(f"--scheduler {address}: no answer within {timeout:g} s: the "
-                     f"scheduler did not take the time {step} (--scheduler-timeout)")
+    return MechError(f"--scheduler {address}: no answer within {timeout:g} s, waiting "
+                     f"for the scheduler {step} (--scheduler-timeout)")
 
 
 def _host_port(address: str) -> tuple[str, str, int]:
