@@ -73,6 +73,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "benchmarks"))
+import fuzz_stores  # noqa: E402 - the stores' generator, beside this file
 EXAMPLES = sorted((ROOT / "examples").glob("*.mech"))
 DATA = {f"data/{p.name}": p.read_bytes() for p in sorted((ROOT / "examples" / "data").iterdir())
         if p.is_file()}
@@ -148,6 +150,9 @@ class Case:
     #: CRLF variant)
     like: "Case | None" = None
     gen: str = "mutated"
+    #: a fake Dask scheduler on the loopback interface for the input's ``{scheduler}``:
+    #: (reply bytes, seconds between bytes, close after the reply), or None
+    scheduler: tuple | None = None
     #: the hostile class (:data:`HOSTILE`) and a few words on the case
     cls: str = ""
     label: str = ""
@@ -853,9 +858,85 @@ def hostile_options(rng: random.Random) -> Case:
                 gen="hostile", label="options " + " ".join(a[:30] for a in args))
 
 
+def _frames(parts: list[bytes]) -> bytes:
+    """Dask's framing: the total length, then the count, the lengths and the frames."""
+    body = struct.pack("<Q", len(parts)) + b"".join(struct.pack("<Q", len(p)) for p in parts)
+    body += b"".join(parts)
+    return struct.pack("<Q", len(body)) + body
+
+
+def _scheduler_reply(rng: random.Random) -> tuple[bytes, float, bool, str]:
+    """What a fake scheduler answers a new connection with: (bytes, seconds between bytes,
+    close after, label)."""
+    kind = rng.choice(["silent", "claims", "random", "frames", "msgpack", "handshake",
+                       "trickle", "closed", "http", "short"])
+    if kind == "silent":
+        return b"", 0.0, False, "accepts and never answers"
+    if kind == "claims":
+        n = rng.choice([2**16 + 1, 2**31, 2**40, 2**63, 2**64 - 1, rng.getrandbits(64)])
+        return struct.pack("<Q", n) + rng.randbytes(rng.randint(0, 64)), 0.0, rng.random() < .5, \
+            f"claims {n} bytes"
+    if kind == "random":
+        return rng.randbytes(rng.randint(1, 300)), 0.0, True, "random bytes"
+    if kind == "frames":
+        parts = [rng.randbytes(rng.randint(0, 40)) for _ in range(rng.randint(0, 4))]
+        data = _frames(parts)
+        if rng.random() < 0.5:  # lengths that do not add up
+            data = data[:8] + struct.pack("<Q", rng.getrandbits(64)) + data[16:]
+        return data, 0.0, True, "frames of garbage"
+    if kind == "msgpack":
+        bad = rng.choice([b"\xc1", b"\xa7pickled", b"\x91\x01", b"\xdd\xff\xff\xff\xff",
+                          b"\xc7\x05\x01abcde", b"\x91" * 2000 + b"\x01"])
+        return _frames([bad]), 0.0, True, "frames of what is not a msgpack map"
+    if kind == "handshake":
+        # Dask's handshake, then nothing (or garbage) where the client waits for more
+        import msgpack
+
+        hs = msgpack.packb({"compression": None, "python": [3, 11, 7],
+                            "pickle-protocol": 5})
+        more = rng.choice([b"", rng.randbytes(rng.randint(1, 64)),
+                           struct.pack("<Q", 2**50)])
+        return _frames([hs]) + more, 0.0, rng.random() < 0.5, "a handshake, then garbage"
+    if kind == "trickle":
+        return struct.pack("<Q", 100) + bytes(100), 0.2, False, "a byte every 0.2 s"
+    if kind == "closed":
+        return b"", 0.0, True, "closes at once"
+    if kind == "http":
+        return b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n", 0.0, True, "HTTP"
+    return rng.randbytes(rng.randint(1, 7)), 0.0, True, "fewer than 8 bytes"
+
+
+def hostile_scheduler(rng: random.Random) -> Case:
+    """``--scheduler`` pointed at a fake scheduler that answers with garbage, claims
+    terabytes, never answers, trickles, or closes: a located refusal naming it, exit 1,
+    within the time bound, with nothing unpickled."""
+    name, data = _example(rng)
+    reply, every, close, label = _scheduler_reply(rng)
+    args = ["--scheduler", "tcp://{scheduler}", "--scheduler-timeout",
+            rng.choice(["0.5", "1"])]
+    return Case(data, args, setup=_data_setup(data), expect=frozenset({1}), gen="hostile",
+                label=f"scheduler: {label}", scheduler=(reply, every, close))
+
+
+def hostile_store(rng: random.Random) -> Case:
+    """``mechdsl plot`` of a store made by the real writer, then corrupted
+    (:func:`benchmarks.fuzz_stores.hostile_store`: metadata of the wrong types or claiming
+    terabytes, chunks that are links to /dev/zero or FIFOs, codecs that would unpickle,
+    garbled bytes, Parquet footers of garbage): a drawing or a located refusal, nothing
+    read past a bound, nothing unpickled, the store left as it was."""
+    key = f"store:{rng.getrandbits(64)}"
+    # the kind is the builder's first draw from its generator: the same one, here
+    kind = random.Random(key).choice(["zarr", "parquet"])
+    name = f"results.{kind}"
+    return Case(b"", ["-o", "out.png"], command="plot", name=name,
+                setup=[(name, ("store", key))], writes=("out.png",), gen="hostile",
+                label="a corrupted store")
+
+
 HOSTILE = (("plugin", 2, hostile_plugin), ("data", 3, hostile_data), ("deep", 3, hostile_deep),
            ("lines", 2, hostile_lines), ("outputs", 2, hostile_outputs),
-           ("options", 2, hostile_options))
+           ("options", 2, hostile_options), ("scheduler", 1, hostile_scheduler),
+           ("store", 2, hostile_store))
 
 
 def hostile(rng: random.Random) -> Case:
@@ -874,6 +955,12 @@ def hostile(rng: random.Random) -> Case:
 def make_case(seed: int, index: int) -> Case:
     """Input ``index`` of the run with ``seed``: the same whatever the number of jobs."""
     rng = random.Random(f"{seed}:{index}")
+    only = os.environ.get("MECHDSL_FUZZ_ONLY")  # --only CLASS, for the worker processes too
+    if only:
+        make = dict((name, f) for name, _, f in HOSTILE)[only]
+        case = make(rng)
+        case.cls = only
+        return case
     r = rng.random()
     if r < MIX[0][1]:
         source = rng.choice(EXAMPLES).read_bytes()
@@ -921,6 +1008,10 @@ def _make(folder: str, model: str, path: str, spec: tuple) -> None:
     elif kind == "sparse":
         with open(full, "wb") as f:
             f.truncate(spec[1])
+    elif kind == "store":  # built and corrupted by benchmarks/fuzz_stores.py, then moved
+        build = tempfile.mkdtemp(prefix="build-", dir=folder)
+        os.rename(fuzz_stores.hostile_store(random.Random(spec[1]), build), full)
+        _remove(build)
     else:
         raise AssertionError(kind)
 
@@ -1074,10 +1165,69 @@ def _first_message(text: str) -> str:
     return lines[i] if i < len(lines) else ""
 
 
+class FakeScheduler:
+    """A TCP server on the loopback interface answering each connection with ``reply``
+    (one byte every ``every`` seconds if that is not 0), then closing it or not."""
+
+    def __init__(self, reply: bytes, every: float, close: bool) -> None:
+        import socket
+        import threading
+
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen()
+        self.address = "127.0.0.1:%d" % self.sock.getsockname()[1]
+        self.reply, self.every, self.close = reply, every, close
+        self.conns: list = []
+        self.stopped = False
+        threading.Thread(target=self._serve, daemon=True).start()
+
+    def _serve(self) -> None:
+        while not self.stopped:
+            try:
+                conn, _ = self.sock.accept()
+            except OSError:
+                return
+            self.conns.append(conn)
+            try:
+                if self.every:
+                    for b in self.reply:
+                        if self.stopped:
+                            break
+                        conn.sendall(bytes([b]))
+                        time.sleep(self.every)
+                elif self.reply:
+                    conn.sendall(self.reply)
+                if self.close:
+                    conn.close()
+            except OSError:
+                pass
+
+    def stop(self) -> None:
+        self.stopped = True
+        self.sock.close()
+        for c in self.conns:
+            with contextlib.suppress(OSError):
+                c.close()
+
+
 def _status(case: Case, folder: str, workdir: str, timeout: int, main) -> tuple:
     """Run the input; (exit status or 'hang', stderr, stdout, seconds)."""
     model = os.path.join(folder, case.name)
+    fake = FakeScheduler(*case.scheduler) if case.scheduler is not None else None
+    try:
+        return _run_main(case, folder, workdir, timeout, main, model,
+                         None if fake is None else fake.address)
+    finally:
+        if fake is not None:
+            fake.stop()
+
+
+def _run_main(case: Case, folder: str, workdir: str, timeout: int, main, model: str,
+              scheduler: str | None) -> tuple:
     argv = [_fill(a, model, folder) for a in _command(case)]
+    if scheduler is not None:
+        argv = [a.replace("{scheduler}", scheduler) for a in argv]
     err = io.StringIO()
     start = time.perf_counter()
     with _isolated(folder, workdir) as (out, fd_out):
@@ -1480,7 +1630,11 @@ def main() -> int:
     ap.add_argument("--timeout", type=int, default=20, help="seconds allowed per input")
     ap.add_argument("--failures", default="fuzz-failures", help="folder for offending inputs")
     ap.add_argument("--replay", type=int, metavar="INDEX", help="run input INDEX of --seed only")
+    ap.add_argument("--only", metavar="CLASS", choices=[name for name, _, _ in HOSTILE],
+                    help="only hostile inputs of this class (numbered as such)")
     args = ap.parse_args()
+    if args.only:
+        os.environ["MECHDSL_FUZZ_ONLY"] = args.only
     if args.replay is not None:
         return replay(args.seed, args.replay, args.timeout)
     start = time.perf_counter()
