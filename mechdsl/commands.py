@@ -446,38 +446,95 @@ def optimize_command(args, signals: SignalGuard | None = None) -> int:
         raise MechError("--reduce: the outputs of the run at the optimum are the file's; the "
                         "objective is its 'minimize' statement")
     ov = _overrides(mech, args)
+    signals = signals or SignalGuard()
     client = _client(args)
     status = SearchStatus(sys.stderr) if not args.quiet else None
+    best, signum = None, None
     try:
-        best = optimize(mech, ov, _options(args), client=client, chunk=args.chunk,
-                        popsize=args.popsize, maxiter=args.maxiter, tol=args.tol,
-                        seed=args.seed, refine=not args.no_refine, run=False,
-                        grid=args.grid, progress=status)
-    finally:
-        if status is not None:
-            status.close()
-        if client is not None:
-            _close(client)
-    opt = mech.model.optimization
-    width = max(len(k) for k in best.params)
-    lines = [f"{args.file}: {'minimum' if opt.sense == 'min' else 'maximum'} found at"]
-    lines += [f"  {k:<{width}} = {v!r}" for k, v in best.params.items()]
-    lines.append(f"objective: {best.objective!r}")
-    from .study.optimize import REQUIRE_TOL
+        try:
+            best = optimize(mech, ov, _options(args), client=client, chunk=args.chunk,
+                            popsize=args.popsize, maxiter=args.maxiter, tol=args.tol,
+                            seed=args.seed, refine=not args.no_refine, run=False,
+                            grid=args.grid, progress=status)
+        finally:
+            if status is not None:
+                status.close()
+            if client is not None:
+                _close(client)
+    except KeyboardInterrupt as err:
+        if best is None:
+            raise
+        # the search had ended; the signal came while the cluster was closed: keep its answer
+        signum = getattr(err, "signum", signal.SIGINT)
+    if best.interrupted is not None:
+        # the guard knows the signal when the solver took it and the sweep only came back
+        # "interrupted"; after a second signal, the last one received is not the first
+        signum = signals.received if signals.count == 1 else best.interrupted
+    emit("\n".join(_optimum_lines(args.file, mech, best, signum)))
+    if signum is None and not best.feasible:
+        finite = " with a finite objective" if best.nonfinite else ""
+        raise NumericalError(f"no design in the ranges satisfies every requirement{finite}; "
+                             "the best found is above", source=Source(args.file, ""))
+    if signum is not None:
+        verb = "terminated" if signum == signal.SIGTERM else "interrupted"
+        if not best.feasible:
+            what = ("a design that meets every requirement with a finite objective"
+                    if best.params else "any design")
+            print(f"mechdsl: {verb} before the search solved {what}; nothing was run",
+                  file=sys.stderr)
+            return 128 + signum
+        try:
+            # the search's signal is dealt with: the next one may stop the run at the best
+            signals.release()
+        except KeyboardInterrupt as err:
+            from .writing import exit_status
 
-    for text, slack in best.requirements.items():
-        lines.append(f"requirement {text}: {'holds' if slack >= -REQUIRE_TOL else 'VIOLATED'} "
-                     f"(slack {slack:.6g})")
-    lines.append(f"{best.variants} variants solved in {best.sweeps} "
-                 f"sweep{'s' if best.sweeps != 1 else ''}, "
-                 f"{best.seconds:.2f} s ({best.message})")
-    emit("\n".join(lines))
-    if not best.feasible:
-        raise NumericalError("no design in the ranges satisfies every requirement; the best "
-                             "found is above", source=Source(args.file, ""))
+            print(f"mechdsl: {verb} twice; the best design so far is above, not run",
+                  file=sys.stderr)
+            return exit_status(err)
     args.set = list(args.set) + [f"{k}={v!r}" for k, v in best.params.items()]
     args.workers = args.scheduler = None
-    return run_command(args, signals)
+    code = run_command(args, signals)
+    if signum is None or code != 0:
+        return code
+    where = f", its run is in {args.output}" if args.output and args.output != "-" else ""
+    print(f"mechdsl: {verb}; the search stopped early: the best design so far is above{where}",
+          file=sys.stderr)
+    return 128 + signum
+
+
+def _optimum_lines(file: str, mech: Mechanism, best, signum: int | None) -> list[str]:
+    """What ``mechdsl optimize`` prints of the :class:`~mechdsl.study.optimize.Optimum`
+    ``best``: the params, the objective, each requirement's slack, the work done, and, when
+    the search was stopped by the signal ``signum``, that it was."""
+    from .study.optimize import REQUIRE_TOL
+
+    opt = mech.model.optimization
+    verb = "terminated" if signum == signal.SIGTERM else "interrupted"
+    if signum is None:
+        head = f"{file}: {'minimum' if opt.sense == 'min' else 'maximum'} found at"
+    elif best.feasible:
+        head = f"{file}: search {verb}; best design so far at"
+    elif best.params:
+        head = (f"{file}: search {verb} before any design met every requirement; the least "
+                "violating so far at")
+    else:
+        head = f"{file}: search {verb} before any design was solved"
+    lines = [head]
+    if best.params:
+        width = max(len(k) for k in best.params)
+        lines += [f"  {k:<{width}} = {v!r}" for k, v in best.params.items()]
+        lines.append(f"objective: {best.objective!r}")
+        for text, slack in best.requirements.items():
+            lines.append(f"requirement {text}: "
+                         f"{'holds' if slack >= -REQUIRE_TOL else 'VIOLATED'} (slack {slack:.6g})")
+    lines.append(f"{best.variants} variants solved in {best.sweeps} "
+                 f"sweep{'s' if best.sweeps != 1 else ''}, "
+                 f"{best.seconds:.2f} s ({best.message})"
+                 + (f"; {best.nonfinite} of {best.variants} designs gave no finite objective"
+                    if best.nonfinite else "")
+                 + (f" ({best.failed} could not be solved)" if best.failed else ""))
+    return lines
 
 
 def _check_reduced(args, system: System) -> None:
