@@ -1,0 +1,125 @@
+"""The contract of a forward-dynamics integrator: a stepper takes steps, a driver does the rest.
+
+In the spirit of scipy's ``OdeSolver``: a :class:`Stepper` advances the state of one mechanism
+by one accepted step at a time, with its own error control, and offers the dense output of
+its last step; the driver (:mod:`mechdsl.solve.driver`) owns everything that is not a step:
+the output instants, the projections onto the constraint manifolds, the step budget,
+failures, interrupts and progress. A new integrator is one module with one subclass of
+:class:`Stepper` and one line in :data:`mechdsl.solve.integrators.INTEGRATORS`.
+
+The rules a stepper keeps:
+
+1. **Construction** ``Stepper(equations, t0, y0, t_bound, rtol, atol, scale, first_step)``
+   evaluates what it needs at (t0, y0) (at least one derivative) and chooses its first step
+   (``first_step`` if given). ``y = (q, qd)`` is consistent on entry: the driver has
+   projected it. ``atol`` is absolute in coordinates scaled by ``scale`` (per component, the
+   model's length and angle scales), ``rtol`` relative to the state.
+2. **step()** attempts steps until one is accepted (rejecting and shrinking as its error
+   estimate says), then advances ``t``, ``y`` (keeping ``t_old``, ``y_old``) and returns
+   None; or returns a message (the step size underflowed, the iteration diverged, the
+   equations are singular at t) and leaves ``t``, ``y`` at the last accepted state. It
+   never steps past ``t_bound``. A KeyboardInterrupt propagates untouched.
+3. **dense_output()** gives a callable ``u(t) -> y`` valid on ``[t_old, t]`` (the
+   interpolant of the last accepted step), of the order the method promises.
+4. **restart(y)** is called by the driver after it changed the state at ``t`` (a
+   projection, an event): the stepper drops whatever it carried from before (an FSAL
+   derivative, a history, a Jacobian evaluated at the old state) and continues from ``y``,
+   keeping its step size.
+5. **Counters**: ``nfev`` (evaluations of the equations of motion), ``njev`` (of their
+   derivatives), ``nlu`` (factorisations), ``naccepted`` and ``nrejected`` steps; the driver
+   reads them for the budget and the run's summary.
+6. **Class attributes**: ``name`` (what ``--method`` takes), ``order``, ``implicit`` (it
+   uses the derivatives of the equations: stiff models), ``redundant`` (it integrates through
+   redundant constraints and singular positions), and ``summary``, one line for the command
+   line's help.
+
+The equations a stepper sees are those of one mechanism (:class:`Equations`, a protocol):
+the right-hand side ``rhs(t, y) = (qd, qdd)`` of the index-1 form for explicit methods, and
+for implicit ones the terms of the index-3 form and their exact derivatives.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, ClassVar, Protocol
+
+import numpy as np
+
+
+class Equations(Protocol):
+    """Haug's constrained equations of motion of one mechanism,
+
+        M(q) qdd + Phi_q^T lambda = Q(q, qd, t),   Phi(q, t) = 0,
+
+    in coordinates q (n,), with the m constraint equations Phi (drives included)."""
+
+    n: int
+    m: int
+
+    def rhs(self, t: float, y: np.ndarray) -> np.ndarray:
+        """y' = (qd, qdd) at y = (q, qd), qdd from the index-1 form."""
+
+    def project(self, t: float, y: np.ndarray) -> np.ndarray:
+        """y moved onto Phi(q, t) = 0 and Phi_q qd = nu (iterated to the solver's
+        tolerance), mass-orthogonally, tolerating redundant constraints."""
+
+    # -- the terms of the index-3 form, for implicit methods (sparse matrices: CSR) ---------
+    def phi_jac(self, t: float, q: np.ndarray) -> tuple[np.ndarray, object]:
+        """Phi(q, t) (m,) and Phi_q (m, n)."""
+
+    def nu(self, t: float) -> np.ndarray:
+        """Phi_q qd = nu: minus the partial time derivative of Phi (m,)."""
+
+    def gamma(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """Phi_q qdd = gamma (m,)."""
+
+    def mass(self, q: np.ndarray) -> object:
+        """M(q) (n, n)."""
+
+    def loads(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """Q(q, qd, t) (n,)."""
+
+    def load_derivatives(self, t: float, q: np.ndarray, qd: np.ndarray
+                         ) -> tuple[object, object]:
+        """dQ/dq and dQ/dqd (n, n), exact (derived from the traced loads)."""
+
+    def accelerations(self, t: float, q: np.ndarray, qd: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """qdd (n,) and lambda (m,) of the index-1 form; with redundant constraints the
+        multipliers are those of the augmented Lagrangian's limit."""
+
+
+class Stepper:
+    """One integrator of the equations of motion (see the module's rules)."""
+
+    name: ClassVar[str] = ""
+    order: ClassVar[int] = 0
+    implicit: ClassVar[bool] = False
+    redundant: ClassVar[bool] = False
+    summary: ClassVar[str] = ""
+
+    def __init__(self, equations: Equations, t0: float, y0: np.ndarray, t_bound: float, *,
+                 rtol: float, atol: float, scale: np.ndarray,
+                 first_step: float | None = None) -> None:
+        self.equations = equations
+        self.t = self.t_old = float(t0)
+        self.y = self.y_old = np.asarray(y0, dtype=float)
+        self.t_bound = float(t_bound)
+        self.rtol, self.atol, self.scale = rtol, atol, scale
+        self.nfev = self.njev = self.nlu = self.naccepted = self.nrejected = 0
+
+    def step(self) -> str | None:  # pragma: no cover - the contract
+        """Rule 2."""
+        raise NotImplementedError
+
+    def dense_output(self) -> Callable[[float], np.ndarray]:  # pragma: no cover
+        """Rule 3."""
+        raise NotImplementedError
+
+    def restart(self, y: np.ndarray) -> None:  # pragma: no cover
+        """Rule 4."""
+        raise NotImplementedError
+
+    @property
+    def attempts(self) -> int:
+        """Steps attempted so far, accepted and rejected (what the budget counts)."""
+        return self.naccepted + self.nrejected
