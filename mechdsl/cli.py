@@ -88,9 +88,9 @@ def _parser() -> argparse.ArgumentParser:
         run.add_argument("--atol", type=float, metavar="TOL",
                          help="forward dynamics: the integrator's absolute tolerance, relative to "
                               "the model's size (overrides the simulate statement's; default 1e-10)")
-        run.add_argument("--method", metavar="NAME",
-                         help="forward dynamics: the integrator, auto (default: dopri5 for an "
-                              "rtol of 1e-4 or more, else vern9), vern9, dop853 or dopri5")
+        from .solve.integrators import help_text  # the registry of integrators
+
+        run.add_argument("--method", metavar="NAME", help=help_text())
         run.add_argument("--max-steps", type=int, metavar="N",
                          help="forward dynamics: the integrator's step budget per variant, "
                               "accepted and rejected steps (default 1,000,000); a run that "

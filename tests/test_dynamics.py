@@ -293,6 +293,9 @@ def test_the_integrator_is_chosen_by_the_tolerance_unless_named():
                                  (1e-9, "dopri5", "dopri5"), (1e-2, "vern9", "vern9")):
         run = DynamicRun(system, SolverOptions(rtol=rtol, method=method))
         assert run.method == chosen, (rtol, method)
+        # the reason, for the run's summary: the tolerance against the threshold, or named
+        assert (f"rtol {rtol:g}" if method == "auto" else "as the options name it") \
+            in run.method_reason
     with pytest.raises(ValueError, match="method must be"):
         SolverOptions(method="rk4")
 

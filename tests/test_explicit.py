@@ -1,9 +1,21 @@
-"""The explicit Runge-Kutta integrator of the forward dynamics, on problems with closed
-forms: its steps, its interpolant, its order, its projection, and how it stops."""
+"""The explicit Runge-Kutta pairs of the forward dynamics under the driver, on problems with
+closed forms: their steps, their interpolants, their orders, the projection, and how an
+integration stops."""
 
 import numpy as np
 
-from mechdsl.solve.explicit import Problem, integrate
+from mechdsl.solve.driver import integrate
+from mechdsl.solve.explicit import Dop853, Dopri5, Vern9, coefficients
+
+
+class Problem:
+    """y' = rhs(t, y), projected by ``project`` where given: the equations as the driver and
+    the steppers see them, for a plain ODE."""
+
+    def __init__(self, rhs, project=None):
+        self.rhs = rhs
+        if project is not None:
+            self.project = project
 
 
 def oscillator(t, y):
@@ -12,7 +24,7 @@ def oscillator(t, y):
 
 def test_the_harmonic_oscillator_and_its_dense_output():
     t = np.linspace(0.0, 10.0, 201)
-    sol = integrate(Problem(oscillator), [1.0, 0.0], t, rtol=1e-11, atol=1e-13)
+    sol = integrate(Dop853, Problem(oscillator), [1.0, 0.0], t, rtol=1e-11, atol=1e-13)
     assert sol.status == "ok" and len(sol.t) == len(t)
     # most outputs fall inside steps: the 7th-order interpolant is as exact as the steps
     assert sol.steps < len(t) / 2
@@ -30,8 +42,8 @@ def test_the_error_falls_like_the_eighth_power_of_the_step():
     for steps in (8, 16):
         h = 4.0 / steps
         # a tolerance no step can fail: fixed steps of h from the first one
-        sol = integrate(Problem(rhs), [1.0], [0.0, 4.0], rtol=1.0 - 1e-9, atol=1e9, h0=h,
-                        max_step=h)
+        sol = integrate(Dop853, Problem(rhs), [1.0], [0.0, 4.0], rtol=1.0 - 1e-9, atol=1e9,
+                        first_step=h, max_step=h)
         assert sol.steps == steps
         errors.append(abs(sol.y[-1, 0] - exact))
     order = np.log2(errors[0] / errors[1])
@@ -46,8 +58,9 @@ def test_the_projection_holds_an_invariant():
     def project(t, y):
         return y / np.hypot(*y)
 
-    free = integrate(Problem(oscillator), [1.0, 0.0], t, rtol=1e-5, atol=1e-7)
-    held = integrate(Problem(oscillator, project), [1.0, 0.0], t, rtol=1e-5, atol=1e-7)
+    free = integrate(Dop853, Problem(oscillator), [1.0, 0.0], t, rtol=1e-5, atol=1e-7)
+    held = integrate(Dop853, Problem(oscillator, project), [1.0, 0.0], t, rtol=1e-5,
+                     atol=1e-7)
     assert np.abs(np.hypot(*held.y.T) - 1).max() <= 1e-15
     assert np.abs(np.hypot(*free.y.T) - 1).max() > 1e-8  # what the projection removes
 
@@ -57,7 +70,7 @@ def test_a_derivative_that_stops_being_a_number_fails_with_the_outputs_before():
         return np.array([np.nan if t > 0.5 else 1.0])
 
     t = np.linspace(0.0, 1.0, 11)
-    sol = integrate(Problem(rhs), [0.0], t, rtol=1e-8, atol=1e-10)
+    sol = integrate(Dop853, Problem(rhs), [0.0], t, rtol=1e-8, atol=1e-10)
     assert sol.status == "failed"
     assert "t = 0.5" in sol.message or "t = 0.4" in sol.message
     assert 1 <= len(sol.t) <= 6
@@ -70,7 +83,7 @@ def test_a_singular_system_fails_with_the_instant():
             raise np.linalg.LinAlgError("singular matrix")
         return np.array([1.0])
 
-    sol = integrate(Problem(rhs), [0.0], np.linspace(0, 1, 5), rtol=1e-8, atol=1e-10)
+    sol = integrate(Dop853, Problem(rhs), [0.0], np.linspace(0, 1, 5), rtol=1e-8, atol=1e-10)
     assert sol.status == "failed" and "singular" in sol.message
 
 
@@ -82,7 +95,7 @@ def test_an_interrupt_keeps_the_outputs_before_it():
             raise KeyboardInterrupt
         seen.append(k)
 
-    sol = integrate(Problem(oscillator), [1.0, 0.0], np.linspace(0, 1, 11), rtol=1e-8,
+    sol = integrate(Dop853, Problem(oscillator), [1.0, 0.0], np.linspace(0, 1, 11), rtol=1e-8,
                     atol=1e-10, on_output=on_output)
     assert sol.status == "interrupted"
     assert seen == [0, 1, 2]
@@ -94,9 +107,9 @@ def test_the_dopri5_tableau_is_the_published_one():
     weights, the continuous extension's coefficients), and the rows of a sum to the nodes."""
     from scipy.integrate._ivp.rk import RK45
 
-    from mechdsl.solve.explicit import DOPRI5, _E5_4, _P5
-
-    assert DOPRI5.stages == RK45.n_stages and DOPRI5.order == RK45.order
+    DOPRI5 = coefficients("dopri5")
+    _E5_4, _P5 = DOPRI5.E, DOPRI5.P
+    assert DOPRI5.stages == RK45.n_stages and Dopri5.order == RK45.order
     np.testing.assert_allclose(DOPRI5.c[:6], RK45.C, rtol=1e-15, atol=0)
     for s in range(1, 6):
         np.testing.assert_allclose(DOPRI5.a[s], RK45.A[s, :s], rtol=1e-15, atol=0)
@@ -121,8 +134,8 @@ def _fixed_step_errors(method, steps_list, at=None):
     for steps in steps_list:
         h = 4.0 / steps
         grid = [0.0, 4.0] if at is None else [0.0, 4.0 - (1 - at) * h, 4.0]
-        sol = integrate(Problem(rhs), [1.0], grid, rtol=1.0 - 1e-9, atol=1e9, h0=h,
-                        max_step=h, method=method)
+        sol = integrate(method, Problem(rhs), [1.0], grid, rtol=1.0 - 1e-9, atol=1e9,
+                        first_step=h, max_step=h)
         assert sol.steps == steps
         k = 1 if at is not None else -1
         errors.append(abs(sol.y[k, 0] - exact(sol.t[k])))
@@ -130,21 +143,17 @@ def _fixed_step_errors(method, steps_list, at=None):
 
 
 def test_dopri5_steps_are_of_fifth_order_and_its_interpolant_of_fourth():
-    from mechdsl.solve.explicit import DOPRI5
-
-    e = _fixed_step_errors(DOPRI5, (16, 32))
+    e = _fixed_step_errors(Dopri5, (16, 32))
     assert 4.6 <= np.log2(e[0] / e[1]) <= 5.6, e
     # inside a step the continuous extension's local error is O(h^5): halving h divides
     # it by about 32 (of order 4), while the steps before contribute O(h^5) globally
-    e = _fixed_step_errors(DOPRI5, (16, 32), at=0.4)
+    e = _fixed_step_errors(Dopri5, (16, 32), at=0.4)
     assert 3.7 <= np.log2(e[0] / e[1]) <= 5.6, e
 
 
 def test_dopri5_holds_the_oscillator_to_its_tolerance_between_steps():
-    from mechdsl.solve.explicit import DOPRI5
-
     t = np.linspace(0.0, 10.0, 401)
-    sol = integrate(Problem(oscillator), [1.0, 0.0], t, rtol=1e-9, atol=1e-11, method=DOPRI5)
+    sol = integrate(Dopri5, Problem(oscillator), [1.0, 0.0], t, rtol=1e-9, atol=1e-11)
     assert sol.status == "ok" and sol.steps < len(t)  # outputs inside steps, interpolated
     np.testing.assert_allclose(sol.y[:, 0], np.cos(t), rtol=0, atol=2e-8)
     np.testing.assert_allclose(sol.y[:, 1], -np.sin(t), rtol=0, atol=2e-8)
@@ -216,16 +225,17 @@ def test_every_pair_meets_its_order_conditions():
     breaks some condition by far more than round-off). The embedded solutions meet theirs
     up to their own orders, and not beyond."""
     from mechdsl.solve import tableaus as T
-    from mechdsl.solve.explicit import DOP853, DOPRI5, VERN9, _E5_4, _E9_8
 
+    DOP853, DOPRI5, VERN9 = (coefficients(name) for name in ("dop853", "dopri5", "vern9"))
     assert [len(_trees(k)) for k in range(1, 10)] == [1, 1, 2, 4, 9, 20, 48, 115, 286]
-    for method, order, embedded, e in ((DOP853, 8, None, None), (DOPRI5, 5, 4, _E5_4),
-                                       (VERN9, 9, 8, _E9_8)):
+    for name, method, order, embedded, e in (
+            ("dop853", DOP853, 8, None, None), ("dopri5", DOPRI5, 5, 4, DOPRI5.E),
+            ("vern9", VERN9, 9, 8, VERN9.E)):
         A = _matrix(method)
         b = np.zeros(len(A))
         b[: len(method.b)] = method.b
-        assert _order_conditions(A, lambda k: (b, 1.0), order) < 1e-12, method.name
-        assert _order_conditions(A, lambda k: (b, 1.0), order + 1) > 1e-6, method.name
+        assert _order_conditions(A, lambda k: (b, 1.0), order) < 1e-12, name
+        assert _order_conditions(A, lambda k: (b, 1.0), order + 1) > 1e-6, name
         if embedded is not None:
             bhat = b.copy()
             bhat[: len(e)] -= e
@@ -247,15 +257,13 @@ def test_vern9_steps_are_of_ninth_order_and_so_is_its_output_inside_a_step():
     by about 2^9, at the step's end and at 0.4 of the last step (there the interpolant's
     local error, O(h^9), adds to the steps' global one; its own order 8 is checked by the
     order conditions)."""
-    from mechdsl.solve.explicit import VERN9
-
     for at in (None, 0.4):
         errors = []
         for steps in (60, 120):
             h = 30.0 / steps
             grid = [0.0, 30.0] if at is None else [0.0, 30.0 - (1 - at) * h, 30.0]
-            sol = integrate(Problem(oscillator), [1.0, 0.0], grid, rtol=1.0 - 1e-9, atol=1e9,
-                            h0=h, max_step=h, method=VERN9)
+            sol = integrate(Vern9, Problem(oscillator), [1.0, 0.0], grid, rtol=1.0 - 1e-9,
+                            atol=1e9, first_step=h, max_step=h)
             assert sol.steps == steps
             k = 1 if at is not None else -1
             errors.append(abs(sol.y[k, 0] - np.cos(sol.t[k])))
@@ -263,10 +271,8 @@ def test_vern9_steps_are_of_ninth_order_and_so_is_its_output_inside_a_step():
 
 
 def test_vern9_holds_the_oscillator_to_its_tolerance_between_steps():
-    from mechdsl.solve.explicit import VERN9
-
     t = np.linspace(0.0, 10.0, 201)
-    sol = integrate(Problem(oscillator), [1.0, 0.0], t, rtol=1e-11, atol=1e-13, method=VERN9)
+    sol = integrate(Vern9, Problem(oscillator), [1.0, 0.0], t, rtol=1e-11, atol=1e-13)
     assert sol.status == "ok" and sol.steps < len(t) / 2  # outputs inside steps
     np.testing.assert_allclose(sol.y[:, 0], np.cos(t), rtol=0, atol=1e-9)
     np.testing.assert_allclose(sol.y[:, 1], -np.sin(t), rtol=0, atol=1e-9)
@@ -277,7 +283,7 @@ def test_the_step_budget_counts_every_attempt_and_keeps_the_outputs_before_it():
     # outputs before it on the closed form and the time its steps reached
     t = np.arange(0.0, 1e6, 0.5)
     seen = []
-    sol = integrate(Problem(oscillator), [1.0, 0.0], t, rtol=1e-10, atol=1e-12,
+    sol = integrate(Dop853, Problem(oscillator), [1.0, 0.0], t, rtol=1e-10, atol=1e-12,
                     max_steps=60, on_step=lambda tt, steps: seen.append((tt, steps)))
     assert sol.status == "failed" and sol.reason == "budget"
     assert sol.steps + sol.rejected == 60
@@ -289,8 +295,8 @@ def test_the_step_budget_counts_every_attempt_and_keeps_the_outputs_before_it():
     assert seen[-1][0] == sol.t_reached and seen[-1][1] <= 60
     assert all(a[0] < b[0] and a[1] < b[1] for a, b in zip(seen, seen[1:]))
     # a step that is never accepted costs as much: rejected steps use up the budget too
-    sol = integrate(Problem(lambda tt, y: np.array([np.nan if tt > 0 else 1.0])), [0.0],
-                    [0.0, 1.0], rtol=1e-8, atol=1e-10, max_steps=5)
+    sol = integrate(Dop853, Problem(lambda tt, y: np.array([np.nan if tt > 0 else 1.0])),
+                    [0.0], [0.0, 1.0], rtol=1e-8, atol=1e-10, max_steps=5)
     assert sol.reason == "budget" and (sol.steps, sol.rejected) == (0, 5)
     assert len(sol.t) == 1 and sol.t_reached == 0.0
 
@@ -298,7 +304,7 @@ def test_the_step_budget_counts_every_attempt_and_keeps_the_outputs_before_it():
 def test_the_integration_reports_each_step_where_its_outputs_are_far_apart():
     # one output interval of 20 periods: the outputs say nothing in between, the steps do
     seen = []
-    sol = integrate(Problem(oscillator), [1.0, 0.0], [0.0, 40 * np.pi], rtol=1e-10,
+    sol = integrate(Dop853, Problem(oscillator), [1.0, 0.0], [0.0, 40 * np.pi], rtol=1e-10,
                     atol=1e-12, on_step=lambda tt, steps: seen.append(tt))
     assert sol.status == "ok" and sol.reason == "" and len(sol.t) == 2
     assert len(seen) == sol.steps > 100

@@ -5,9 +5,11 @@ Haug's constrained equations of motion (1989, ch. 6) in the index-1 form: at eve
     [ M(q)   Phi_q^T ] [ qdd    ]   [ Q(q, qd, t) ]
     [ Phi_q  0       ] [ lambda ] = [ gamma       ]
 
-gives the accelerations and the multipliers, and y = (q, qd) is integrated by an explicit
-Runge-Kutta pair with step-size control (:mod:`mechdsl.solve.explicit`: Verner's 9(8), or
-Dormand and Prince's 5(4) at loose tolerances, or their 8(5,3), as the options ask). At
+gives the accelerations and the multipliers, and y = (q, qd) is integrated by a stepper of
+the registry (:mod:`mechdsl.solve.integrators`, which chooses it: the explicit Runge-Kutta
+pairs of :mod:`mechdsl.solve.explicit`, Verner's 9(8), or Dormand and Prince's 5(4) at loose
+tolerances, or their 8(5,3), as the options ask) under the driver of
+:mod:`mechdsl.solve.driver` (outputs, projections, budget, failures, interrupts). At
 every output instant the state is projected back onto both constraint manifolds: q by
 Gauss-Newton on Phi(q, t) = 0 with the minimum-norm correction, iterated to newton_tol, then
 qd onto Phi_q qd = nu; after every other step, by one such correction of q and qd together
@@ -73,11 +75,12 @@ class DynamicRun(Run):
         tol = system.tolerances  # the file's; options given explicitly override them
         self.rtol = self.opts.rtol or tol.get("rtol", RTOL)
         self.atol = self.opts.atol or tol.get("atol", ATOL)
-        method = self.opts.method
-        if method == "auto":
-            method = "dopri5" if self.rtol >= self.opts.dopri5_from else "vern9"
-        #: the integrator's name (:data:`mechdsl.solve.explicit.METHODS`)
-        self.method = method
+        from .integrators import choose
+
+        #: the integrator's name (in :data:`mechdsl.solve.integrators.INTEGRATORS`) and why
+        #: it was chosen
+        self.method, self.method_reason = choose(self.opts.method, self.rtol,
+                                                 dopri5_from=self.opts.dopri5_from)
 
     # -- the equations of one variant --------------------------------------------------------
     def _project(self, t: float, y: np.ndarray) -> np.ndarray:
@@ -227,6 +230,10 @@ class DynamicRun(Run):
             q2, ok2, _ = gauss_newton(sysm, q1, t, self.D, np.arange(sysm.m), opts, one)
         else:  # the joints are every equation
             q2, ok2 = q1, ok1
+        # the initial statements closed too, and the guesses it moved reported
+        from .initial import positions
+        q2, notes = positions(sysm, q2, ok1 & ok2, t, self.D, opts)
+        self.warnings.extend(notes)
         out: list[np.ndarray | None] = []
         for v in range(V):
             if ok1[v] and ok2[v]:
@@ -243,7 +250,8 @@ class DynamicRun(Run):
         return out
 
     def _variant(self, v: int, q0: np.ndarray) -> str:
-        from .explicit import METHODS, Problem, integrate
+        from .driver import integrate
+        from .integrators import INTEGRATORS
 
         #: the system as variant v sees it: its params, its functions
         self.one, self.variant = _one(self.system, v), v
@@ -251,20 +259,16 @@ class DynamicRun(Run):
         sysm, times, d = self.one, self.times, self.one.dynamics
         n = sysm.n
         t0 = float(times[0])
-        qd_given = np.array(d.v0[0], dtype=float)
+        from .initial import velocities
         try:
-            y0 = self._project(t0, np.concatenate((q0, qd_given)))
+            # v0 and the initial statements' rates onto the constraints, with the warnings
+            qd0, notes = velocities(self.system, v, t0, q0, self.D[v, 0], self.opts)
+            y0 = self._project(t0, np.concatenate((q0, qd0)))
             self.ev.accelerations(t0, y0[:n], y0[n:])  # singular at the start?
         except np.linalg.LinAlgError:
             self.failures.append(self._singular_message(v, t0))
             return "failed"
-        moved = np.abs(y0[n:] - qd_given)
-        if d.v0_given.any() and (moved > self.opts.newton_tol * (1 + np.abs(qd_given))).any():
-            k = int(np.argmax(moved))
-            self.warnings.append(
-                f"the initial velocities{variant_label(sysm, v)} do not satisfy the "
-                f"constraints: projected onto them, changing {self._coordinate(k)} by "
-                f"{moved[k]:.3g}")
+        self.warnings.extend(notes)
 
         V = self.system.n_variants
         t1, budget = float(times[-1]), self.opts.max_steps
@@ -288,10 +292,10 @@ class DynamicRun(Run):
                        "qdd": np.full((K, n), np.nan), "lambda": np.full((K, sysm.m), np.nan)}
         scale = np.concatenate((self.D[v, 0], self.D[v, 0]))
         try:
-            sol = integrate(Problem(self.ev.derivative, self._project, self._settle,
-                                    _velocities_carried(n)), y0, times,
+            sol = integrate(INTEGRATORS[self.method],
+                            _Equations(self.ev, self._project, self._settle), y0, times,
                             rtol=self.rtol, atol=self.atol, scale=scale, on_output=record,
-                            on_step=on_step, max_steps=budget, method=METHODS[self.method])
+                            on_step=on_step, max_steps=budget)
         finally:  # an interrupt too: the instants solved are written, complete
             self._write(v)
         if sol.status == "failed" and sol.reason == "budget":
@@ -359,16 +363,26 @@ class DynamicRun(Run):
                 f"{what}; give every free body a mass and an inertia")
 
 
-def _velocities_carried(n: int) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
-    """y' = (qd, qdd): after a correction of y, its first half is the corrected qd exactly;
-    qdd is kept from before it (:class:`mechdsl.solve.explicit.Problem`'s ``carry``)."""
+class _Equations:
+    """The equations of one variant as a stepper sees them
+    (:class:`mechdsl.solve.stepper.Equations`): the evaluator's right-hand side and terms,
+    the run's projections. (Bound methods held as attributes: the steppers call them at
+    every stage.) Any object with ``rhs`` and ``project`` (``settle`` and ``carry``
+    optional) can take its place in :meth:`DynamicRun._variant`."""
 
-    def carry(y: np.ndarray, f: np.ndarray) -> np.ndarray:
+    def __init__(self, ev: "_Evaluator", project: Callable, settle: Callable) -> None:
+        self.n, self.m = ev.n, ev.m
+        self.rhs = ev.derivative
+        self.project, self.settle = project, settle
+        self.phi_jac, self.nu, self.accelerations = ev.phi_jac, ev.nu, ev.accelerations
+
+    def carry(self, y: np.ndarray, f: np.ndarray) -> np.ndarray:
+        """y' = (qd, qdd): after a correction of y, its first half is the corrected qd
+        exactly; qdd is kept from before it."""
+        n = self.n
         out = f.copy()
         out[:n] = y[n:]
         return out
-
-    return carry
 
 
 def _one(system: System, v: int) -> System:

@@ -44,10 +44,11 @@ class SolverOptions:
     #: given here (``--rtol``, ``--atol``) overrides the file's.
     rtol: float | None = None
     atol: float | None = None
-    #: Forward dynamics: the integrator (:mod:`mechdsl.solve.explicit`): "vern9" (Verner's
-    #: 9(8) pair), "dop853" (Dormand and Prince's 8(5,3)), "dopri5" (their 5(4)) or "auto":
-    #: dopri5 where rtol is at least ``dopri5_from``, vern9 below (the lower-order pair takes
-    #: the fewest evaluations for a loose tolerance, the highest-order one for a tight one).
+    #: Forward dynamics: the integrator, a name in :data:`mechdsl.solve.integrators.INTEGRATORS`
+    #: ("vern9", Verner's 9(8) pair; "dop853", Dormand and Prince's 8(5,3); "dopri5", their
+    #: 5(4); ...) or "auto" (:func:`mechdsl.solve.integrators.choose`): dopri5 where rtol is
+    #: at least ``dopri5_from``, vern9 below (the lower-order pair takes the fewest
+    #: evaluations for a loose tolerance, the highest-order one for a tight one).
     method: str = "auto"
     #: The rtol from which "auto" integrates with dopri5.
     dopri5_from: float = 1e-4
@@ -61,6 +62,38 @@ class SolverOptions:
     #: (a span of 1e12 s, a tolerance nothing can meet) after 7 to 22 minutes (0.4 to 1.3
     #: ms a step on numpy) instead of never.
     max_steps: int = 1_000_000
+    #: Forward dynamics by the augmented Lagrangian (:mod:`mechdsl.solve.motion`): the penalty
+    #: kappa, each equation's term in M + Phi_q^T W Phi_q relative to the mass it constrains.
+    #: Larger contracts the iteration faster (a factor 1 / (1 + kappa sigma) per iteration,
+    #: sigma the mechanism's conditioning) and nearer singular positions; smaller keeps that
+    #: matrix better conditioned (about kappa times M's). Bayo and Ledesma use 1e7 to 1e9.
+    #: Measured on IFToMM A02 (DOP853 at rtol 1e-10 on the index-1 form, projected every
+    #: 0.01 s, 20 s; benchmarks/a02_motion.py), B0's error at t = 20 for N = 40: 1e7 fails
+    #: (a projection at a collinear passage does not close), 1e8 1.3e-4 m, 1e9 2.8e-3,
+    #: 1e10 3.5e-2; for N = 4: 1e6 fails, 1e8 4.4e-7, 1e10 2.7e-8.
+    augmented_penalty: float = 1e8
+    #: ... its iteration stops when |Phi_q qdd - gamma|_2 is at most this times the scale
+    #: |gamma|_2 + | |Phi_q| |qdd| |_2 (the sizes of the terms the residual sums: forming
+    #: it rounds a few 1e-16 of that), or when an iteration no longer halves it, or after
+    #: ``augmented_max_iterations`` (Andrews: qdd within 1.2e-13 of the dense solve after
+    #: two iterations, 1.5e-15 after three, which this asks for).
+    augmented_tol: float = 1e-14
+    augmented_max_iterations: int = 12
+    #: ... and where it stops contracting (near a singular position), conjugate gradients on
+    #: the multipliers may take over for at most this many iterations (about one per
+    #: direction of small singular value: A02's N windows). Off (0) by default: they solve
+    #: the saddle-point system exactly to within 1e-9 rad of A02's collinear position
+    #: (5e-8 relative there), but that exact index-1 right-hand side amplifies the drift of
+    #: an integrated state near the bifurcation without bound, and DOP853 then stops at
+    #: the first passage (step size underflow); the stalled penalty iteration keeps the
+    #: accelerations bounded there, and passes all twenty.
+    augmented_krylov_iterations: int = 0
+    #: ... from this many coordinates on, M + Phi_q^T W Phi_q is factorised in LAPACK's band
+    #: storage in reverse Cuthill-McKee order (cost linear in the bodies of a chain), below
+    #: with the dense LU of the regularised saddle-point matrix (cheaper for small n: on
+    #: chains of links, measured by thread CPU time per evaluation, dense 68 / band 80 us
+    #: at n = 30, 104 / 97 at 45, 131 / 99 at 60, 271 / 119 at 90).
+    augmented_band_from: int = 40
     #: Newton iterations allowed per attempt at an instant.
     max_iterations: int = 12
     #: Assembly stops when its step is at most this (scaled as newton_tol).
@@ -182,9 +215,10 @@ class SolverOptions:
             raise ValueError(f"predictor_order must be 1 or 2, not {self.predictor_order!r}")
         if self.at_singular not in ("stop", "continue"):
             raise ValueError(f"at_singular must be 'stop' or 'continue', not {self.at_singular!r}")
-        if self.method not in ("auto", "vern9", "dop853", "dopri5"):
-            raise ValueError(f"method must be 'auto', 'vern9', 'dop853' or 'dopri5', not "
-                             f"{self.method!r}")
+        if self.method != "auto":
+            from .integrators import validate  # the registry: the steppers' names
+
+            validate(self.method)
         if not 0 < self.dopri5_from <= 1:
             raise ValueError(f"dopri5_from must be in (0, 1], not {self.dopri5_from!r}")
         if self.backend not in ("auto", "numpy", "compiled"):
@@ -206,5 +240,13 @@ class SolverOptions:
                 or self.max_steps < 1):
             raise ValueError(f"max_steps must be a whole number of steps, at least 1, not "
                              f"{self.max_steps!r}")
+        if not 1 <= self.augmented_penalty <= 1e12:
+            raise ValueError(f"augmented_penalty must be in [1, 1e12], not "
+                             f"{self.augmented_penalty!r}")
+        if not 0 < self.augmented_tol < 1e-4:
+            raise ValueError(f"augmented_tol must be in (0, 1e-4), not {self.augmented_tol!r}")
+        if self.augmented_max_iterations < 1 or self.augmented_krylov_iterations < 0:
+            raise ValueError("augmented_max_iterations must be at least 1 and "
+                             "augmented_krylov_iterations not negative")
         if self.level_split < 2:
             raise ValueError("level_split must be at least 2")

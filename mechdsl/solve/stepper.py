@@ -18,20 +18,29 @@ The rules a stepper keeps:
    estimate says), then advances ``t``, ``y`` (keeping ``t_old``, ``y_old``) and returns
    None; or returns a message (the step size underflowed, the iteration diverged, the
    equations are singular at t) and leaves ``t``, ``y`` at the last accepted state. It
-   never steps past ``t_bound``. A KeyboardInterrupt propagates untouched.
+   never steps past ``t_bound`` nor takes a step longer than ``max_step``. It attempts no
+   step once ``attempts`` has reached ``max_attempts`` (the driver's budget): it returns
+   :data:`OUT_OF_BUDGET` instead (a stepper that rejects within ``step`` checks before
+   every attempt; the driver also checks before every call). A KeyboardInterrupt and
+   numpy's LinAlgError propagate untouched (the driver reports them with the instant).
 3. **dense_output()** gives a callable ``u(t) -> y`` valid on ``[t_old, t]`` (the
-   interpolant of the last accepted step), of the order the method promises.
+   interpolant of the last accepted step, as stepped: a later ``restart`` does not change
+   it), of the order the method promises. The driver calls it only for steps that contain
+   an output instant, so that its extra work (stages) is done only there.
 4. **restart(y)** is called by the driver after it changed the state at ``t`` (a
    projection, an event): the stepper drops whatever it carried from before (an FSAL
    derivative, a history, a Jacobian evaluated at the old state) and continues from ``y``,
-   keeping its step size.
+   keeping its step size. (It may keep what the change cannot have spoilt beyond its own
+   error: the explicit pairs keep their FSAL derivative where y moved by at most the
+   step's tolerance, corrected by the equations' optional ``carry``.)
 5. **Counters**: ``nfev`` (evaluations of the equations of motion), ``njev`` (of their
    derivatives), ``nlu`` (factorisations), ``naccepted`` and ``nrejected`` steps; the driver
    reads them for the budget and the run's summary.
 6. **Class attributes**: ``name`` (what ``--method`` takes), ``order``, ``implicit`` (it
    uses the derivatives of the equations: stiff models), ``redundant`` (it integrates through
-   redundant constraints and singular positions), and ``summary``, one line for the command
-   line's help.
+   redundant constraints and singular positions), ``summary``, one line for the command
+   line's help, and ``auto``: whether the automatic choice
+   (:func:`mechdsl.solve.integrators.choose`) may take it.
 
 The equations a stepper sees are those of one mechanism (:class:`Equations`, a protocol):
 the right-hand side ``rhs(t, y) = (qd, qdd)`` of the index-1 form for explicit methods, and
@@ -40,6 +49,7 @@ for implicit ones the terms of the index-3 form and their exact derivatives.
 
 from __future__ import annotations
 
+import math
 from typing import Callable, ClassVar, Protocol
 
 import numpy as np
@@ -61,6 +71,12 @@ class Equations(Protocol):
     def project(self, t: float, y: np.ndarray) -> np.ndarray:
         """y moved onto Phi(q, t) = 0 and Phi_q qd = nu (iterated to the solver's
         tolerance), mass-orthogonally, tolerating redundant constraints."""
+
+    # Optional, read by the driver and the explicit steppers where present (getattr):
+    # ``settle(t, y)``, the correction after a step that does not end at an output (to the
+    # precision the next step needs: cheaper than ``project``, which it defaults to), and
+    # ``carry(y, f)``, the derivative at a corrected state y from ``f`` at the state before
+    # the correction, with what of it y gives exactly (a mechanism's y' begins with qd).
 
     # -- the terms of the index-3 form, for implicit methods (sparse matrices: CSR) ---------
     def phi_jac(self, t: float, q: np.ndarray) -> tuple[np.ndarray, object]:
@@ -88,6 +104,11 @@ class Equations(Protocol):
         multipliers are those of the augmented Lagrangian's limit."""
 
 
+#: What :meth:`Stepper.step` returns when it stopped at ``max_attempts`` (rule 2): the driver
+#: reports the budget, with the instant reached.
+OUT_OF_BUDGET = "the step budget ran out"
+
+
 class Stepper:
     """One integrator of the equations of motion (see the module's rules)."""
 
@@ -96,6 +117,10 @@ class Stepper:
     implicit: ClassVar[bool] = False
     redundant: ClassVar[bool] = False
     summary: ClassVar[str] = ""
+    auto: ClassVar[bool] = False
+    #: set by the driver on the instance where it has a limit (rule 2)
+    max_step: float = math.inf
+    max_attempts: float = math.inf
 
     def __init__(self, equations: Equations, t0: float, y0: np.ndarray, t_bound: float, *,
                  rtol: float, atol: float, scale: np.ndarray,

@@ -1,0 +1,147 @@
+"""The loop that drives a stepper (:mod:`mechdsl.solve.stepper`): everything that is not a step.
+
+:func:`integrate` takes one :class:`~mechdsl.solve.stepper.Stepper` class and the equations,
+and owns
+
+* the **output instants**: every instant that falls inside a step is the stepper's dense
+  output there, projected (``equations.project``); one at a step's end is the step's end
+  state, projected;
+* the **projections**: after every step the state is moved back onto the constraint
+  manifolds, by ``project`` where the step ends at an output and by the cheaper ``settle``
+  otherwise (to the precision the next step needs), and the stepper is told
+  (``restart``);
+* the **budget** of ``max_steps`` attempts (accepted and rejected steps together: a run
+  that can never end, over 1e12 s at rtol 1e-12, stops there with status "failed", reason
+  "budget", its outputs so far kept);
+* **failures** (a stepper's message, numpy's LinAlgError from the equations: "failed", with
+  the instant) and **interrupts** (a KeyboardInterrupt anywhere: "interrupted", with the
+  outputs before it);
+* **progress**: ``on_output(k, t, y)`` with each output as soon as it is known, and
+  ``on_step(t, attempts)`` after every accepted step (one output interval may take
+  millions of steps: a display fed by the outputs alone would stand still). It costs a
+  Python call per step, against the 6 to 20 evaluations of the derivative a step takes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from .stepper import OUT_OF_BUDGET, Equations, Stepper
+
+
+@dataclass(frozen=True)
+class Solution:
+    """The outputs reached (``t`` a prefix of the requested instants, ``y`` their states),
+    how the integration ended ("ok", "failed", "interrupted") and why, the stepper's
+    counters (``steps`` accepted, ``rejected``, ``evaluations`` of the equations, ``njev``
+    of their derivatives, ``nlu`` factorisations), the time the steps reached (past the
+    last output where it stopped between two) and, for a failure, its ``reason``: "budget"
+    where ``max_steps`` ran out, "" otherwise."""
+
+    t: np.ndarray
+    y: np.ndarray
+    status: str
+    message: str
+    steps: int
+    rejected: int
+    evaluations: int
+    t_reached: float = float("nan")
+    reason: str = ""
+    njev: int = 0
+    nlu: int = 0
+
+
+def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
+              t_eval: np.ndarray, *, rtol: float = 1e-8, atol: float | np.ndarray = 1e-10,
+              scale: np.ndarray | None = None, first_step: float | None = None,
+              max_step: float = np.inf, max_steps: int = 1_000_000,
+              on_output: Callable[[int, float, np.ndarray], None] | None = None,
+              on_step: Callable[[float, int], None] | None = None) -> Solution:
+    """Integrate y' = equations.rhs(t, y) from ``y0`` at ``t_eval[0]`` to ``t_eval[-1]``
+    by steps of ``stepper``, returning the state at every instant of ``t_eval``
+    (increasing). ``atol`` (times ``scale``, per component, if given) and ``rtol`` bound
+    the local error of each step: |err_i| <= atol_i scale_i + rtol |y_i|; ``first_step``
+    is the first step (else the stepper's choice) and ``max_step`` the longest. Where
+    the equations have ``project`` (and ``settle``), every state after a step and every
+    output is corrected by it (see the module). ``on_output(k, t, y)`` is called with
+    each output as soon as it is known, ``on_step(t, attempts)`` after each accepted step
+    with the time reached and the steps taken, accepted and rejected; a KeyboardInterrupt
+    raised there or in the equations ends the integration ("interrupted") with the
+    outputs before it. A singular system (the equations raising numpy's LinAlgError) or a
+    step the stepper cannot take (a derivative that is not finite, a step size that
+    underflows) ends it "failed", the message saying where; so does ``max_steps`` steps,
+    accepted and rejected, before the end (reason "budget")."""
+    project = getattr(equations, "project", None)
+    settle = getattr(equations, "settle", None) or project
+    t_eval = np.asarray(t_eval, dtype=float)
+    y = np.array(y0, dtype=float)
+    n, n_out = len(y), len(t_eval)
+    t, t_end = float(t_eval[0]), float(t_eval[-1])
+    outs_t: list[float] = []
+    outs_y: list[np.ndarray] = []
+    s: Stepper | None = None
+
+    def emit(k: int, tt: float, yy: np.ndarray) -> None:
+        outs_t.append(tt)
+        outs_y.append(yy)
+        if on_output is not None:
+            on_output(k, tt, yy)
+
+    def done(status: str, message: str = "", reason: str = "") -> Solution:
+        counts = (0, 0, 0, 0, 0) if s is None else (s.naccepted, s.nrejected, s.nfev,
+                                                     s.njev, s.nlu)
+        return Solution(np.array(outs_t), np.array(outs_y).reshape(len(outs_t), n), status,
+                        message, *counts[:3], t, reason, *counts[3:])
+
+    def budget() -> Solution:
+        return done("failed", f"its budget of {max_steps:,} steps (accepted and rejected) "
+                              f"ran out at t = {t:.10g}", "budget")
+
+    k_next = 1
+    try:
+        emit(0, t, y.copy())
+        if t_end <= t:
+            return done("ok")
+        s = stepper(equations, t, y, t_end, rtol=rtol, atol=atol, scale=scale,
+                    first_step=first_step)
+        s.max_attempts = max_steps
+        if max_step < np.inf:
+            s.max_step = max_step
+        while k_next < n_out:
+            # checked here too for steppers that take no more than one attempt per call
+            if s.attempts >= max_steps:
+                return budget()
+            message = s.step()
+            if message == OUT_OF_BUDGET:
+                return budget()
+            if message is not None:
+                return done("failed", message)
+            t_new, y_new = s.t, s.y
+            # -- outputs inside the step, by its dense output (one at the step's end is
+            # the projected end state, below) -----------------------------------------------
+            if k_next < n_out and t_eval[k_next] < t_new:
+                dense = s.dense_output()
+                while k_next < n_out and t_eval[k_next] < t_new:
+                    te = float(t_eval[k_next])
+                    yo = dense(te)
+                    emit(k_next, te, project(te, yo) if project is not None else yo)
+                    k_next += 1
+            at_output = k_next < n_out and t_eval[k_next] <= t_new
+            if project is not None:
+                y_new = (project if at_output else settle)(t_new, y_new)
+                s.restart(y_new)
+            if at_output:
+                emit(k_next, t_new, y_new.copy())
+                k_next += 1
+            t = t_new
+            if on_step is not None:
+                on_step(t, s.attempts)
+    except KeyboardInterrupt:
+        return done("interrupted")
+    except np.linalg.LinAlgError as err:
+        return done("failed", f"the equations of motion are singular near t = {t:.10g} "
+                              f"({err})")
+    return done("ok")
