@@ -30,7 +30,7 @@ from .results import Results
 from .solve import SolverOptions, assemble, simulate
 from .solve.diagnose import col_scale, one_variant, singularity
 from .solve.linalg import factor
-from .solve.mobility import redundancy_warning, report
+from .solve.mobility import Freedom, freedom, redundancy_warning, report
 from .solve.newton import use_sparse
 
 
@@ -65,6 +65,9 @@ class CheckReport:
     condition: float | None = None
     warnings: tuple[str, ...] = ()
     error: MechError | None = None
+    #: the degrees of freedom left to the forward dynamics (n - rank of the joints' and
+    #: drives' equations); None for a fully driven model
+    free: int | None = None
 
     @property
     def ok(self) -> bool:
@@ -118,7 +121,8 @@ class Mechanism:
             asked = list(self._plugins) + [m for m, _ in self.model.plugins]
             if self._registry is None:
                 wanted = {c.type_name for c in
-                          (*self.model.joints, *self.model.drives, *self.model.forces)}
+                          (*self.model.joints, *self.model.drives, *self.model.forces,
+                           *self.model.initials)}
                 registry = build_registry(asked, wanted=wanted)
             else:
                 registry = self._registry.merged(
@@ -208,7 +212,8 @@ class Mechanism:
         assembly, its mobility, and whether its equations of motion can be solved at t0."""
         from .solve.dynamic import DynamicRun
 
-        q0, trouble = DynamicRun(system, opts).initial_state()
+        run = DynamicRun(system, opts)
+        q0, trouble = run.initial_state()
         if q0 is None:
             return done(error=NumericalError(trouble, source=system.source))
         t0 = float(system.times[0]) if system.times is not None else 0.0
@@ -219,11 +224,18 @@ class Mechanism:
             lines.append(f"  {b:<{width}}  x = {x:< 12.6g} y = {y:< 12.6g} phi = {phi:.6g}")
         D = col_scale(system)
         mobility, rank, redundant = report(one_variant(system, 0), q0, D[0, 0])
-        drives = len(system.drive_rows)
-        lines.append(f"mobility {mobility} = {system.n} coordinates - {rank} independent "
-                     f"equations; {_count(drives, 'drive')}: {mobility} degree"
-                     f"{'s' if mobility != 1 else ''} of freedom left to the forward dynamics")
-        found = dict(mobility=mobility, rank=rank, redundant=redundant)
+        # the drives fix some of the joints' degrees of freedom: n - rank of the joints' and
+        # drives' equations together are left
+        dof = freedom(one_variant(system, 0), q0, D[0, 0])
+        lines.append(_freedom_line(dof))
+        found = dict(mobility=mobility, rank=rank, redundant=redundant, free=dof.free)
+        warnings = list(run.warnings)
+        if trouble is None:  # the velocities it starts with, stated
+            from .solve.initial import velocities
+
+            warnings += velocities(system, 0, t0, q0, D[0, 0], opts)[1]
+        if warnings:
+            found["warnings"] = tuple(warnings)
         if trouble is not None:
             return done(**found, error=NumericalError(trouble, source=system.source))
         return done(**found, verdict=f"ok: assembles at t = {t0:g}; the equations of motion "
@@ -410,6 +422,20 @@ def load(path: str | os.PathLike, *, max_memory: int | None = None, **kwargs) ->
     return loads(text, path, **kwargs)
 
 
+def _freedom_line(dof: Freedom) -> str:
+    """'mobility 2 = 6 coordinates - 4 independent joint equations; 1 drive: 1 degree of
+    freedom left to the forward dynamics' (and the initial statements that fix it at t0)."""
+    s = "s" if dof.free != 1 else ""
+    line = (f"mobility {dof.mobility} = {dof.n} coordinates - {dof.joint_rank} independent "
+            f"joint equations; {_count(dof.drives, 'drive')}")
+    if dof.drive_rank < dof.drives:
+        line += f" ({dof.drives - dof.drive_rank} on coordinates already fixed)"
+    line += f": {dof.free} degree{s} of freedom left to the forward dynamics"
+    if dof.initials:
+        line += f", {dof.initials} fixed at t0 by {_count(dof.initials, 'initial statement')}"
+    return line
+
+
 def _count(k: int, what: str, plural: str | None = None) -> str:
     """'1 drive', '3 drives', '2 moving bodies'."""
     return f"{k} {what if k == 1 else plural or what + 's'}"
@@ -437,6 +463,10 @@ def _structure(model: Model, system: System) -> list[str]:
         extra = f"  = {to_text(functions[c.name])}" if c.name in functions else ""
         lines.append(f"  {c.kind:<5} {c.name:<14} {c.type_name:<10} {', '.join(c.bodies):<22} "
                      f"{neq} equation{'s' if neq != 1 else ''}{extra}")
+    for c in model.initials:  # the start of a forward dynamics, at t0 only
+        rate = f", rate = {to_text(c.rate)}" if c.rate is not None else ""
+        lines.append(f"  initial {c.name:<12} {c.type_name:<10} at t0 = {to_text(c.value)}"
+                     f"{rate}")
     shaped = [(name, mp) for name, mp in zip(system.body_names, system.mass) if mp is not None]
     if shaped:
         lines.append("shapes (body frame; polar moment J about the centroid):")

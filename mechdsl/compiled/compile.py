@@ -20,7 +20,7 @@ from ..grammar.checks import TIME, check_expr
 from ..grammar.derive import derivative, total_derivative
 from ..grammar.model import (
     BODY_QUANTITIES, DRIVE_QUANTITIES, ENERGY_QUANTITIES, GROUND, JOINT_QUANTITIES, ORIGIN, POINT_QUANTITIES, Body,
-    Drive, Force, Joint, Model, NamedOutput, ReducedOutput, Vector,
+    Drive, Force, Initial, Joint, Model, NamedOutput, ReducedOutput, Vector,
 )
 from ..memory import check_compile
 from ..plugins.contract import REQUIRED, ArgError, ConstraintType
@@ -34,7 +34,7 @@ from .sparse import Pattern
 from . import dynamics as dyn
 from .system import (
     Constraint, DriveFunction, EnergyOutput, ExprOutput, Group, OutputSpec, ReactionOutput,
-    ReductionOutput, Sketch, System,
+    ReductionOutput, Sketch, Start, System,
 )
 from .variants import Overrides, evaluate, time_grid
 
@@ -123,6 +123,8 @@ class _Compiler:
         self.var, self.V, self.evaluated = _Unevaluated(self.param_names), 1, False
         self._bodies()
         self.constraints, groups, _, _ = self._constraints()
+        if self.model.initials:
+            self._constraints(self._initial_drives(0.0))
         self._forces()
         self._outputs()
         self._sketch(groups)
@@ -147,7 +149,7 @@ class _Compiler:
                  else None)
         order = max((o.order for o in outputs), default=0)
         env = {k: _readonly(v[:, None]) for k, v in self.var.env.items()}
-        return System(
+        system = System(
             source=self.model.source,
             body_names=tuple(b.name for b in self.bodies),
             n=3 * len(self.bodies),
@@ -173,6 +175,62 @@ class _Compiler:
             tolerances=self._tolerances(),
             reductions=tuple(self.reductions),
         )
+        return self._with_start(system)
+
+    # -- the start of a forward-dynamics run ---------------------------------------------------
+    def _with_start(self, system: System) -> System:
+        """``system`` with its :class:`~mechdsl.compiled.system.Start`: which coordinates
+        are guessed, and the model with its ``initial`` statements added as drives (f(t) =
+        value + rate (t - t0), so that f(t0) is the value and f'(t0) the rate). An initial
+        statement in a model that has no forward dynamics is a located error: the run is
+        the kinematics (the joints and drives fix every coordinate), or the model has no
+        masses."""
+        initials = self.model.initials
+        if initials and system.dynamics is None:
+            raise MechError(f"initial '{cut(initials[0].name)}' is for forward dynamics, and "
+                            "the model has no masses: give its bodies mass and inertia, or "
+                            "remove the statement", initials[0].span)
+        if initials and system.m >= system.n:
+            raise MechError(
+                f"initial '{cut(initials[0].name)}' is for forward dynamics: the drives fix "
+                f"every coordinate ({system.n} coordinates, {system.m} equations of joints "
+                "and drives), and the run is the kinematics; remove it, or drive the "
+                "mechanism from where it should start", initials[0].span)
+        if system.dynamics is None:
+            return system
+        guessed = np.zeros(system.n, bool)
+        for i, b in enumerate(self.bodies):
+            if b.guess is not None:
+                guessed[3 * i : 3 * i + 3] = True
+        if not initials:
+            return replace(system, start=Start(_readonly(guessed)))
+        t0 = float(system.times.reshape(-1)[0]) if system.times is not None else 0.0
+        constraints, groups, drive_rows, drive_fns = self._constraints(
+            self._initial_drives(t0))
+        m = constraints[-1].rows[1]
+        fused = _fused(groups, constraints, len(self.bodies), self.model.source)
+        pattern = Pattern.from_entries(fused.rows, fused.cols, (fused.m, fused.n))
+        # the equations only: no masses, outputs or reductions (it is assembled, never run)
+        augmented = replace(system, m=m, constraints=tuple(constraints), groups=tuple(groups),
+                            drive_rows=_readonly(np.asarray(drive_rows, dtype=np.intp)),
+                            drive_functions=tuple(drive_fns), fused=fused, pattern=pattern,
+                            dynamics=None, outputs=(), reductions=(), start=None)
+        rows = np.arange(system.m, m, dtype=np.intp)
+        rated = np.array([c.rate is not None for c in initials], dtype=bool)
+        return replace(system, start=Start(_readonly(guessed), augmented, _readonly(rows),
+                                           _readonly(rated)))
+
+    def _initial_drives(self, t0: float) -> list[Drive]:
+        """The ``initial`` statements as drives of f(t) = value + rate (t - t0) (rate 0 where
+        none is given: that row then stays out of the velocities, see
+        :class:`~mechdsl.compiled.system.Start`)."""
+        out = []
+        for c in self.model.initials:
+            f = c.value
+            if c.rate is not None:
+                f = E.add(c.value, E.mul(c.rate, E.sub(E.Name(TIME, c.span), E.Num(t0, c.span))))
+            out.append(Drive(c.name, c.type_name, c.args, f, c.span, c.type_span))
+        return out
 
     # -- dynamics ------------------------------------------------------------------------------
     def _forces(self):
@@ -299,18 +357,26 @@ class _Compiler:
         return i, pts[point]
 
     # -- constraints ---------------------------------------------------------------------------
-    def _constraints(self):
+    def _constraints(self, initials: list[Drive] = ()):
+        """The joints, the drives and (for the start of a forward dynamics) ``initials``,
+        the ``initial`` statements as drives (:meth:`_initial_drives`), in that order:
+        their constraints, groups, drive rows and drive functions."""
         constraints = []
         packed: dict[tuple[str, str], list] = {}
         drive_rows, drive_fns = [], []
         row = 0
-        items: list[Joint | Drive] = [*self.model.joints, *self.model.drives]
-        for c in items:
+        items: list[Joint | Drive] = [*self.model.joints, *self.model.drives, *initials]
+        first_initial = len(items) - len(initials)
+        for k, c in enumerate(items):
             kind = "drive" if isinstance(c, Drive) else "joint"
+            # an initial statement takes the drive types (the drives plugin's, or any other)
             ctype = self._type(kind, c.type_name, c.type_span)
+            if k >= first_initial:
+                kind = "initial"
             slots, params = self._bind(c, ctype)
             if all(s == self.body_index[GROUND] for s in slots):
-                what = "a drive on the ground" if kind == "drive" else "a joint of the ground with itself"
+                what = {"drive": "a drive on the ground", "initial": "an initial statement "
+                        "on the ground", "joint": "a joint of the ground with itself"}[kind]
                 raise MechError(f"{what} constrains nothing", c.span)
             if kind == "joint" and len(slots) > 1 and len(set(slots)) == 1:
                 raise MechError(f"joint '{c.name}' connects body "
@@ -321,7 +387,7 @@ class _Compiler:
             constraints.append(Constraint(c.name, kind, c.type_name, c.span, rows, names))
             packed.setdefault((kind, c.type_name), [ctype, []])[1].append(
                 (len(constraints) - 1, slots, params, rows))
-            if kind == "drive":
+            if kind in ("drive", "initial"):
                 drive_rows.append(rows[0])
                 drive_fns.append(self._drive_function(c))
         groups = [self._group(ctype, members) for ctype, members in packed.values()]

@@ -143,6 +143,22 @@ class Sketch:
 
 
 @dataclass(frozen=True)
+class Start:
+    """What a forward-dynamics run needs to state where it starts
+    (:mod:`mechdsl.solve.initial`). ``guessed`` (n,): the coordinates of the bodies that give
+    a ``guess`` (the assembly warns where it moves them). Where the model has ``initial``
+    statements, ``system`` is the model with each of them added as a drive after the others
+    (their rows ``rows``, kind "initial" in ``system.constraints``, f(t) = value + rate (t -
+    t0)), and ``rated`` (k,) says which give a rate (only those rows enter the projection
+    of the initial velocities)."""
+
+    guessed: np.ndarray
+    system: "System | None" = None
+    rows: np.ndarray | None = None
+    rated: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
 class System:
     """A compiled mechanism. Arrays are read-only; nothing here changes during a solve."""
 
@@ -178,6 +194,9 @@ class System:
     tolerances: Mapping[str, float] = field(default_factory=dict)
     #: per-variant reductions of the ``outputs`` (which are then their inputs only)
     reductions: tuple[ReductionOutput, ...] = ()
+    #: where a forward-dynamics run starts: guesses given, ``initial`` statements (None
+    #: for a model without masses)
+    start: Start | None = None
 
     @functools.cached_property
     def lu(self) -> LUPlan | None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 from ..errors import MechError, Source, Span, cut, suggest
 from . import expr as E
 from .model import (
-    BODY_QUANTITIES, GROUND, ORIGIN, REDUCTIONS, Body, Drive, Force, Joint, Model, NamedOutput,
+    BODY_QUANTITIES, GROUND, ORIGIN, REDUCTIONS, Body, Drive, Force, Initial, Joint, Model, NamedOutput,
     Optimization, OutputRef, Param, Reduction, ReducedOutput,
     Point, Polygon, Simulate, Sweep, Vector,
 )
@@ -194,6 +194,7 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
     pending_sweeps: list[tuple[Sweep, Span]] = []
     plugins: list[tuple[str, Span]] = []
     forces: list[Force] = []
+    initials: list[Initial] = []
     gravity: Vector | None = None
     optimizing: dict[str, tuple] = {}
 
@@ -236,6 +237,19 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
                 drives.append(c)
             else:
                 joints.append(c)
+        elif isinstance(st, tuple) and isinstance(st[0], Initial):
+            c, nspan = st
+            # one namespace with the joints and drives: messages name the statement
+            constraint_names.add(c.name, nspan)
+            kw = _Names(f"argument of {cut(c.name)}")
+            for a in c.args:
+                if a.name is not None:
+                    kw.add(a.name, a.span)
+            # a value at t0: params only (time 't' is refused, located, by check_expr)
+            check_expr(c.value, defined, f"the value of initial '{cut(c.name)}'")
+            if c.rate is not None:
+                check_expr(c.rate, defined, f"the rate of initial '{cut(c.name)}'")
+            initials.append(c)
         elif isinstance(st, tuple) and isinstance(st[0], Force):
             f, nspan = st
             constraint_names.add(f.name, nspan)
@@ -302,7 +316,8 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
     optimization = _optimization(optimizing, defined) if optimizing else None
     return Model(source, tuple(params), ground, tuple(bodies), tuple(joints), tuple(drives),
                  simulate, tuple(outputs), tuple(sweeps), tuple(plugins), tuple(traces),
-                 tuple(units.items()), tuple(files), tuple(forces), gravity, optimization)
+                 tuple(units.items()), tuple(files), tuple(forces), gravity, optimization,
+                 tuple(initials))
 
 
 _OPT_WORDS = {"optimize": "optimize", "objective": "minimize/maximize",

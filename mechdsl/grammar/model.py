@@ -123,6 +123,22 @@ class Drive:
 
 
 @dataclass(frozen=True)
+class Initial:
+    """``initial NAME: TYPE(args) = value[, rate = r]``: the measure that the drive type TYPE
+    computes from q equals ``value`` at t0, and its rate equals ``r`` where given: where a
+    forward-dynamics run starts (:mod:`mechdsl.solve.initial`). Used for the assembly at t0
+    only; after t0 the statement plays no role."""
+
+    name: str
+    type_name: str
+    args: tuple[Arg, ...]
+    value: Expr
+    rate: Expr | None
+    span: Span
+    type_span: Span
+
+
+@dataclass(frozen=True)
 class Force:
     """``force NAME: TYPE(args)``: a force element (spring, damper, applied load)."""
 
@@ -265,3 +281,5 @@ class Model:
     gravity: Vector | None = None
     #: ``optimize``, ``minimize``/``maximize`` and ``subject to`` statements, if any
     optimization: Optimization | None = None
+    #: ``initial NAME: TYPE(args) = value, rate = r`` statements, in order
+    initials: tuple[Initial, ...] = ()

@@ -33,12 +33,15 @@ from .cache import cached_tables
 from .checks import TIME, build_model, check_expr
 from .model import SIMULATE_OPTIONS
 from .model import (
-    Arg, Drive, Force, Joint, MeshFile, Model, NamedOutput, OutputRef, Param, Point, Polygon,
+    Arg, Drive, Force, Initial, Joint, MeshFile, Model, NamedOutput, OutputRef, Param, Point, Polygon,
     ReducedOutput, Simulate, Sweep, Vector,
 )
 from .tables import PointList, make_table
 
 __all__ = ["parse", "parse_expr", "parse_expr_list", "parse_reductions", "check_expr", "TIME", "MAX_DEPTH"]
+
+#: The options of an ``initial`` statement after its value
+INITIAL_OPTIONS = ("rate",)
 
 #: The deepest nesting of an expression (a level per operation: a sum of n terms nests n
 #: deep, as does ``sin(sin(...))`` n times). A 2,000-term Fourier series is well within it;
@@ -307,6 +310,26 @@ class _ToModel(Transformer_NonRecursive):
         name, type_name, *args, function = items
         return (Drive(str(name), str(type_name), tuple(args), function, _span(meta),
                       _tspan(type_name)), _tspan(name))
+
+    def initial_option(self, meta, items):
+        name, value = items
+        if str(name) not in INITIAL_OPTIONS:
+            raise MechError(f"initial takes the option {', '.join(INITIAL_OPTIONS)} (the "
+                            f"measure's rate at t0), not '{cut(name)}'", _tspan(name))
+        return str(name), value, _tspan(name)
+
+    def initial(self, meta, items):
+        name, type_name, *rest = items
+        options = [o for o in rest if isinstance(o, tuple)]
+        args = [a for a in rest if isinstance(a, Arg)]
+        (value,) = [e for e in rest if not isinstance(e, (tuple, Arg))]
+        rate = None
+        for opt, e, span in options:
+            if rate is not None:
+                raise MechError(f"option '{opt}' is given twice", span)
+            rate = e
+        return (Initial(str(name), str(type_name), tuple(args), value, rate, _span(meta),
+                        _tspan(type_name)), _tspan(name))
 
     def force(self, meta, items):
         name, type_name, *args = items

@@ -25,15 +25,20 @@ from .model import REDUCTIONS
 RESERVED_STARTS = {"param", "body", "joint", "drive", "simulate", "output", "sweep", "plugin"}
 #: Keywords that start a statement unless a name or a value is expected where they stand
 SOFT_STARTS = {"force", "gravity", "trace", "units", "ground", "optimize", "minimize",
-               "maximize", "subject"}
+               "maximize", "subject", "initial"}
 #: After these, a word is a name or a value, not the start of a statement
-EXPECTS_VALUE = {"param", "body", "joint", "drive", "force", "sweep", "point", "trace", ":",
+EXPECTS_VALUE = {"param", "body", "joint", "drive", "initial", "force", "sweep", "point", "trace", ":",
                  ".", "=", ",", "(", "[", "+", "-", "*", "/", "^", "..", "<", "<=", ">",
                  ">=", "if", "then", "else", "and", "or", "not", "step", "count", "in", "to",
                  "optimize", "minimize", "maximize"}
 #: Words that are keywords inside one kind of statement only: ``optimize c in 1 .. 2``,
 #: ``subject to ...``
 INNER_KEYWORDS = {"optimize": "in", "subject": "to"}
+
+#: The statements of the form ``KEYWORD NAME: TYPE(args)``; an ``initial`` statement takes
+#: the drive types, and its name and type are a drive's (:data:`_AS`)
+_TYPED = ("joint", "drive", "force", "initial")
+_AS = {"initial": "drive"}
 
 #: The kinds of names that are declared in a file, and so can be renamed
 DECLARED_KINDS = ("param", "body", "point", "joint", "drive", "force", "output")
@@ -94,18 +99,27 @@ def tokens(text: str) -> list[Token]:
 
     lexer = _parser()
     out: list[Token] = []
-    skip: set[int] = set()
-    while True:
-        work = "".join(" " if i in skip else c for i, c in enumerate(text)) if skip else text
-        out.clear()
+    # a character no token takes is read as a space, and lexing resumes at the token before
+    # it (whose end may depend on what follows: "body @ ="): lexing the whole text again for
+    # each such character took minutes on a file of junk
+    work, start, line, column = text, 0, 1, 1  # what is left to lex, and where it begins
+    for _ in range(1002):
         try:
             for t in lexer.lex(work):
-                out.append(Token(t.type, str(t), t.line, t.column, t.end_column, t.start_pos))
+                first = t.line == 1  # tokens are on one line: only the first one shifts
+                out.append(Token(t.type, str(t), line + t.line - 1,
+                                 t.column + (column - 1 if first else 0),
+                                 t.end_column + (column - 1 if first else 0),
+                                 start + t.start_pos))
             return out
         except UnexpectedCharacters as err:
-            if err.pos_in_stream in skip or len(skip) > 1000:
-                return out
-            skip.add(err.pos_in_stream)
+            bad = err.pos_in_stream
+            work = work[:bad] + " " + work[bad + 1:]
+            if out and out[-1].offset >= start:
+                last = out.pop()
+                work = work[last.offset - start:]
+                start, line, column = last.offset, last.line, last.column
+    return out
 
 
 def _is_word(tok: Token) -> bool:
@@ -120,6 +134,9 @@ def statement_starts(toks: list[Token]) -> list[int]:
         word = tok.text
         if tok.type not in ("NAME", "STRING") and (
                 word in RESERVED_STARTS or (word in SOFT_STARTS and prev not in EXPECTS_VALUE)):
+            # initial(...) is the reduction, `initial NAME:` the statement
+            if word == "initial" and i + 1 < len(toks) and toks[i + 1].text == "(":
+                continue
             starts.append(i)
         prev = word
     return starts
@@ -189,21 +206,24 @@ def index(text: str) -> SymbolIndex:
             body = toks[i - 1].text
         elif w == "}":
             body = None
-        if depth > 0 and statement in ("joint", "drive", "force"):
+        if depth > 0 and statement in _TYPED:
             in_args.add(i)
         if w == "ground" and i in starts and nxt(i) == "{":
             role[i] = sym("body", i, declaration=True)
         if not _is_word(tok) or i in starts or INNER_KEYWORDS.get(statement) == w:
             continue
         prev = words[i - 1] if i else None
-        if statement in ("param", "body", "joint", "drive", "force") and prev == statement:
-            role[i] = sym(statement, i, declaration=True)
+        if statement in ("param", "body", *_TYPED) and prev == statement:
+            # an initial statement is a drive frozen at t0: its name is declared as a drive's
+            role[i] = sym(_AS.get(statement, statement), i, declaration=True)
         elif prev == "point" and body is not None and tok.type == "NAME":
             role[i] = sym("point", i, owner=body, declaration=True)
-        elif statement in ("joint", "drive", "force") and prev == ":" and depth == 0:
-            role[i] = sym("type", i, owner=statement)
-        elif nxt(i) == "=" and depth > 0 and statement in ("joint", "drive", "force"):
+        elif statement in _TYPED and prev == ":" and depth == 0:
+            role[i] = sym("type", i, owner=_AS.get(statement, statement))
+        elif nxt(i) == "=" and depth > 0 and statement in _TYPED:
             role[i] = sym("argument", i)
+        elif nxt(i) == "=" and depth == 0 and statement == "initial" and prev == ",":
+            role[i] = sym("option", i)
         elif nxt(i) == "=" and depth == 0 and statement == "output" and prev in ("output", ","):
             role[i] = sym("output", i, declaration=True)
         elif nxt(i) == "=" and depth == 0 and statement in ("units", "simulate") and \

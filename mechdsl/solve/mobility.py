@@ -87,6 +87,46 @@ def report(system: System, q: np.ndarray, col_scale: np.ndarray) -> tuple[int, i
     return system.n - len(kept), len(kept), _names(system, joint_rows[dropped])
 
 
+@dataclass(frozen=True)
+class Freedom:
+    """The degrees of freedom of a model with drives and free coordinates (``mechdsl
+    check``), at one configuration: ``n`` coordinates, the joint equations of rank
+    ``joint_rank``, ``drives`` drives of which ``drive_rank`` are independent of the joints
+    and of the drives before them, and ``initials`` ``initial`` statements (t0 only)."""
+
+    n: int
+    joint_rank: int
+    drives: int
+    drive_rank: int
+    initials: int = 0
+
+    @property
+    def mobility(self) -> int:
+        """The joints' degrees of freedom, n - rank of the joint equations."""
+        return self.n - self.joint_rank
+
+    @property
+    def free(self) -> int:
+        """The degrees of freedom left to the forward dynamics: the mobility less the
+        independent drives (n - rank of the joints' and drives' equations together)."""
+        return self.mobility - self.drive_rank
+
+
+def freedom(system: System, q: np.ndarray, col_scale: np.ndarray) -> Freedom:
+    """:class:`Freedom` at ``q`` (n,) of a one-variant ``system``: the rank of the joint
+    equations, then of the drives' after them (a drive on a coordinate the joints or an
+    earlier drive already fix adds nothing)."""
+    joint_rows = np.asarray(system.joint_rows, dtype=np.intp)
+    drive_rows = np.asarray(system.drive_rows, dtype=np.intp)
+    with np.errstate(all="ignore"):
+        jac = eq.jacobian(system, q.reshape(1, 1, -1))[0, 0] * col_scale
+    kept, _ = independent_rows(jac[np.concatenate((joint_rows, drive_rows))])
+    joint_rank = sum(1 for k in kept if k < len(joint_rows))
+    start = getattr(system, "start", None)
+    initials = 0 if start is None or start.rows is None else len(start.rows)
+    return Freedom(system.n, joint_rank, len(drive_rows), len(kept) - joint_rank, initials)
+
+
 def independent_rows(a: np.ndarray, tol: float = RANK_TOL) -> tuple[list[int], list[int]]:
     """Split the rows of ``a`` (in order) into those independent of the rows kept before
     them, and the rest: Gram-Schmidt with re-orthogonalisation, rows normalised first, so
