@@ -24,6 +24,7 @@ the potential energy V(q) (gravity and the elements that write one).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -47,6 +48,19 @@ class ForceElement:
     type_name: str
     span: object
     bodies: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class LoadJacobian:
+    """dQ/dq and dQ/dqd of a mechanism's loads, derived exactly from the traced graph:
+    ``kernel`` returns their non-zero entries (V, b, nnz), entry k at row ``rows[k]`` of Q
+    and column ``cols[k]`` of q (``wrt[k]`` 0) or of qd (``wrt[k]`` 1); entries that are
+    zero for every state (gravity's, a torque's) are not stored."""
+
+    kernel: Kernel | None
+    rows: np.ndarray
+    cols: np.ndarray
+    wrt: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -84,6 +98,38 @@ class Dynamics:
                        mass=self.mass[v : v + 1], inertia=self.inertia[v : v + 1],
                        centroid=self.centroid[v : v + 1], gravity=self.gravity[v : v + 1],
                        v0=self.v0[v : v + 1])
+
+    @functools.cached_property
+    def load_jacobian(self) -> LoadJacobian:
+        """The exact derivatives of Q (:class:`LoadJacobian`), by reverse accumulation over
+        each load's graph (:meth:`mechdsl.symbolic.Graph.gradient`), compiled once per
+        model on first use (the explicit integrators never need them)."""
+        g = self.graph
+        wrt = [g.var("q", k) for k in range(self.n)] + [g.var("qd", k) for k in range(self.n)]
+        nodes, rows, cols, which = [], [], [], []
+        for i, root in enumerate(self.load_nodes):
+            if root.op == "const":
+                continue
+            for k, d in enumerate(g.gradient(root, wrt)):
+                if d.op == "const" and d.value == 0.0:
+                    continue
+                nodes.append(d)
+                rows.append(i)
+                cols.append(k % self.n)
+                which.append(k // self.n)
+        return LoadJacobian(kernel(g, nodes, "load_jacobian") if nodes else None,
+                            np.array(rows, dtype=np.intp), np.array(cols, dtype=np.intp),
+                            np.array(which, dtype=np.intp))
+
+    def load_derivative_values(self, q: np.ndarray, qd: np.ndarray, t: np.ndarray
+                               ) -> np.ndarray:
+        """The entries of dQ/dq and dQ/dqd in :attr:`load_jacobian`'s order, (V, b, nnz)."""
+        lj = self.load_jacobian
+        if lj.kernel is None:
+            return np.zeros(q.shape[:-1] + (0,))
+        with np.errstate(all="ignore"):
+            return lj.kernel(q, qd, np.broadcast_to(t, q.shape[:-1]), self.params,
+                             self.functions)
 
     def generalised_forces(self, q: np.ndarray, qd: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Q(q, qd, t), shape (V, b, n)."""

@@ -1,0 +1,261 @@
+"""The leading matrix of the augmented Lagrangian, M + Phi_q^T W Phi_q, assembled and
+Cholesky-factorised from the compiled model's fixed sparsity pattern.
+
+For a mechanism whose bodies all have mass and inertia, M is symmetric positive definite and
+so is A = M + Phi_q^T W Phi_q for any W = diag(w) > 0, whatever the rank of Phi_q: a
+Cholesky factorisation exists at redundant constraints and at singular positions alike.
+Its pattern is the union of M's (3 x 3 blocks per body) and of Phi_q^T Phi_q's (the
+coordinates two equations share): fixed for a model, so the ordering is chosen once.
+
+Two storages, chosen once per model (:func:`plan`):
+
+* **dense**, for few coordinates (below ``SolverOptions.augmented_band_from``): the
+  regularised saddle-point matrix R = [[M, J^T], [J, -W^-1]], whose inverse applies the
+  augmented Lagrangian's step (A^-1 inside it: :class:`Factor`), by LAPACK's dense LU
+  (dgetrf/dgetrs), the fewest numpy calls per evaluation, which is what a small model's
+  evaluation costs;
+* **band**: the coordinates in reverse Cuthill-McKee order on the symmetric pattern of A
+  (scipy.sparse.csgraph), A stored in LAPACK's lower band storage (kd + 1, n) and factorised
+  by dpbtrf/dpbtrs: O(n kd^2) and O(n kd) for a band of half-width kd. A chain or a ladder
+  of loops keeps kd a few bodies wide whatever its length, so the cost is linear in the
+  number of bodies (measured: tests/test_motion.py and benchmarks/a02_motion.py).
+
+Each entry of A is a sum of one entry of M and products w_r J_rk J_rl of two entries of
+the same row r of Phi_q: the plan lists, once, where every such term goes in the storage,
+so that assembling A at a state is one ``np.bincount`` (no sparse-matrix arithmetic).
+
+BLAS threads: neither storage makes a call that a multithreaded BLAS spreads over threads
+(the band factorisation of a half-width of a few is LAPACK's unblocked code; the dense LU
+is of at most about 80 rows), so the machine's other work does not slow it: measured on
+this shared two-core machine, one evaluation of A02 (N = 40, 243 coordinates) takes 0.24 ms
+with one OpenBLAS thread and 0.20 ms with two (noise), where the dense 485 x 485 LU of the
+saddle-point matrix takes 23 ms with one thread and 51 ms with two. No thread limit
+(threadpoolctl) is therefore needed here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Where each term of A = M + Phi_q^T W Phi_q goes, for one model.
+
+    ``mass_at``: the entries of M (of ``Dynamics.rows/cols``) that lie in the stored lower
+    triangle; ``k1``, ``k2``, ``pair_row``: the pairs of Phi_q entries (indices into its
+    values) of one row whose product lands in the stored triangle. ``perm`` orders the
+    coordinates (new i is old perm[i]); ``kd`` is the half-bandwidth, or -1 for the dense
+    storage; ``size`` the length of the flat storage."""
+
+    n: int
+    m: int
+    kd: int
+    perm: np.ndarray
+    mass_at: np.ndarray
+    k1: np.ndarray
+    k2: np.ndarray
+    pair_row: np.ndarray
+    #: the flat index in the storage of each term (M's entries, then the pairs')
+    where: np.ndarray
+    size: int
+    #: the patterns of M and of Phi_q, and of the saddle-point matrix [[M, J^T], [J, 0]]
+    #: (its entries: M's, J's, J^T's): as (row, column) index arrays and, for the dense
+    #: storage, as flat indices into the (n + m) x (n + m) matrix
+    mass_rows: np.ndarray
+    mass_cols: np.ndarray
+    jac_rows: np.ndarray
+    jac_cols: np.ndarray
+    k_rows: np.ndarray
+    k_cols: np.ndarray
+    #: the flat index in K of each value of [J's entries, J^T's, M's], and the order of
+    #: those values along ``k_rows``/``k_cols`` (M's, J^T's, J's)
+    kkt_at: np.ndarray
+    kkt_order: np.ndarray
+    #: the n x n identity (the dense storage's [I, J^T W]) and the flat indices of the
+    #: multipliers' diagonal in the (n + m) x (n + m) matrix T
+    eye: np.ndarray
+    w_diag: np.ndarray
+
+    @property
+    def dense(self) -> bool:
+        return self.kd < 0
+
+
+def _pairs(jac_rows: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every ordered pair (k1, k2) of Phi_q entries in the same row (k1 == k2 included)."""
+    order = np.argsort(jac_rows, kind="stable")
+    starts = np.searchsorted(jac_rows[order], np.arange(m + 1))
+    k1, k2 = [], []
+    for r in range(m):
+        ks = order[starts[r]:starts[r + 1]]
+        if len(ks):
+            a, b = np.meshgrid(ks, ks, indexing="ij")
+            k1.append(a.ravel())
+            k2.append(b.ravel())
+    if not k1:
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    return np.concatenate(k1), np.concatenate(k2)
+
+
+def plan(n: int, m: int, mass_rows: np.ndarray, mass_cols: np.ndarray,
+         jac_rows: np.ndarray, jac_cols: np.ndarray, band_from: int) -> Plan:
+    """The storage and ordering of A for a model of n coordinates and m equations: dense
+    below ``band_from`` coordinates or where the band would not be narrow (half-width
+    above n / 4: a band that wide does no less work than the dense factorisation), else
+    the band of the reverse Cuthill-McKee order."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+    k1, k2 = _pairs(jac_rows, m)
+    pr, pc = jac_cols[k1], jac_cols[k2]
+    rows = np.concatenate((mass_rows, pr, np.arange(n)))
+    cols = np.concatenate((mass_cols, pc, np.arange(n)))
+    perm = np.arange(n)
+    kd = -1
+    if n >= band_from:
+        pattern = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)).tocsr()
+        order = np.asarray(reverse_cuthill_mckee(pattern, symmetric_mode=True), np.intp)
+        rank = np.empty(n, np.intp)
+        rank[order] = np.arange(n)
+        width = int(np.abs(rank[rows] - rank[cols]).max(initial=0))
+        if width <= n // 4:
+            perm, kd = order, width
+    rank = np.empty(n, np.intp)
+    rank[perm] = np.arange(n)
+
+    def where(r: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        i, j = rank[r], rank[c]
+        keep = i >= j  # the lower triangle (what dpotrf and dpbtrf read with lower=1)
+        i, j = i[keep], j[keep]
+        # both Fortran-ordered: column j holds rows i (dense) or i - j (band)
+        flat = j * n + i if kd < 0 else j * (kd + 1) + (i - j)
+        return np.flatnonzero(keep), flat.astype(np.intp)
+
+    mass_at, mass_where = where(mass_rows, mass_cols)
+    at, pair_where = where(pr, pc)
+    size = n * n if kd < 0 else (kd + 1) * n
+    big, nnz = n + m, len(jac_rows)
+    return Plan(n, m, kd, perm, mass_at, k1[at], k2[at], jac_rows[k1[at]],
+                np.concatenate((mass_where, pair_where)), size,
+                mass_rows, mass_cols, jac_rows, jac_cols,
+                np.concatenate((mass_rows, jac_cols, n + jac_rows)),
+                np.concatenate((mass_cols, n + jac_rows, jac_cols)),
+                np.concatenate(((n + jac_rows) * big + jac_cols, jac_cols * big + n + jac_rows,
+                                mass_rows * big + mass_cols)),
+                np.concatenate((2 * nnz + np.arange(len(mass_rows)), nnz + np.arange(nnz),
+                                np.arange(nnz))),
+                np.eye(n) if kd < 0 else np.zeros((0, 0)),
+                (n + np.arange(m)) * big + n + np.arange(m))
+
+
+class Factor:
+    """A = M + Phi_q^T W Phi_q at one state, Cholesky-factorised (see the module), with the
+    two products the augmented Lagrangian iteration
+    (:meth:`mechdsl.solve.motion.Motion.saddle`) needs, on z = [x; lambda] (J = Phi_q):
+
+    * :meth:`kkt`: K z = [M x + J^T lambda; J x], K the saddle-point matrix [[M, J^T],
+      [J, 0]];
+    * :meth:`step`: the iteration's correction of z for the residual rho = [r; s]:
+      dx = A^-1 (r + J^T W s), dlambda = W (J dx - s). (That is R^-1 rho for the
+      regularised saddle-point matrix R = [[M, J^T], [J, -W^-1]], whose inverse is
+      [[A^-1, A^-1 J^T W], [W J A^-1, W J A^-1 J^T W - W]]: the augmented Lagrangian
+      iteration is iterative refinement of K z = [b; c] preconditioned by R^-1.)
+
+    ``entries`` are the values of [Phi_q's entries, Phi_q's entries again, M's entries]
+    (the order in which the one-state kernels give them: the entries of K).
+
+    Dense below the plan's band size: there R itself is factorised, by LAPACK's LU
+    (dgetrf: R is quasi-definite, hence non-singular wherever A is positive definite), so
+    that a correction is one dgetrs and K z one matrix-vector product: for a small model
+    the numpy calls' overhead, not their arithmetic, is the cost, and this takes the
+    fewest (measured on Andrews' 21 coordinates: the LU of R and one dgetrs per iteration,
+    13 us + 2 us, against 25 us + 1.5 us for A's Cholesky and R^-1 formed from it). R's
+    factor is only a preconditioner: its rounding (about the penalty times the unit
+    round-off, R's condition) slows the contraction a little and does not reach the fixed
+    point, which the residuals formed afresh from K decide. Else A is factorised in the
+    band storage (dpbtrf) and the products are formed in the fixed patterns
+    (``np.bincount``, O(nnz))."""
+
+    __slots__ = ("plan", "c", "n", "m", "w", "_k", "_piv", "_jv", "_vals", "_solve")
+
+    def __init__(self, plan: Plan, entries: np.ndarray, w: np.ndarray, lapack: tuple,
+                 minus_inverse: np.ndarray) -> None:
+        """``minus_inverse``: -1 / w, R's diagonal block (computed once per model)."""
+        dgetrf, dgetrs, dpbtrf, dpbtrs = lapack
+        self.plan = p = plan
+        self.n, self.m, self.w = n, m, w = p.n, p.m, w
+        if p.dense:
+            big = n + m
+            k = np.zeros(big * big)
+            k[p.kkt_at] = entries
+            r = k.copy()
+            r[p.w_diag] = minus_inverse
+            self._k = k.reshape(big, big)
+            # R is symmetric: its transpose is the Fortran-ordered array LAPACK wants
+            c, self._piv, info = dgetrf(r.reshape(big, big).T, overwrite_a=1)
+            # (U's diagonal: R is non-singular; a zero pivot is a NaN or an A that is not
+            # positive definite)
+            self._solve = dgetrs
+        else:
+            nnz = len(p.jac_rows)
+            jv, mv = entries[:nnz], entries[2 * nnz:]
+            vals = np.concatenate((mv[p.mass_at], w[p.pair_row] * jv[p.k1] * jv[p.k2]))
+            flat = np.bincount(p.where, vals, minlength=p.size)
+            c, info = dpbtrf(flat.reshape((p.kd + 1, n), order="F"), lower=1,
+                             overwrite_ab=1)
+            self._jv, self._vals = jv, entries[p.kkt_order]
+            self._k = None
+            self._solve = dpbtrs
+        if info != 0:
+            # A is not positive definite: a body without mass or inertia whose motion the
+            # constraints do not fix (or a NaN in the state)
+            raise np.linalg.LinAlgError("the augmented mass matrix is not positive definite")
+        self.c = c
+
+    def kkt(self, z: np.ndarray) -> np.ndarray:
+        """K z = [M x + J^T lambda; J x] for z = [x; lambda]."""
+        p = self.plan
+        if p.dense:
+            return self._k @ z
+        return np.bincount(p.k_rows, self._vals * z[p.k_cols], minlength=self.n + self.m)
+
+    def step(self, rho: np.ndarray) -> np.ndarray:
+        """The correction [dx; dlambda] = R^-1 rho (the class docstring)."""
+        p = self.plan
+        if p.dense:
+            return self._solve(self.c, self._piv, rho)[0]
+        n, w, jv = self.n, self.w, self._jv
+        ws = w * rho[n:]
+        b = rho[:n] + np.bincount(p.jac_cols, jv * ws[p.jac_rows], minlength=n)
+        dx = np.empty(n)
+        dx[p.perm] = self._solve(self.c, b[p.perm], lower=1)[0]
+        jd = np.bincount(p.jac_rows, jv * dx[p.jac_cols], minlength=self.m)
+        return np.concatenate((dx, w * jd - ws))
+
+    def j(self, x: np.ndarray) -> np.ndarray:
+        """J x."""
+        p = self.plan
+        if p.dense:
+            return self._k[self.n:, :self.n] @ x
+        return np.bincount(p.jac_rows, self._jv * x[p.jac_cols], minlength=self.m)
+
+    def j_abs(self, x: np.ndarray) -> np.ndarray:
+        """|J| |x| (entrywise absolute values): the size of the terms that J x sums."""
+        p = self.plan
+        if p.dense:
+            return np.abs(self._k[self.n:, :self.n]) @ np.abs(x)
+        return np.bincount(p.jac_rows, np.abs(self._jv * x[p.jac_cols]), minlength=self.m)
+
+    def jt(self, y: np.ndarray) -> np.ndarray:
+        """J^T y."""
+        p = self.plan
+        if p.dense:
+            return self._k[:self.n, self.n:] @ y
+        return np.bincount(p.jac_cols, self._jv * y[p.jac_rows], minlength=self.n)
+
+    def m_times(self, x: np.ndarray) -> np.ndarray:
+        """M x."""
+        return self.kkt(np.concatenate((x, np.zeros(self.m))))[:self.n]
