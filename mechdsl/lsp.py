@@ -25,6 +25,11 @@ answers:
 Options, as the client's ``initializationOptions``: ``{"debounce": seconds, "assemble":
 false}`` (no ``mechdsl check`` of each file). Ranges are LSP's: lines and characters from 0,
 where mechdsl's spans count from 1.
+
+Limits, those of the command line: a document over :data:`mechdsl.reading.MAX_MODEL_BYTES`
+gets one diagnostic that says so and is never parsed (every request on it answers empty), and
+a message over :func:`max_message_bytes` is skipped unread (:func:`read_messages`). Requests
+read only the documents the client opened, never a file from disk.
 """
 
 from __future__ import annotations
@@ -35,6 +40,168 @@ from .errors import MechError
 #: Seconds without a change before a changed file is checked again (initializationOptions
 #: ``{"debounce": seconds}``): a check per keystroke would queue behind the typing
 DEBOUNCE = 0.3
+
+#: The most one character of a document can grow to in a JSON message, per byte of its UTF-8:
+#: a control character (1 byte) is sent as ``\\u0001`` (6); two-, three- and four-byte
+#: characters become at most 6, 6 and 12 (a surrogate pair), i.e. 3x, 2x and 3x. A message
+#: that carries a document within :data:`mechdsl.reading.MAX_MODEL_BYTES` is therefore at most
+#: this many times the limit, plus :data:`MESSAGE_ENVELOPE_BYTES`
+JSON_ESCAPE_FACTOR = 6
+#: Room for what surrounds a document's text in a message: the method, URI, version, ranges
+MESSAGE_ENVELOPE_BYTES = 64 * 2**10
+#: A header line longer than this is not one of LSP's (``Content-Length: N``) and is skipped
+HEADER_LINE_BYTES = 4 * 2**10
+#: A message body over the limit is skipped in pieces of this size; its first
+#: :data:`MESSAGE_HEAD_BYTES` are kept to find its method, id and document (:func:`head_fields`)
+SKIP_BYTES = 2**20
+MESSAGE_HEAD_BYTES = 64 * 2**10
+#: Edits are followed while a document and the text they insert stay within this many times
+#: the model limit: pygls applies each change to the whole text, line by line, and a larger
+#: text is refused in the end anyway
+EDIT_FACTOR = 2
+
+
+def max_message_bytes() -> int:
+    """The largest JSON-RPC message the server reads: :data:`JSON_ESCAPE_FACTOR` times
+    :data:`mechdsl.reading.MAX_MODEL_BYTES` (read now, so that raising the model limit raises
+    this one) plus :data:`MESSAGE_ENVELOPE_BYTES`: 24 MiB and 64 KiB by default. Any document
+    the command line would read fits in one message; a larger message is skipped unread."""
+    from . import reading
+
+    return JSON_ESCAPE_FACTOR * reading.MAX_MODEL_BYTES + MESSAGE_ENVELOPE_BYTES
+
+
+def document_size(text: str) -> int:
+    """The size of ``text`` in UTF-8 bytes (what the command line's limit counts), measured a
+    piece at a time so that a large document is not copied whole."""
+    step = 2**20
+    return sum(len(text[i:i + step].encode("utf-8", "surrogatepass"))
+               for i in range(0, len(text), step))
+
+
+def over_limit(text: str) -> int | None:
+    """The UTF-8 size of ``text`` if it is over :data:`mechdsl.reading.MAX_MODEL_BYTES` (read
+    now), else None."""
+    from . import reading
+
+    size = document_size(text)
+    return size if size > reading.MAX_MODEL_BYTES else None
+
+
+def too_big_message(size: int, how: str = "file") -> str:
+    """The one diagnostic of a document over the model limit. ``how``: ``"file"`` (the
+    document is ``size`` bytes), ``"message"`` (it came in a message of ``size`` bytes, over
+    :func:`max_message_bytes`, that was not read) or ``"edit"`` (an edit would take it to up
+    to ``size`` characters, past what the server follows, and its text was dropped)."""
+    from . import reading
+    from .memory import size_text
+
+    limit = reading.MAX_MODEL_BYTES
+    over = (f"over the limit of {size_text(limit)} ({limit:,} bytes) on a model "
+            "(mechdsl.reading.MAX_MODEL_BYTES)")
+    if how == "message":
+        first = (f"this file came in a message of {size_text(size)} ({size:,} bytes), more than "
+                 f"the {size_text(max_message_bytes())} the server reads at once: the file is "
+                 + over)
+    elif how == "edit":
+        first = (f"an edit would make this file up to {size_text(size)} ({size:,} characters), "
+                 f"more than the {EDIT_FACTOR} x {size_text(limit)} the server follows, and "
+                 f"the file is then {over}")
+    else:
+        first = f"this file is {size_text(size)} ({size:,} bytes), {over}"
+    out = (first + ". The command line refuses to read it too (mechdsl check, run and the "
+           "others stop with an error, exit 1), and the editor does not check it: split the "
+           "model, or raise mechdsl.reading.MAX_MODEL_BYTES in a program that needs larger "
+           "files")
+    if how != "file":
+        out += ". The server has not kept its text: close and reopen the file once it is smaller"
+    return out
+
+
+def head_fields(head: bytes) -> dict[str, object]:
+    """The strings and numbers of the first bytes of a JSON message that are complete there, by
+    path (``"method"``, ``"id"``, ``"params.textDocument.uri"``): how a message too large to
+    be read whole can still be answered. Stops at the first thing that is not JSON."""
+    import json
+
+    text = head.decode("utf-8", "replace")
+    decoder = json.JSONDecoder()
+    out: dict[str, object] = {}
+    frames: list[list] = []  # per open object or array: [is_object, key, expecting_key]
+    i, n = 0, len(text)
+    while i < n:
+        c = text[i]
+        if c in " \t\r\n":
+            i += 1
+        elif c in "{[":
+            frames.append([c == "{", None, c == "{"])
+            i += 1
+        elif c in "}]":
+            if frames:
+                frames.pop()
+            i += 1
+        elif c == ",":
+            if frames and frames[-1][0]:
+                frames[-1][2] = True
+            i += 1
+        elif c == ":":
+            i += 1
+        else:
+            try:
+                value, end = decoder.raw_decode(text, i)
+            except ValueError:
+                break
+            if end >= n:  # may be cut short by the end of the head
+                break
+            top = frames[-1] if frames else None
+            if top is not None and top[0] and top[2]:
+                top[1], top[2] = value, False
+            elif top is not None and all(f[0] and isinstance(f[1], str) for f in frames) \
+                    and isinstance(value, (str, int, float)):
+                out.setdefault(".".join(f[1] for f in frames), value)
+            i = end
+    return out
+
+
+async def read_messages(rfile, deliver, refuse, blocking) -> None:
+    """Read LSP's framed messages (``Content-Length: N``, a blank line, N bytes) from the
+    binary file ``rfile`` until its end, with bounded memory: ``deliver(body)`` gets each body
+    within :func:`max_message_bytes`; a larger one is skipped unread, in pieces of
+    :data:`SKIP_BYTES`, and ``refuse(size, head)`` gets its size and first bytes. A header
+    line that is not LSP's is skipped, and a length is found at the end of a line, so that the
+    stream is picked up again after a message whose length was wrong. Each read is
+    ``await blocking(function, *args)`` (the event loop's executor in the server), and the next
+    one starts only once a message is handled: a slow server reads no further ahead."""
+    import re
+
+    length_header = re.compile(rb"Content-Length:[ \t]*(\d{1,20})[ \t]*\r?\n\Z", re.I)
+    length = None
+    while not rfile.closed:
+        line = await blocking(rfile.readline, HEADER_LINE_BYTES)
+        if not line:
+            return
+        found = length_header.search(line)
+        if found:
+            length = int(found.group(1))
+        elif line.strip() or length is None:
+            continue  # another header (Content-Type), or not a header at all
+        elif length > max_message_bytes():
+            head, left = b"", length
+            while left:
+                piece = await blocking(rfile.read, min(SKIP_BYTES, left))
+                if not piece:
+                    return
+                if len(head) < MESSAGE_HEAD_BYTES:
+                    head += piece[:MESSAGE_HEAD_BYTES - len(head)]
+                left -= len(piece)
+            refuse(length, head)
+            length = None
+        else:
+            body = await blocking(rfile.read, length)
+            if len(body) < length:
+                return
+            deliver(body)
+            length = None
 
 
 def _range(span, lsp):
@@ -295,19 +462,56 @@ def references(text: str, line: int, character: int) -> list[tuple[int, int, int
 
 
 def rename_problem(text: str, line: int, character: int, new_name: str) -> str | None:
-    """Why what is under the cursor cannot be renamed to ``new_name`` (None if it can)."""
+    """Why what is under the cursor cannot be renamed to ``new_name`` (None if it can; its own
+    name is always accepted, which is how prepareRename asks whether it can be renamed).
+
+    Refused, with the reason: anything but a declared param, body, point, joint, drive, force
+    or named output; a new name that is not a name of the language (a keyword, ``2x``); the
+    time ``t``, a constant, a function (those of expressions, ``table``, those of outputs);
+    for a point, ``origin`` and the body's quantities (``x``, ``phi``...); elsewhere the energy
+    quantities; and a name already declared in the same scope: params, bodies (and the
+    ground), joints, drives, forces and named outputs share one, each body's points another.
+    The lists are the language's own (:mod:`mechdsl.grammar.checks`, :mod:`.grammar.symbols`,
+    :mod:`.grammar.model`)."""
+    from .errors import cut
+    from .grammar import expr as E
+    from .grammar.checks import RESERVED
+    from .grammar.model import BODY_QUANTITIES, ENERGY_QUANTITIES
     from .grammar.parser import _parser
-    from .grammar.symbols import DECLARED_KINDS
+    from .grammar.symbols import DECLARED_KINDS, GROUND, ORIGIN, OUTPUT_FUNCTIONS, TIME
 
     table, sym = _symbol_at(text, line, character)
     if sym is None or sym.kind not in DECLARED_KINDS or table.declaration(sym) is None:
         return "only a param, body, point, joint, drive, force or named output can be renamed"
-    toks = list(_parser().lex(new_name)) if new_name.isidentifier() else []
-    if not (new_name.isascii() and len(toks) == 1 and toks[0].type == "NAME"):
-        return f"'{new_name}' is not a name the language accepts (a keyword, or not a name)"
-    clash = table.declared(sym.kind, sym.owner if sym.kind == "point" else None)
-    if new_name in clash and new_name != sym.name:
-        return f"there is already a {sym.kind} named '{new_name}'"
+    if new_name == sym.name:
+        return None
+    shown = cut(new_name)
+    toks = list(_parser().lex(new_name)) if new_name.isidentifier() and new_name.isascii() \
+        else []
+    if len(toks) == 1 and toks[0].type != "NAME":
+        return f"'{shown}' is a keyword of the language; choose another name"
+    if len(toks) != 1:
+        return (f"'{shown}' is not a name: a name is a letter or '_' followed by letters, "
+                "digits and '_' (ASCII)")
+    if new_name == TIME:
+        return "'t' is reserved: it is the time"
+    if new_name in E.CONSTANTS:
+        return f"'{shown}' is reserved: it is a constant"
+    if new_name in RESERVED or new_name in OUTPUT_FUNCTIONS:
+        return f"'{shown}' is reserved: it is a function of the language"
+    if sym.kind == "point":
+        if new_name == ORIGIN:
+            return "'origin' is reserved: every body has the point origin = (0, 0)"
+        if new_name in BODY_QUANTITIES:
+            return f"'{shown}' is reserved: {sym.owner}.{shown} is an output quantity of the body"
+        if new_name in table.declared("point", sym.owner):
+            return f"body {sym.owner} already has a point named '{shown}'"
+        return None
+    if new_name in ENERGY_QUANTITIES:
+        return f"'{shown}' is reserved: it is an output quantity"
+    for kind in ("param", "body", "joint", "drive", "force", "output"):
+        if new_name in table.declared(kind) or (kind == "body" and new_name == GROUND):
+            return f"there is already a {kind} named '{shown}'"
     return None
 
 
@@ -427,41 +631,264 @@ def folding_ranges(text: str) -> list[tuple[int, int]]:
     return out
 
 
+class _Checker:
+    """An executor of one daemon thread, for the checks of files: the process does not wait
+    for a check still running when the client says exit (a thread pool's threads are joined
+    at exit: a large model kept the server running for its whole check)."""
+
+    def __init__(self) -> None:
+        import queue
+        import threading
+
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        threading.Thread(target=self._work, name="mechdsl-check", daemon=True).start()
+
+    def submit(self, function, *args):
+        """Run ``function(*args)`` after the work already queued; its Future."""
+        from concurrent.futures import Future
+
+        future: Future = Future()
+        self._queue.put((future, function, args))
+        return future
+
+    def _work(self) -> None:
+        while True:
+            future, function, args = self._queue.get()
+            if not future.set_running_or_notify_cancel():
+                continue
+            try:
+                future.set_result(function(*args))
+            except BaseException as err:  # noqa: BLE001 - handed to whoever awaits it
+                future.set_exception(err)
+
+
+def _frame(message: dict) -> bytes:
+    """``message`` as LSP sends it: a Content-Length header, a blank line, the JSON."""
+    import json
+
+    body = json.dumps(message).encode("utf-8")
+    return b"Content-Length: %d\r\n\r\n%s" % (len(body), body)
+
+
 def serve() -> None:
     """Run the server on standard input and output until the client ends it."""
     try:
         import lsprotocol.types as lsp
         from pygls.exceptions import JsonRpcException
+        from pygls.protocol import default_converter
         from pygls.server import LanguageServer
     except ImportError:
         raise MechError("the language server needs pygls: pip install mechdsl[lsp]") from None
     import asyncio
-    from concurrent.futures import ThreadPoolExecutor
+    import json
+    import logging
+    import sys
     from urllib.parse import unquote, urlparse
 
-    from . import __version__
+    from . import __version__, reading
+    from .errors import cut
     from .grammar.format import format_text
+    from .memory import size_text
     from .plugins.manager import build_registry
 
     server = LanguageServer("mechdsl", __version__)
     registry = build_registry()  # the installed types, once; never a file's plugin lines
     # one thread checks the files, off the event loop, so that typing stays answered while
     # a large model assembles; the newest text of a file is checked, older ones are dropped
-    checker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mechdsl-check")
+    checker = _Checker()
     pending: dict[str, asyncio.TimerHandle] = {}
     settings = {"debounce": DEBOUNCE, "assemble": True}
+    # the documents over the model limit, each with its one diagnostic: their text is not
+    # kept, and every request on them answers empty
+    oversized: dict[str, str] = {}
+    # initialize seen, shutdown seen: what the server answers before and after
+    stage = {"initialized": False, "shut down": False}
+    converter = default_converter()
+
+    class Refusal(JsonRpcException):
+        """A request refused on purpose (a rename to a reserved name): answered with its
+        reason, not an internal error."""
+
+    class Quiet(logging.Filter):
+        # pygls logs every error answer with a traceback, as if the server had failed
+        def filter(self, record: logging.LogRecord) -> bool:
+            return not (record.exc_info and isinstance(record.exc_info[1], Refusal))
+
+    class Transport:
+        """Standard output for pygls's answers and this module's; closing it (exit) closes
+        standard input too, as pygls's own adapter does."""
+
+        def __init__(self, rfile, wfile) -> None:
+            self.rfile, self.wfile = rfile, wfile
+
+        def write(self, data: bytes) -> None:
+            self.wfile.write(data)
+            self.wfile.flush()
+
+        def close(self) -> None:
+            self.rfile.close()
+            self.wfile.close()
 
     def path_of(uri: str) -> str:
         parsed = urlparse(uri)
         return unquote(parsed.path) if parsed.scheme == "file" else uri
 
+    def text_of(uri: str) -> str | None:
+        # only what the client opened: pygls would read any other URI from disk, unbounded
+        # (/dev/zero), and a document over the limit is never parsed
+        doc = server.workspace.text_documents.get(uri)
+        return None if doc is None or uri in oversized else doc.source
+
     async def publish(uri: str) -> None:
-        doc = server.workspace.get_text_document(uri)
+        doc = server.workspace.text_documents.get(uri)
+        if doc is None or uri in oversized:
+            return
         version, text = doc.version, doc.source
         found = await asyncio.get_running_loop().run_in_executor(
             checker, _diagnostics, text, path_of(uri), registry, lsp, settings["assemble"])
-        if server.workspace.get_text_document(uri).version == version:
+        now = server.workspace.text_documents.get(uri)
+        if now is not None and now.version == version and uri not in oversized:
             server.publish_diagnostics(uri, found, version=version)
+
+    def drop(uri: str, version, message: str) -> None:
+        """Keep an empty text for ``uri`` (so that later edits and closing still work) and
+        publish its one diagnostic, ``message``, on the first line."""
+        old = pending.pop(uri, None)
+        if old is not None:
+            old.cancel()
+        doc = server.workspace.text_documents.get(uri)
+        version = version if isinstance(version, int) else (doc.version if doc else None)
+        server.workspace.put_text_document(lsp.TextDocumentItem(
+            uri=uri, language_id=doc.language_id if doc and doc.language_id else "mech",
+            version=version or 0, text=""))
+        oversized[uri] = message
+        start = lsp.Position(line=0, character=0)
+        server.publish_diagnostics(uri, [lsp.Diagnostic(
+            range=lsp.Range(start=start, end=start), message=message,
+            severity=lsp.DiagnosticSeverity.Error, source="mechdsl")], version=version)
+
+    def reply_error(msg_id, code: int, message: str) -> None:
+        # an answer pygls cannot give: to a message it would fail to read, or never read
+        transport.write(_frame({"jsonrpc": "2.0", "id": msg_id,
+                                "error": {"code": int(code), "message": message}}))
+
+    def log(message: str, shown: bool = False) -> None:
+        server.show_message_log(message, lsp.MessageType.Error)
+        if shown:
+            server.show_message(message, lsp.MessageType.Error)
+
+    def refuse(size: int, head: bytes) -> None:
+        """A message over max_message_bytes(), skipped unread: answer what its first bytes
+        tell (a request's id, a document's URI), and say so in the client's log."""
+        fields = head_fields(head)
+        method, msg_id = fields.get("method"), fields.get("id")
+        uri = fields.get("params.textDocument.uri")
+        limit = max_message_bytes()
+        said = (f"a message of {size:,} bytes ({size_text(size)})"
+                + (f", {cut(method)}," if isinstance(method, str) else "")
+                + f" was refused unread: over the limit of {limit:,} bytes for one message "
+                f"({JSON_ESCAPE_FACTOR} x mechdsl.reading.MAX_MODEL_BYTES + "
+                f"{MESSAGE_ENVELOPE_BYTES // 1024} KiB)")
+        if isinstance(method, str) and isinstance(msg_id, (int, str)) \
+                and not isinstance(msg_id, bool):
+            log(said)
+            reply_error(msg_id, lsp.ErrorCodes.InvalidRequest, said)
+        elif method in (lsp.TEXT_DOCUMENT_DID_OPEN, lsp.TEXT_DOCUMENT_DID_CHANGE) \
+                and isinstance(uri, str) and stage["initialized"] and not stage["shut down"] \
+                and (method == lsp.TEXT_DOCUMENT_DID_OPEN
+                     or uri in server.workspace.text_documents):
+            log(said)
+            drop(uri, fields.get("params.textDocument.version"),
+                 too_big_message(size, "message"))
+        else:
+            log(said, shown=True)  # nothing else tells the user
+
+    def problem(data: dict) -> tuple[int, str] | None:
+        """What stops pygls from handling a JSON-RPC message, as (error code, message) for
+        its answer; None if nothing does. pygls leaves a request it cannot read unanswered
+        and logs a traceback, and reads any URI it is asked about from disk."""
+        method = data.get("method")
+        if not isinstance(method, str):
+            return lsp.ErrorCodes.InvalidRequest, "a message without a method"
+        known = server.lsp.fm.features.keys() | server.lsp.fm.builtin_features.keys()
+        if method not in known:
+            return lsp.ErrorCodes.MethodNotFound, f"mechdsl lsp has no method {cut(method)!r}"
+        if not stage["initialized"] and method not in (lsp.INITIALIZE, lsp.EXIT):
+            return lsp.ErrorCodes.ServerNotInitialized, "the server is not initialized yet"
+        if stage["shut down"] and method != lsp.EXIT:
+            return lsp.ErrorCodes.InvalidRequest, "the server is shut down; only exit remains"
+        types = lsp.METHOD_TO_TYPES.get(method)
+        if types is not None:
+            try:
+                converter.structure(data, types[0])
+            except Exception as err:  # noqa: BLE001 - cattrs' errors vary; all mean one thing
+                return (lsp.ErrorCodes.InvalidParams,
+                        f"invalid params for {method}: {cut(str(err), 200)}")
+        return None
+
+    def deliver(body: bytes) -> None:
+        """One message within the limit: checked here, then handed to pygls whole."""
+        nested = []
+
+        def hook(obj: dict) -> dict:
+            if "jsonrpc" in obj:  # pygls would take it for a message of its own
+                nested.append(obj)
+            return obj
+
+        try:
+            data = json.loads(body.decode("utf-8"), object_hook=hook)
+        except (ValueError, RecursionError):
+            log(f"a message of {len(body):,} bytes that is not JSON in UTF-8 was ignored")
+            return
+        msg_id = data.get("id") if isinstance(data, dict) else None
+        valid_id = isinstance(msg_id, (int, str)) and not isinstance(msg_id, bool)
+        if not isinstance(data, dict) or data.get("jsonrpc") != "2.0" or len(nested) > 1:
+            log("a message that is not one JSON-RPC 2.0 object was ignored")
+            if valid_id:
+                reply_error(msg_id, lsp.ErrorCodes.InvalidRequest, "not a JSON-RPC 2.0 request")
+            return
+        if "method" not in data:
+            return  # an answer: the server asks the client nothing
+        found = problem(data)
+        if found is None and data["method"] == lsp.TEXT_DOCUMENT_DID_CHANGE:
+            found = changed(data)
+            if found == "handled":
+                return
+        if found is not None:
+            code, message = found
+            if "id" in data:
+                reply_error(msg_id if valid_id else None, code, message)
+            elif code != lsp.ErrorCodes.MethodNotFound:  # LSP: notifications may be ignored
+                log(message)
+            return
+        if data["method"] == lsp.INITIALIZE:
+            stage["initialized"] = True
+        elif data["method"] == lsp.SHUTDOWN:
+            stage["shut down"] = True
+        del data, nested
+        server.lsp.data_received(b"Content-Length: %d\r\n\r\n%s" % (len(body), body))
+
+    def changed(data: dict):
+        """A didChange pygls may apply (None), or why not, or "handled" where the document's
+        text is not kept: pygls applies each change to the whole text, so a document is
+        followed while its text and what the edit inserts stay within EDIT_FACTOR times
+        the model limit."""
+        params = data["params"]
+        uri = params["textDocument"]["uri"]
+        doc = server.workspace.text_documents.get(uri)
+        if doc is None:
+            return lsp.ErrorCodes.InvalidParams, f"didChange of {cut(uri)}, which is not open"
+        changes = params["contentChanges"]
+        if uri in oversized and not any("range" not in c for c in changes):
+            return "handled"  # edits to a text not kept; a whole new text is looked at
+        size = grown = len(doc.source)
+        for change in changes:  # a change without a range is a whole new text
+            size = len(change["text"]) + (size if "range" in change else 0)
+            grown = max(grown, size)
+        if grown > EDIT_FACTOR * reading.MAX_MODEL_BYTES:
+            drop(uri, params["textDocument"]["version"], too_big_message(grown, "edit"))
+            return "handled"
+        return None
 
     def schedule(uri: str, delay: float) -> None:
         old = pending.pop(uri, None)
@@ -480,38 +907,62 @@ def serve() -> None:
                 settings["assemble"] = options["assemble"]
 
     @server.feature(lsp.TEXT_DOCUMENT_DID_OPEN)
-    async def did_open(ls, params: lsp.DidOpenTextDocumentParams) -> None:
-        await publish(params.text_document.uri)
+    def did_open(ls, params: lsp.DidOpenTextDocumentParams) -> None:
+        item = params.text_document
+        oversized.pop(item.uri, None)
+        size = over_limit(item.text)
+        if size is not None:
+            drop(item.uri, item.version, too_big_message(size))
+            return
+        asyncio.get_running_loop().create_task(publish(item.uri))
 
     @server.feature(lsp.TEXT_DOCUMENT_DID_CHANGE)
     def did_change(ls, params: lsp.DidChangeTextDocumentParams) -> None:
-        schedule(params.text_document.uri, float(settings["debounce"]))
+        uri = params.text_document.uri
+        doc = server.workspace.text_documents.get(uri)
+        if doc is None:
+            return
+        if uri in oversized and any(not hasattr(c, "range") for c in params.content_changes):
+            oversized.pop(uri)  # a whole new text: looked at afresh
+        if uri in oversized:
+            drop(uri, params.text_document.version, oversized[uri])
+            return
+        size = over_limit(doc.source)
+        if size is not None:
+            drop(uri, params.text_document.version, too_big_message(size))
+            return
+        schedule(uri, float(settings["debounce"]))
 
     @server.feature(lsp.TEXT_DOCUMENT_DID_CLOSE)
     def did_close(ls, params: lsp.DidCloseTextDocumentParams) -> None:
         old = pending.pop(params.text_document.uri, None)
         if old is not None:
             old.cancel()
+        oversized.pop(params.text_document.uri, None)
         server.publish_diagnostics(params.text_document.uri, [])
 
     @server.feature(lsp.TEXT_DOCUMENT_FORMATTING)
     def formatting(ls, params: lsp.DocumentFormattingParams):
-        doc = server.workspace.get_text_document(params.text_document.uri)
+        source = text_of(params.text_document.uri)
+        if source is None:
+            return []
         try:
-            new = format_text(doc.source, path_of(params.text_document.uri))
+            new = format_text(source, path_of(params.text_document.uri))
         except MechError:
             return []  # a file with errors is left as it is; its diagnostics say why
-        if new == doc.source:
+        if new == source:
             return []
-        lines = doc.source.split("\n")
+        lines = source.split("\n")
         end = lsp.Position(line=len(lines), character=0)
         return [lsp.TextEdit(range=lsp.Range(start=lsp.Position(line=0, character=0),
                                              end=end), new_text=new)]
 
     @server.feature(lsp.TEXT_DOCUMENT_HOVER)
     def hover(ls, params: lsp.HoverParams):
-        doc = server.workspace.get_text_document(params.text_document.uri)
-        text = hover_text(doc.source, path_of(params.text_document.uri),
+        source = text_of(params.text_document.uri)
+        if source is None:
+            return None
+        text = hover_text(source, path_of(params.text_document.uri),
                           params.position.line, params.position.character, registry)
         if text is None:
             return None
@@ -519,8 +970,9 @@ def serve() -> None:
 
     @server.feature(lsp.TEXT_DOCUMENT_DEFINITION)
     def definition(ls, params: lsp.DefinitionParams):
-        doc = server.workspace.get_text_document(params.text_document.uri)
-        found = definition_span(doc.source, params.position.line, params.position.character)
+        source = text_of(params.text_document.uri)
+        found = None if source is None else definition_span(
+            source, params.position.line, params.position.character)
         if found is None:
             return None
         return locations(params.text_document.uri, [found])[0]
@@ -532,36 +984,43 @@ def serve() -> None:
 
     @server.feature(lsp.TEXT_DOCUMENT_REFERENCES)
     def find_references(ls, params: lsp.ReferenceParams):
-        doc = server.workspace.get_text_document(params.text_document.uri)
+        source = text_of(params.text_document.uri)
+        if source is None:
+            return []
         return locations(params.text_document.uri, references(
-            doc.source, params.position.line, params.position.character))
+            source, params.position.line, params.position.character))
 
     @server.feature(lsp.TEXT_DOCUMENT_PREPARE_RENAME)
     def prepare_rename(ls, params: lsp.PrepareRenameParams):
-        doc = server.workspace.get_text_document(params.text_document.uri)
+        source = text_of(params.text_document.uri)
+        if source is None:
+            return None
         line, character = params.position.line, params.position.character
-        _, sym = _symbol_at(doc.source, line, character)
-        if sym is None or rename_problem(doc.source, line, character, sym.name) is not None:
+        _, sym = _symbol_at(source, line, character)
+        if sym is None or rename_problem(source, line, character, sym.name) is not None:
             return None
         return lsp.Range(start=lsp.Position(line=sym.line - 1, character=sym.column - 1),
                          end=lsp.Position(line=sym.line - 1, character=sym.end_column - 1))
 
     @server.feature(lsp.TEXT_DOCUMENT_RENAME, lsp.RenameOptions(prepare_provider=True))
     def rename(ls, params: lsp.RenameParams):
-        doc = server.workspace.get_text_document(params.text_document.uri)
-        problem = rename_problem(doc.source, params.position.line, params.position.character,
+        source = text_of(params.text_document.uri)
+        if source is None:
+            return None
+        problem = rename_problem(source, params.position.line, params.position.character,
                                  params.new_name)
         if problem is not None:
-            raise JsonRpcException(code=-32602, message=problem)  # InvalidParams, shown
-        spans = references(doc.source, params.position.line, params.position.character)
+            raise Refusal(code=lsp.ErrorCodes.InvalidParams, message=problem)  # shown
+        spans = references(source, params.position.line, params.position.character)
         edits = [lsp.TextEdit(range=loc.range, new_text=params.new_name)
                  for loc in locations(params.text_document.uri, spans)]
         return lsp.WorkspaceEdit(changes={params.text_document.uri: edits}) if edits else None
 
     @server.feature(lsp.TEXT_DOCUMENT_FOLDING_RANGE)
     def folding(ls, params: lsp.FoldingRangeParams):
-        doc = server.workspace.get_text_document(params.text_document.uri)
-        return [lsp.FoldingRange(start_line=a, end_line=b) for a, b in folding_ranges(doc.source)]
+        source = text_of(params.text_document.uri)
+        return [lsp.FoldingRange(start_line=a, end_line=b)
+                for a, b in (folding_ranges(source) if source is not None else [])]
 
     kinds = {"point": lsp.CompletionItemKind.Field, "quantity": lsp.CompletionItemKind.Property,
              "type": lsp.CompletionItemKind.Class, "keyword": lsp.CompletionItemKind.Keyword,
@@ -572,9 +1031,9 @@ def serve() -> None:
     @server.feature(lsp.TEXT_DOCUMENT_COMPLETION,
                     lsp.CompletionOptions(trigger_characters=[".", ":"]))
     def complete(ls, params: lsp.CompletionParams):
-        doc = server.workspace.get_text_document(params.text_document.uri)
-        items = completions(doc.source, params.position.line, params.position.character,
-                            registry)
+        source = text_of(params.text_document.uri)
+        items = [] if source is None else completions(
+            source, params.position.line, params.position.character, registry)
         return lsp.CompletionList(is_incomplete=False, items=[
             lsp.CompletionItem(label=label, kind=kinds[kind], detail=detail)
             for label, kind, detail in items])
@@ -582,12 +1041,39 @@ def serve() -> None:
     @server.feature(lsp.TEXT_DOCUMENT_SEMANTIC_TOKENS_FULL, lsp.SemanticTokensLegend(
         token_types=list(SEMANTIC_TYPES), token_modifiers=list(SEMANTIC_MODIFIERS)))
     def tokens_full(ls, params: lsp.SemanticTokensParams):
-        doc = server.workspace.get_text_document(params.text_document.uri)
-        return lsp.SemanticTokens(data=semantic_tokens(doc.source))
+        source = text_of(params.text_document.uri)
+        return lsp.SemanticTokens(data=semantic_tokens(source) if source is not None else [])
 
     @server.feature(lsp.TEXT_DOCUMENT_DOCUMENT_SYMBOL)
     def document_symbol(ls, params: lsp.DocumentSymbolParams):
-        doc = server.workspace.get_text_document(params.text_document.uri)
-        return _symbols(doc.source, path_of(params.text_document.uri), lsp)
+        source = text_of(params.text_document.uri)
+        return [] if source is None else _symbols(source, path_of(params.text_document.uri),
+                                                  lsp)
 
-    server.start_io()
+    # pygls's own reader (start_io, aio_readline) reads any message whole, whatever its
+    # length: this one is read_messages, and the rest is pygls 1's public surface
+    # (data_received, connection_made, fm, workspace.text_documents, the loop and its
+    # executor, shutdown, the logger's name). With pygls 2: start_io reads with
+    # pygls.io_.run_async (readexactly of any length) and data_received is gone; deliver would
+    # hand pygls server.protocol.handle_message(json.loads(body, object_hook=
+    # server.protocol.structure_message)), server.lsp becomes server.protocol and
+    # publish_diagnostics text_document_publish_diagnostics
+    rfile = sys.stdin.buffer
+    transport = Transport(rfile, sys.stdout.buffer)
+    server.lsp.connection_made(transport)
+    quiet = Quiet()
+    pygls_log = logging.getLogger("pygls.protocol.json_rpc")
+    pygls_log.addFilter(quiet)
+
+    async def blocking(function, *args):
+        return await server.loop.run_in_executor(server.thread_pool_executor, function, *args)
+
+    try:
+        server.loop.run_until_complete(read_messages(rfile, deliver, refuse, blocking))
+    except BrokenPipeError:
+        pass  # the client is gone
+    except (KeyboardInterrupt, SystemExit):
+        pass
+    finally:
+        pygls_log.removeFilter(quiet)
+        server.shutdown()

@@ -368,7 +368,7 @@ async def test_rename_a_joint_and_a_point_and_refuse_a_clash(client: LanguageCli
     assert prepared is None  # a type belongs to its plugin
     with pytest.raises(JsonRpcException, match="already a body named 'rod'"):
         await rename("body crank", "crank", "rod")
-    with pytest.raises(JsonRpcException, match="not a name the language accepts"):
+    with pytest.raises(JsonRpcException, match="'joint' is a keyword of the language"):
         await rename("param r", "r =", "joint", 0)
 
 
