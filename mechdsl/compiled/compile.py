@@ -190,7 +190,9 @@ class _Compiler:
             raise MechError(f"initial '{cut(initials[0].name)}' is for forward dynamics, and "
                             "the model has no masses: give its bodies mass and inertia, or "
                             "remove the statement", initials[0].span)
-        if initials and system.m >= system.n:
+        # the run is the kinematics where the drives fix every coordinate (the rule of
+        # mechdsl.solve.run.method_for: a model with masses and no drive is dynamics)
+        if initials and system.m >= system.n and system.drive_rows.size:
             raise MechError(
                 f"initial '{cut(initials[0].name)}' is for forward dynamics: the drives fix "
                 f"every coordinate ({system.n} coordinates, {system.m} equations of joints "

@@ -879,8 +879,11 @@ def simulate(system: System, options: SolverOptions | None = None, *,
 def method_for(system: System) -> str:
     """The method that solves ``system``: the kinematic march where the drives determine the
     motion (as many equations as coordinates, or more), the forward dynamics where they do
-    not and the model has masses."""
-    if system.m < system.n and system.dynamics is not None:
+    not and the model has masses. A model with masses and no drive at all is forward
+    dynamics whatever its count of equations: nothing could drive it, and as many joint
+    equations as coordinates means redundant constraints (a parallelogram with a third
+    crank), which the forward dynamics integrates."""
+    if system.dynamics is not None and (system.m < system.n or not system.drive_rows.size):
         return "dynamic"
     return "kinematic"
 
