@@ -1,0 +1,498 @@
+"""Radau IIA of order 5 on the index-3 equations of motion: stiff models, redundant constraints.
+
+**What is solved.** The equations of motion in the index-3 form, z = (q, v, lambda),
+
+    q' = v,    M(q) v' = Q(q, v, t) - Phi_q(q)^T lambda,    0 = Phi(q, t),
+
+written B(q) z' = F(t, z) with B = diag(I, M(q), 0) and F = (v, Q - Phi_q^T lambda, Phi).
+One step of size h from (t0, z0) is the three-stage Radau IIA collocation method (Hairer and
+Wanner, Solving Ordinary Differential Equations II, sec. IV.8 and VI.8 (code RADAU5), VII.4 on
+index-3 problems): the stage increments Z_j = z(t0 + c_j h) - z0, j = 1..3, solve
+
+    B(Q_j) (sum_k (A^-1)_jk Z_k) / h = F(t0 + c_j h, z0 + Z_j),       c = ((4 -+ sqrt 6)/10, 1),
+
+so every stage, the step's end z1 = z0 + Z_3 included, satisfies Phi(q, t) = 0 exactly (to the
+Newton tolerance): no drift, no projection needed by the stepper itself. The multipliers are
+unknowns of the step like q and v; velocities and accelerations are never differentiated.
+
+**The simplified Newton iteration.** The stage residual's Jacobian is replaced by
+h^-1 A^-1 (x) B0 - I (x) J0, with B0 = diag(I, M(q0), 0) and the exact derivatives
+
+    J0 = [[0, I, 0], [dQ/dq, dQ/dv, -Phi_q^T], [Phi_q, 0, 0]]      at (t0, q0, v0)
+
+(dQ/dq, dQ/dv from ``load_derivatives``); what is neglected is the derivative of M(q) v' and
+of Phi_q(q)^T lambda with respect to q (curvature terms of relative size |lambda| h^2 / |M|).
+Transforming the stages by the eigenvectors of A^-1 (one real eigenvalue gamma, one complex
+pair alpha +- i beta) splits the 3 (2n + m) unknowns into one real and one complex system
+E(c) = c B0 - J0, c = gamma / h or (alpha + i beta) / h. Each is reduced to n + m unknowns by
+eliminating dq = (dv + b_q) / c:
+
+    [[c M - dQ/dv - dQ/dq / c,  Phi_q^T],   [dv      ]   [b_v + dQ/dq b_q / c]
+     [Phi_q,                    -delta I]] . [dlambda] = [-c b_lambda - Phi_q b_q ],
+
+a sparse saddle-point matrix factorised by SuperLU (``splu``, COLAMD ordering): the
+factorisation is reused across Newton iterations and across steps while the step size stays
+within ``keep_ratio`` and Newton converges fast; the Jacobian is evaluated anew after a step
+whose Newton iteration converged slowly (rate > ``jac_rate``) or when it fails to converge;
+a non-converging iteration with a fresh Jacobian halves the step. The iteration stops when
+rate / (1 - rate) |dW| < ``newton_tol`` (Hairer's test, at most ``max_newton`` iterations).
+
+**Redundant constraints.** Where Phi_q is rank-deficient (consistent redundant constraints, a
+parallelogram's extra link, a passage through a singular position), [[S, Phi_q^T], [Phi_q, 0]]
+is singular. The lambda block carries -delta I, delta = ``regularization`` |Phi_q|^2 / |S|
+(max-norms; relative to the Schur complement's scale): the matrix is then regular, the
+perturbation of the iteration matrix is of relative size ``regularization`` (the residual is
+exact, so the converged stages are those of the unregularised equations). The multipliers'
+components in the null space of Phi_q^T are not determined by the equations and do not act on
+the motion: they are excluded from the Newton and error norms, and after every step the
+multipliers are replaced by their component in the range of Phi_q, (G G^T + eps I)^-1 G G^T
+lambda (without it they drift: the regularised matrix divides the curvature left in Phi along
+the redundant directions by delta; on the redundant parallelogram |lambda| reached 1e10 in one
+second and the step size underflowed).
+
+**Error control.** The estimate of RADAU5, err = E(gamma / h)^-1 (F(t0, z0) + B0 (e^T Z) / h)
+(e the embedded third-order weights), computed again from F(t0, z0 + err) after a rejection
+or on the first step (filtering the stiff components), measured as
+|err|_rms with sc_i = atol scale_i + rtol max(|y0_i|, |y1_i|) and with the index-3 scaling:
+the velocities' error multiplied by h, the multipliers' excluded (Hairer's recommendation for
+index-3 components). A step is accepted where |err| <= 1; the next step size comes from the
+predictive (Gustafsson) controller, h_new = h fac min(1, (h / h_prev) (err_prev / err)^1/4)
+err^-1/4 with the safety factor fac = 0.9 (2 k_max + 1) / (2 k_max + k_newton), limited to
+[``min_factor``, ``max_factor``]; a step size that would grow by less than ``keep_ratio`` is
+kept (the factorisation with it). Dense output: the collocation polynomial of the step
+(order 3 uniformly, exact at the stages).
+"""
+
+from __future__ import annotations
+
+from typing import Callable, ClassVar
+
+import numpy as np
+
+from .radau_stages import CoupledStages, triplets
+from .stepper import Equations, Stepper
+
+
+def _radau_constants() -> dict[str, np.ndarray | float | complex]:
+    """The Radau IIA (3 stages) coefficients, their eigen-decomposition and the error and
+    dense-output weights (as in scipy's Radau and Hairer's RADAU5)."""
+    s6 = 6.0 ** 0.5
+    c = np.array([(4 - s6) / 10, (4 + s6) / 10, 1.0])
+    A = np.array([[(88 - 7 * s6) / 360, (296 - 169 * s6) / 1800, (-2 + 3 * s6) / 225],
+                  [(296 + 169 * s6) / 1800, (88 + 7 * s6) / 360, (-2 - 3 * s6) / 225],
+                  [(16 - s6) / 36, (16 + s6) / 36, 1 / 9]])
+    mu_real = 3 + 3 ** (2 / 3) - 3 ** (1 / 3)
+    mu_complex = 3 + 0.5 * (3 ** (1 / 3) - 3 ** (2 / 3)) - 0.5j * (3 ** (5 / 6) + 3 ** (7 / 6))
+    T = np.array([[0.09443876248897524, -0.14125529502095421, 0.03002919410514742],
+                  [0.25021312296533332, 0.20412935229379994, -0.38294211275726192],
+                  [1.0, 1.0, 0.0]])
+    TI = np.linalg.inv(T)
+    E = np.array([-13 - 7 * s6, -13 + 7 * s6, -1.0]) / 3
+    P = np.array([[13 / 3 + 7 * s6 / 3, -23 / 3 - 22 * s6 / 3, 10 / 3 + 5 * s6],
+                  [13 / 3 - 7 * s6 / 3, -23 / 3 + 22 * s6 / 3, 10 / 3 - 5 * s6],
+                  [1 / 3, -8 / 3, 10 / 3]])
+    out = dict(c=c, A=A, Ainv=np.linalg.inv(A), T=T, TI_real=TI[0], TI_complex=TI[1] + 1j * TI[2],
+               E=E, P=P)
+    for a in out.values():
+        a.flags.writeable = False  # shared constants: nobody may change them
+    out.update(mu_real=mu_real, mu_complex=mu_complex)
+    return out
+
+
+_K = _radau_constants()
+
+
+def _mat(a: object) -> object:
+    """A matrix as the equations gave it, sparse as CSR, dense as a 2-d float array (both
+    multiply vectors with @; assembly takes their triplets)."""
+    import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
+    return a.tocsr() if sp.issparse(a) else np.atleast_2d(np.asarray(a, dtype=float))
+
+
+def _cat(*parts: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Triplets joined."""
+    return tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+
+
+def _amax(a: object) -> float:
+    import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
+    v = a.data if sp.issparse(a) else a
+    return float(np.max(np.abs(v))) if v.size else 0.0
+
+
+class RadauStepper(Stepper):
+    """Radau IIA (order 5, 3 stages) on the index-3 equations of motion; the module's
+    docstring has the formulation. Options (keywords, defaults):
+
+    ``newton_tol`` (None: max(10 eps / rtol, min(0.03, rtol^1/2)), Hairer's and scipy's),
+    ``max_newton`` = 6 iterations, ``jac_rate`` = 1e-3 (a Newton contraction rate above which
+    the Jacobian is evaluated anew after the step), ``keep_ratio`` = 1.2 (a step-size change
+    by a smaller factor is not made, to keep the factorisation), ``min_factor`` = 0.2 and
+    ``max_factor`` = 10 (bounds of one step-size change), ``safety`` = 0.9,
+    ``regularization`` = 1e-10 (the relative size of the lambda block's -delta I that makes
+    redundant constraints solvable), ``stage_jacobians`` = True (where the common Jacobian
+    does not converge, each stage gets its own: module radau_stages) and ``stagewise_retry``
+    = 20 (accepted steps after which the common Jacobian is tried again)."""
+
+    name: ClassVar[str] = "radau"
+    order: ClassVar[int] = 5
+    implicit: ClassVar[bool] = True
+    redundant: ClassVar[bool] = True
+    summary: ClassVar[str] = ("Radau IIA order 5 on the index-3 form: stiff models, redundant "
+                              "constraints (sparse implicit, error-controlled)")
+
+    def __init__(self, equations: Equations, t0: float, y0: np.ndarray, t_bound: float, *,
+                 rtol: float, atol: float, scale: np.ndarray,
+                 first_step: float | None = None, newton_tol: float | None = None,
+                 max_newton: int = 6, jac_rate: float = 1e-3, keep_ratio: float = 1.2,
+                 min_factor: float = 0.2, max_factor: float = 10.0, safety: float = 0.9,
+                 regularization: float = 1e-10, stage_jacobians: bool = True,
+                 stagewise_retry: int = 20, index3_scaling: bool = True) -> None:
+        super().__init__(equations, t0, y0, t_bound, rtol=rtol, atol=atol, scale=scale,
+                         first_step=first_step)
+        self.n, self.m = int(equations.n), int(equations.m)
+        n = self.n
+        self.y = self.y_old = np.array(self.y, dtype=float)
+        sc = np.broadcast_to(np.asarray(scale, dtype=float), (2 * n,)) if scale is not None \
+            else np.ones(2 * n)
+        self._atol = atol * sc
+        self.newton_tol = newton_tol if newton_tol is not None else \
+            max(10 * np.finfo(float).eps / rtol, min(0.03, rtol ** 0.5))
+        self.max_newton, self.jac_rate, self.keep_ratio = max_newton, jac_rate, keep_ratio
+        self.min_factor, self.max_factor, self.safety = min_factor, max_factor, safety
+        self.regularization = regularization
+        self.stage_jacobians, self.stagewise_retry = stage_jacobians, stagewise_retry
+        self._stagewise, self._stagewise_steps = False, 0
+        self.index3_scaling = index3_scaling
+        self.lam = self._multipliers(self.t, self.y)
+        self._jac: tuple | None = None  # (M0, dQ/dq, dQ/dv, Phi_q) at the step's start
+        self._jac_current = True  # evaluated at the current state (not an older one)
+        self._lu: tuple | None = None   # factorisations for the current h
+        self._lu_h = 0.0
+        self._F0 = self._F(self.t, self.y, self.lam)
+        self._Z: np.ndarray | None = None  # the last accepted step's stage increments
+        self._h_prev: float | None = None
+        self._err_prev: float | None = None
+        self.h_abs = float(first_step) if first_step else self._first_step()
+
+    # -- evaluations ------------------------------------------------------------------------
+    def _multipliers(self, t: float, y: np.ndarray) -> np.ndarray:
+        self.nfev += 1
+        return np.asarray(self.equations.accelerations(t, y[:self.n], y[self.n:])[1], float)
+
+    def _F(self, t: float, y: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """F(t, z) = (v, Q - Phi_q^T lambda, Phi)."""
+        eq, n = self.equations, self.n
+        q, v = y[:n], y[n:2 * n]
+        phi, G = eq.phi_jac(t, q)
+        self.nfev += 1
+        return np.concatenate((v, eq.loads(t, q, v) - G.T @ lam, phi))
+
+    def _first_step(self) -> float:
+        """Hairer's starting step size (Solving ODEs I, sec. II.4) on the index-1 form."""
+        y, t = self.y, self.t
+        sc = self._atol + self.rtol * np.abs(y)
+        f0 = self.equations.rhs(t, y)
+        d0, d1 = np.sqrt(np.mean((y / sc) ** 2)), np.sqrt(np.mean((f0 / sc) ** 2))
+        h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
+        h0 = min(h0, abs(self.t_bound - t))
+        f1 = self.equations.rhs(t + h0, y + h0 * f0)
+        self.nfev += 2
+        d2 = np.sqrt(np.mean(((f1 - f0) / sc) ** 2)) / h0
+        h1 = max(1e-6, h0 * 1e-3) if max(d1, d2) <= 1e-15 else \
+            (0.01 / max(d1, d2)) ** (1 / (self.order + 1))
+        return min(100 * h0, h1, abs(self.t_bound - t))
+
+    def _jacobian(self, t: float, y: np.ndarray) -> None:
+        eq, n = self.equations, self.n
+        q, v = y[:n], y[n:]
+        dq, dv = eq.load_derivatives(t, q, v)
+        self._jac = (_mat(eq.mass(q)), _mat(dq), _mat(dv), _mat(eq.phi_jac(t, q)[1]))
+        self.njev += 1
+        self._set_pattern()
+        self._lu = None
+
+    # -- the linear algebra -----------------------------------------------------------------
+    def _delta(self, c: complex) -> float:
+        """The lambda block's regularisation, relative to the Schur complement G S^-1 G^T's
+        scale |G|^2 / |S| (S = c M - dQ/dv - dQ/dq / c)."""
+        S_scale = max(abs(c) * self._norms[0], self._norms[1], self._norms[2] / abs(c), 1e-300)
+        return self.regularization * self._norms[3] ** 2 / S_scale
+
+    def _factor(self, h: float, pair: bool = True) -> None:
+        """Factorise the reduced saddle-point matrices for c = gamma / h and (alpha + i
+        beta) / h (module docstring; only the real one unless ``pair``), on the sparsity
+        pattern fixed with the Jacobian."""
+        import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
+        from scipy.sparse.linalg import splu
+        dM, dC, dK, dI, indices, indptr, size = self._pattern
+        lus = []
+        for mu in (_K["mu_real"], _K["mu_complex"])[:2 if pair else 1]:
+            c = mu / h
+            data = c * dM - dC - dK / c - self._delta(c) * dI
+            K = sp.csc_matrix((data, indices, indptr), shape=(size, size))
+            lus.append(splu(K, permc_spec="COLAMD"))
+            self.nlu += 1
+        self._lu, self._lu_h = tuple(lus), h
+
+    def _set_pattern(self) -> None:
+        """The union sparsity pattern (CSC) of the reduced matrix's terms c M, dQ/dv +- Phi_q
+        blocks, dQ/dq / c and the lambda block, and each term's values on it: a
+        factorisation then costs one array expression and splu, not a sparse assembly."""
+        M, Kq, Cv, G = self._jac
+        n, m = self.n, self.m
+        size = n + m
+        terms = [triplets(M), _cat(triplets(Cv), triplets(G, 0, n, -1.0, True),
+                                   triplets(G, n, 0, -1.0)),
+                 triplets(Kq), (np.arange(n, size), np.arange(n, size), np.ones(m))]
+        rows = np.concatenate([t[0] for t in terms])
+        cols = np.concatenate([t[1] for t in terms])
+        key = cols.astype(np.int64) * size + rows  # column-major: CSC order
+        uniq, inverse = np.unique(key, return_inverse=True)
+        values, start = [], 0
+        for t in terms:
+            values.append(np.bincount(inverse[start:start + t[2].size], weights=t[2],
+                                      minlength=uniq.size))
+            start += t[2].size
+        indices = (uniq % size).astype(np.int32)
+        indptr = np.searchsorted(uniq // size, np.arange(size + 1)).astype(np.int32)
+        self._pattern = (*values, indices, indptr, size)
+        self._norms = (_amax(M), _amax(Cv), _amax(Kq), _amax(G) if m else 0.0)
+
+    def _solve(self, which: int, c: complex, b: np.ndarray) -> np.ndarray:
+        """x with E(c) x = b, E(c) = c B0 - J0, by the reduced saddle-point system."""
+        M, Kq, Cv, G = self._jac
+        n = self.n
+        bq, bv, bl = b[:n], b[n:2 * n], b[2 * n:]
+        rhs = np.concatenate((bv + Kq @ bq / c, -c * bl - G @ bq))
+        x = self._lu[which].solve(rhs)
+        dv = x[:n]
+        return np.concatenate(((dv + bq) / c, dv, x[n:]))
+
+    # -- one step ---------------------------------------------------------------------------
+    def _norm(self, x: np.ndarray, sc: np.ndarray, h: float) -> float:
+        """The rms norm of the (q, v) parts of x scaled by sc, v's multiplied by h (the
+        index-3 scaling); lambda excluded."""
+        n = self.n
+        s = np.concatenate((x[:n] / sc[:n], h * x[n:2 * n] / sc[n:]))
+        return float(np.sqrt(np.mean(np.abs(s) ** 2)))
+
+    def _hv(self, h: float) -> float:
+        """The factor of the velocities' error in the error norm: h (Hairer's index-3
+        scaling) or 1 (``index3_scaling`` False: velocities held to the tolerance too)."""
+        return h if self.index3_scaling else 1.0
+
+    def _transformed_solve(self, h: float) -> Callable[[np.ndarray], np.ndarray]:
+        """dZ from the stage residuals r by the transformed pair (T^-1 r: one real and one
+        complex system with the common Jacobian)."""
+        mur, muc = _K["mu_real"] / h, _K["mu_complex"] / h
+
+        def solve(r: np.ndarray) -> np.ndarray:
+            dWr = self._solve(0, mur, -(_K["TI_real"] @ r))
+            dWc = self._solve(1, muc, -(_K["TI_complex"] @ r))
+            return _K["T"] @ np.vstack((dWr, dWc.real, dWc.imag))
+        return solve
+
+    def _stage_jacobians(self, t: float, h: float, Z: np.ndarray) -> list[tuple]:
+        eq, n = self.equations, self.n
+        jacs = []
+        for j in range(3):
+            tj, qj, vj = t + _K["c"][j] * h, self.y[:n] + Z[j, :n], self.y[n:] + Z[j, n:2 * n]
+            dq, dv = eq.load_derivatives(tj, qj, vj)
+            jacs.append((_mat(eq.mass(qj)), _mat(dq), _mat(dv), _mat(eq.phi_jac(tj, qj)[1])))
+            self.njev += 1
+        return jacs
+
+    def _stagewise_solve(self, t: float, h: float, Z: np.ndarray
+                         ) -> Callable[[np.ndarray], np.ndarray]:
+        """The coupled stage system (module radau_stages) with the stages' own Jacobians at
+        the guess Z; the common Jacobian (for the error estimate) is the first stage's."""
+        jacs = self._stage_jacobians(t, h, Z)
+        self._jac = jacs[0]
+        self._set_pattern()
+        self._factor(h, pair=False)
+        coupled = CoupledStages(jacs, h, _K["A"], _K["Ainv"], self.n, self.m,
+                                self._delta(_K["mu_real"] / h))
+        self.nlu += 1
+        return coupled.solve
+
+    def _newton(self, t: float, h: float, Z: np.ndarray, sc: np.ndarray,
+                solve: Callable[[np.ndarray], np.ndarray]
+                ) -> tuple[bool, int, np.ndarray, float]:
+        """Simplified Newton on the stage system from the guess Z (3, 2n + m), dZ =
+        solve(residual); returns (converged, iterations, Z, contraction rate)."""
+        eq, n = self.equations, self.n
+        y0, lam0 = self.y, self.lam
+        c = _K["c"]
+        dZ_norm_old, rate, r = None, None, np.empty_like(Z)
+        for k in range(self.max_newton):
+            D = _K["Ainv"] @ Z[:, :2 * n] / h  # the stages' derivatives of q and v
+            for j in range(3):
+                tj = t + c[j] * h
+                qj, vj = y0[:n] + Z[j, :n], y0[n:] + Z[j, n:2 * n]
+                lj = lam0 + Z[j, 2 * n:]
+                phi, G = eq.phi_jac(tj, qj)
+                r[j, :n] = D[j, :n] - vj
+                r[j, n:2 * n] = eq.mass(qj) @ D[j, n:] - eq.loads(tj, qj, vj) + G.T @ lj
+                r[j, 2 * n:] = -np.asarray(phi)
+                self.nfev += 1
+            if not np.all(np.isfinite(r)):
+                return False, k + 1, Z, np.inf
+            dZ = solve(r)
+            dZ_norm = np.sqrt(sum(self._norm(w, sc, h) ** 2 for w in dZ) / 3)
+            if dZ_norm_old is not None:
+                rate = dZ_norm / dZ_norm_old
+                if rate >= 1 or rate ** (self.max_newton - k) / (1 - rate) * dZ_norm \
+                        > self.newton_tol:
+                    return False, k + 1, Z, rate
+            Z = Z + dZ
+            if dZ_norm == 0 or (rate is not None and rate / (1 - rate) * dZ_norm
+                                < self.newton_tol):
+                return True, k + 1, Z, (rate if rate is not None else 0.0)
+            dZ_norm_old = dZ_norm
+        return False, self.max_newton, Z, (rate if rate is not None else np.inf)
+
+    def step(self) -> str | None:
+        """Rule 2: one accepted step (module docstring), or the reason there is none."""
+        t, y, n = self.t, self.y, self.n
+        N = 2 * n + self.m
+        h = min(self.h_abs, self.t_bound - t)
+        rejected = False
+        while True:
+            if h < 10 * np.spacing(max(abs(t), abs(self.t_bound))):
+                return f"the step size underflowed at t = {t:.9g}"
+            if self.t_bound - t - h < 1e-10 * h:  # land on t_bound, not a hair before it
+                h = self.t_bound - t
+            if self._Z is None:
+                Z0 = np.zeros((3, N))
+            else:  # extrapolate the last step's collocation polynomial (Hairer)
+                x = (t + h * _K["c"] - self.t_old) / self._h_prev
+                Z0 = np.vstack([self._poly(xj) for xj in x]) - self._poly(1.0)
+            try:
+                if self._stagewise:
+                    solve = self._stagewise_solve(t, h, Z0)
+                else:
+                    if self._jac is None:
+                        self._jacobian(t, y)
+                        self._jac_current = True
+                    if self._lu is None or self._lu_h != h:
+                        self._factor(h)
+                    solve = self._transformed_solve(h)
+            except RuntimeError:  # SuperLU: the matrix is exactly singular
+                return f"the equations are singular at t = {t:.9g}"
+            sc = self._atol + self.rtol * np.abs(y)
+            ok, k, Z, rate = self._newton(t, h, Z0, sc, solve)
+            if not ok:
+                self.nrejected += 1
+                if not self._stagewise and not self._jac_current:
+                    self._jacobian(t, y)
+                    self._jac_current = True
+                    continue
+                if not self._stagewise and self.stage_jacobians:
+                    # a fresh common Jacobian does not converge: the stages need their own
+                    self._stagewise, self._stagewise_steps = True, 0
+                    continue
+                h *= 0.5
+                self._lu, rejected = None, True
+                continue
+            # the error estimate of RADAU5 with the mass matrix B0 = diag(I, M0, 0)
+            ZE = _K["E"] @ Z / h
+            M0 = self._jac[0]
+            base = self._F0.copy()
+            base[n:2 * n] += M0 @ ZE[n:2 * n]
+            base[:n] += ZE[:n]
+            err = self._solve(0, _K["mu_real"] / h, base)
+            y_new = y + Z[2, :2 * n]
+            sc = self._atol + self.rtol * np.maximum(np.abs(y), np.abs(y_new))
+            err_norm = self._norm(err, sc, self._hv(h))
+            if err_norm > 1 and (rejected or self.naccepted == 0):
+                F1 = self._F(t, y + err[:2 * n], self.lam + err[2 * n:])
+                F1[n:2 * n] += M0 @ ZE[n:2 * n]
+                F1[:n] += ZE[:n]
+                err_norm = self._norm(self._solve(0, _K["mu_real"] / h, F1), sc, self._hv(h))
+            if not np.isfinite(err_norm):
+                err_norm = np.inf
+            fac = self.safety * (2 * self.max_newton + 1) / (2 * self.max_newton + k)
+            if err_norm > 1:
+                self.nrejected += 1
+                h *= max(self.min_factor, fac * err_norm ** -0.25)
+                self._lu, rejected = None, True
+                continue
+            break
+        # accepted
+        if self._err_prev is None or self._h_prev is None or err_norm == 0:
+            mult = 1.0
+        else:
+            mult = h / self._h_prev * (self._err_prev / err_norm) ** 0.25
+        factor = min(1.0, mult) * (err_norm ** -0.25 if err_norm > 0 else self.max_factor)
+        factor = min(self.max_factor, fac * factor)
+        if rejected:
+            factor = min(1.0, factor)  # no growth right after a rejection
+        recompute = k > 2 and rate > self.jac_rate
+        if not recompute and factor < self.keep_ratio:
+            factor = 1.0
+        self.t_old, self.y_old = t, y
+        Z[:, 2 * n:] = self._range_part(t + h, y_new, Z[:, 2 * n:].T).T
+        self.t, self.y = t + h, y_new
+        self.lam = self._range_part(t + h, y_new, self.lam) + Z[2, 2 * n:]
+        self._Z, self._h_prev, self._err_prev = Z, h, err_norm
+        self.h_abs = h * factor
+        self.naccepted += 1
+        self._F0 = self._F(self.t, self.y, self.lam)
+        self._jac_current = False
+        if self._stagewise:
+            self._stagewise_steps += 1
+            if self._stagewise_steps >= self.stagewise_retry:
+                self._stagewise, self._jac, self._lu = False, None, None
+        elif recompute:
+            self._jacobian(self.t, self.y)
+            self._jac_current = True
+        return None
+
+    def _range_part(self, t: float, y: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """lambda's component in the range of Phi_q (lam (m,) or (m, k)),
+        (G G^T + eps I)^-1 G G^T lam with G = Phi_q at (t, y) and eps = ``regularization`` |G|^2: the part along redundant directions (G^T l = 0),
+        which the equations leave free and the regularised Newton lets drift (it divides the
+        curvature left in Phi along them by delta), is removed; the motion, which sees only
+        G^T lambda, is unchanged. Without redundant constraints it is the identity to
+        ``regularization``."""
+        import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
+        from scipy.sparse.linalg import splu
+        if not self.m:
+            return lam
+        G = self.equations.phi_jac(t, y[:self.n])[1]
+        G = G.tocsc() if sp.issparse(G) else sp.csc_matrix(np.atleast_2d(G))
+        eps = self.regularization * max(_amax(G), 1e-300) ** 2
+        GGt = (G @ G.T + eps * sp.identity(self.m)).tocsc()
+        return splu(GGt, permc_spec="COLAMD").solve(np.asarray(G @ (G.T @ lam)))
+
+    def _poly(self, x: float) -> np.ndarray:
+        """The last step's collocation polynomial of z - z_old at t_old + x h_prev."""
+        return np.array([x, x * x, x ** 3]) @ (_K["P"].T @ self._Z)
+
+    def dense_output(self) -> Callable[[float], np.ndarray]:
+        """Rule 3: the collocation polynomial of the last step, y(t_old + x h) =
+        y_old + sum_k x^k (P^T Z)_k, x in [0, 1] (exact at the stages)."""
+        Qp = _K["P"].T @ self._Z[:, :2 * self.n]  # (3, 2n)
+        t_old, h, y_old = self.t_old, self._h_prev, self.y_old
+
+        def u(t: float) -> np.ndarray:
+            x = np.asarray((np.asarray(t, float) - t_old) / h)
+            powers = np.stack((x, x * x, x ** 3), axis=-1)
+            return y_old + powers @ Qp if x.ndim == 0 else (y_old + powers @ Qp).T
+        return u
+
+    def restart(self, y: np.ndarray) -> None:
+        """Rule 4: continue from y at t. The extrapolation of the last step is dropped. A
+        state moved by no more than the tolerance (|y - self.y| <= 1 in the error norm, as a
+        projection at an output moves it) keeps the multipliers and the Jacobian: the
+        simplified Newton's matrix is an approximation of that order anyway; a larger move
+        evaluates both anew."""
+        y = np.array(y, dtype=float)
+        sc = self._atol + self.rtol * np.abs(y)
+        moved = self._norm(y - self.y, sc, 1.0) > 1.0
+        self.y, self._Z, self._err_prev = y, None, None
+        if moved:
+            self.lam = self._multipliers(self.t, y)
+            self._jac, self._lu = None, None
+        self._F0 = self._F(self.t, y, self.lam)
