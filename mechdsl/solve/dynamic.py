@@ -199,7 +199,11 @@ class DynamicRun(Run):
         Lagrangian's :class:`~mechdsl.solve.motion.Motion` where the model is large, has
         more equations than coordinates, or Phi_q has rank below m at the assembly
         (redundant constraints); else the dense index-1 evaluator."""
+        from .integrators import INTEGRATORS
+
         redundant = self.redundant
+        if INTEGRATORS[self.method].implicit:  # it needs the index-3 form's terms
+            return _augmented()(self.one, self.opts)
         if not (redundant or self.large) and self.system.m:
             probe = _Evaluator(self.one, self.D[v, 0])
             _, jac = probe.phi_jac(float(self.times[0]), q0)
