@@ -14,12 +14,11 @@ import socket
 import struct
 import subprocess
 import sys
-import threading
 import time
 
 import pytest
 
-from conftest import EXAMPLES
+from conftest import EXAMPLES, load_fuzzer
 
 import distributed
 
@@ -88,42 +87,13 @@ def test_the_local_cluster_serves_no_http_route():
 # -- a scheduler by address: trusted, but it must answer in time and in Dask's protocol ----
 
 
-class FakeScheduler:
-    """A TCP server on the loopback interface that answers each connection with ``reply``
-    (bytes, sent in pieces every ``every`` seconds), or never."""
-
-    def __init__(self, reply: bytes = b"", every: float = 0.0, close: bool = False) -> None:
-        self.sock = socket.socket()
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.listen()
-        self.address = f"tcp://127.0.0.1:{self.sock.getsockname()[1]}"
-        self.reply, self.every, self.close = reply, every, close
-        self.conns = []
-        threading.Thread(target=self.serve, daemon=True).start()
-
-    def serve(self) -> None:
-        while True:
-            try:
-                conn, _ = self.sock.accept()
-            except OSError:
-                return
-            self.conns.append(conn)
-            try:
-                if self.every:
-                    for b in self.reply:
-                        conn.sendall(bytes([b]))
-                        time.sleep(self.every)
-                elif self.reply:
-                    conn.sendall(self.reply)
-                if self.close:
-                    conn.close()
-            except OSError:
-                pass
-
-    def stop(self) -> None:
-        self.sock.close()
-        for c in self.conns:
-            c.close()
+def FakeScheduler(reply: bytes = b"", every: float = 0.0, close: bool = False):
+    """The fuzzer's fake scheduler (benchmarks/fuzz.py): a TCP server on the loopback
+    interface answering each connection with ``reply`` (a byte every ``every`` seconds if
+    not 0), then closing it or not; its ``address`` here with the scheme."""
+    fake = load_fuzzer().FakeScheduler(reply, every, close)
+    fake.address = f"tcp://{fake.address}"
+    return fake
 
 
 def refused(fake: FakeScheduler, *extra, bound: float = 20.0):
