@@ -27,7 +27,11 @@ Sections (each prints a table; the plots and a Markdown copy of the tables go to
   relative error of the seven angles at t = 0.03 against run time, mechdsl (numpy and
   compiled, its default method) over rtol, and each of its methods on numpy, beside scipy's
   solve_ivp on the published index-1 form (DOP853, Radau) and Exudyn's generalised-alpha
-  over its step; and the whole process of ``mechdsl run examples/andrews.mech``.
+  over its step; and the whole process of ``mechdsl run examples/andrews.mech``;
+* dynamics: forward dynamics beside the peers (benchmarks/dynamics.py): IFToMM A02's work
+  against precision beside Exudyn, a chain of N links from 10 to 3000 beside Exudyn, the
+  stiff pendulum for k from 1e2 to 1e10 beside scipy's Radau and BDF and Exudyn, and the
+  Test Set's car axis problem against its reference.
 
 Times are medians of repeated runs; ratios are taken between figures of the same run.
 """
@@ -539,9 +543,16 @@ def andrews(rep: Report, quick: bool) -> None:
     plt.close(fig)
 
 
+def dynamics_section(rep: Report, quick: bool) -> None:
+    """Forward dynamics beside the peers (issue 28): A02, the chain, the stiff pendulum and
+    the car axis, by benchmarks/dynamics.py (which also runs alone)."""
+    import dynamics
+    dynamics.run(rep, quick)
+
+
 SECTIONS = {"seed": seed, "levers": levers, "work-precision": work_precision, "scaling": scaling,
             "sweep": sweep, "long": long_span, "startup": startup, "animation": animation,
-            "andrews": andrews}
+            "andrews": andrews, "dynamics": dynamics_section}
 
 
 def main(argv: list[str] | None = None) -> None:
