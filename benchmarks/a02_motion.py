@@ -29,42 +29,27 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+sys.path.insert(0, os.path.dirname(__file__))
 
 import mechdsl  # noqa: E402
+from dynamics_models import a02_text, chain_text  # noqa: E402 - the benchmarks' models
 from mechdsl.solve.motion import Motion  # noqa: E402
 
 #: B0 at t = 20 on the parallelogram branch (shared/reference/dynamics-benchmarks.md)
 B0_REFERENCE = np.array([0.410901153734, 0.911679900985])
 
 
-def a02_text(N: int, t_end: float = 20.0) -> str:
-    """The IFToMM A02 N-four-bar as a .mech model."""
-    lines = ["ground { " + " ".join(f"point P{k} = ({k}, 0)" for k in range(N + 1)) + " }"]
-    for k in range(N + 1):
-        lines.append(f"body r{k} {{ guess = ({k}, 0.5, pi/2)  point O = (-0.5, 0)  "
-                     "point T = (0.5, 0)  mass = 1  inertia = 1/12  v0 = (0.5, 0, -1) }")
-    for k in range(N):
-        lines.append(f"body c{k} {{ guess = ({k + 0.5}, 1, 0)  point A = (-0.5, 0)  "
-                     "point B = (0.5, 0)  mass = 1  inertia = 1/12  v0 = (1, 0, 0) }")
-    for k in range(N + 1):
-        lines.append(f"joint G{k}: revolute(ground.P{k}, r{k}.O)")
-    for k in range(N):
-        lines.append(f"joint A{k}: revolute(r{k}.T, c{k}.A)")
-        lines.append(f"joint B{k}: revolute(r{k + 1}.T, c{k}.B)")
-    lines += ["gravity = (0, -9.81)", f"simulate t = 0 .. {t_end} step 0.01",
-              "output r0.T.x, r0.T.y"]
-    return "\n".join(lines) + "\n"
-
-
 def a02_state(N: int, theta: float, rate: float) -> np.ndarray:
-    """(q, qd) on the parallelogram branch: every rocker at angle theta turning at rate."""
+    """(q, qd) on the parallelogram branch of :func:`dynamics_models.a02_text`'s model
+    (rocker frames at their pivots, coupler frames at their left ends): every rocker at
+    angle theta turning at rate, every coupler translating with the rockers' tips."""
     c, s = np.cos(theta), np.sin(theta)
     q, qd = [], []
     for k in range(N + 1):
-        q += [k + 0.5 * c, 0.5 * s, theta]
-        qd += [-0.5 * s * rate, 0.5 * c * rate, rate]
+        q += [float(k), 0.0, theta]
+        qd += [0.0, 0.0, rate]
     for k in range(N):
-        q += [k + c + 0.5, s, 0.0]
+        q += [k + c, s, 0.0]
         qd += [-s * rate, c * rate, 0.0]
     return np.array(q + qd)
 
@@ -123,7 +108,7 @@ def run_a02(N: int = 40, t_end: float = 20.0, rtol: float = 1e-10, atol: float =
         phi = y[2]
         horizontal += int(abs(np.floor(phi / np.pi) - last))
         last = np.floor(phi / np.pi)
-        b0.append((t, y[0] + 0.5 * np.cos(phi), y[1] + 0.5 * np.sin(phi)))
+        b0.append((t, y[0] + np.cos(phi), y[1] + np.sin(phi)))  # rocker 0's tip
     elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
     b0 = np.array(b0)
     ref = B0_REFERENCE if (N == 40 and t_end == 20.0) else branch_reference(N, t_end)
@@ -134,19 +119,6 @@ def run_a02(N: int = 40, t_end: float = 20.0, rtol: float = 1e-10, atol: float =
             "B0": b0[-1, 1:], "B0_error": float(np.hypot(*(b0[-1, 1:] - ref))),
             "phi_end": float(np.abs(phi_res).max()),
             "velocity_residual_end": float(np.abs(jac @ y[n:]).max())}
-
-
-def chain_text(N: int) -> str:
-    """N links of 1 m and 1 kg hinged end to end, the first to the ground, horizontal."""
-    lines = []
-    for k in range(N):
-        lines.append(f"body l{k} {{ guess = ({k + 0.5}, 0, 0)  point P = (-0.5, 0)  "
-                     "point Q = (0.5, 0)  mass = 1  inertia = 1/12 }")
-    lines.append("joint j0: revolute(ground.origin, l0.P)")
-    for k in range(1, N):
-        lines.append(f"joint j{k}: revolute(l{k - 1}.Q, l{k}.P)")
-    lines += ["gravity = (0, -9.81)", "simulate t = 0 .. 0.2 step 0.01", "output l0.phi"]
-    return "\n".join(lines) + "\n"
 
 
 def cpu_time_per_call(f, reps: int = 20, batch: float = 5e-3) -> float:
