@@ -163,8 +163,8 @@ BRANCH = G * ((N_A02 + 1) / 2 + N_A02) / ((N_A02 + 1) / 3 + N_A02)
 def a02_accelerations(theta: float, rate: float, thdd: float) -> np.ndarray:
     c, s = np.cos(theta), np.sin(theta)
     out = []
-    for _ in range(N_A02 + 1):
-        out += [-0.5 * (c * rate**2 + s * thdd), 0.5 * (-s * rate**2 + c * thdd), thdd]
+    for _ in range(N_A02 + 1):  # a rocker's frame at its pivot
+        out += [0.0, 0.0, thdd]
     for _ in range(N_A02):
         out += [-(c * rate**2 + s * thdd), -s * rate**2 + c * thdd, 0.0]
     return np.array(out)
