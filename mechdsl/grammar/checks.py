@@ -86,6 +86,15 @@ def _check_vector(v: Vector, size: int, what: str, allowed: set[str]) -> None:
         check_expr(item, allowed, what)
 
 
+def _keywords_once(statement: str, args) -> None:
+    """Refuse a keyword argument given twice to the joint, drive, initial or force
+    ``statement`` (located at the second)."""
+    kw = _Names(f"argument of {cut(statement)}")
+    for a in args:
+        if a.name is not None:
+            kw.add(a.name, a.span)
+
+
 class _Names:
     """Detects a name declared twice and points at both places."""
 
@@ -222,10 +231,7 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
         elif isinstance(st, tuple) and isinstance(st[0], (Joint, Drive)):
             c, nspan = st
             constraint_names.add(c.name, nspan)
-            kw = _Names(f"argument of {cut(c.name)}")
-            for a in c.args:
-                if a.name is not None:
-                    kw.add(a.name, a.span)
+            _keywords_once(c.name, c.args)
             if isinstance(c, Drive):
                 # t joins the params for this check only (a copy per drive would be
                 # quadratic in a model of many params and drives); t is never a param
@@ -241,10 +247,7 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
             c, nspan = st
             # one namespace with the joints and drives: messages name the statement
             constraint_names.add(c.name, nspan)
-            kw = _Names(f"argument of {cut(c.name)}")
-            for a in c.args:
-                if a.name is not None:
-                    kw.add(a.name, a.span)
+            _keywords_once(c.name, c.args)
             # a value at t0: params only (time 't' is refused, located, by check_expr)
             check_expr(c.value, defined, f"the value of initial '{cut(c.name)}'")
             if c.rate is not None:
@@ -253,10 +256,7 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
         elif isinstance(st, tuple) and isinstance(st[0], Force):
             f, nspan = st
             constraint_names.add(f.name, nspan)
-            kw = _Names(f"argument of {cut(f.name)}")
-            for a in f.args:
-                if a.name is not None:
-                    kw.add(a.name, a.span)
+            _keywords_once(f.name, f.args)
             forces.append(f)
         elif isinstance(st, tuple) and st[0] == "gravity":
             _, vec, span = st
