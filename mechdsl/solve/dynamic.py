@@ -401,10 +401,6 @@ class DynamicRun(Run):
         if self.pose_rates is not None:
             self.pose_rates[v, :k, 0], self.pose_rates[v, :k, 1] = qd[0], qdd[0]
 
-    def _coordinate(self, k: int) -> str:
-        body = self.system.body_names[k // 3]
-        return f"{body}.{('vx', 'vy', 'omega')[k % 3]}"
-
     def _singular_message(self, v: int, t: float) -> str:
         sysm, d = self.one, self.one.dynamics
         massless = [b + (" (no mass)" if d.mass[0, i] == 0 else " (no inertia)")
