@@ -44,6 +44,9 @@ class Results:
     #: asked for them keeps no histories (``data`` is empty); NaN for a variant that did not
     #: solve every instant
     reduced: Mapping[str, np.ndarray] = field(default_factory=dict)
+    #: forward dynamics: the integrator taken and why (the automatic choice's reason, and
+    #: where it switched to the implicit method); empty for the kinematics
+    method: str = ""
 
     @property
     def ok(self) -> bool:
@@ -104,6 +107,8 @@ def summary(results: Results) -> str:
         + f", solved in {results.solve_time * 1e3:.1f} ms",
         f"largest constraint residual: {results.residual:.3g}",
     ]
+    if results.method:
+        lines.append(f"integrator: {results.method}")
     columns = results.reduced or results.data
     if columns:
         width = max(len(label) for label in columns)

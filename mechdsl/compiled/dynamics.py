@@ -61,6 +61,9 @@ class LoadJacobian:
     rows: np.ndarray
     cols: np.ndarray
     wrt: np.ndarray
+    #: the graph's nodes of the entries, in order (for a kernel of floats: one state at a
+    #: time, as the implicit steppers evaluate them)
+    nodes: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -119,7 +122,7 @@ class Dynamics:
                 which.append(k // self.n)
         return LoadJacobian(kernel(g, nodes, "load_jacobian") if nodes else None,
                             np.array(rows, dtype=np.intp), np.array(cols, dtype=np.intp),
-                            np.array(which, dtype=np.intp))
+                            np.array(which, dtype=np.intp), tuple(nodes))
 
     def load_derivative_values(self, q: np.ndarray, qd: np.ndarray, t: np.ndarray
                                ) -> np.ndarray:

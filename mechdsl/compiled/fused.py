@@ -164,7 +164,18 @@ def fuse(groups, n_bodies: int, m: int, force: str | None = None) -> Fused:
 
 
 def _fuse_members(graph: Graph, params: _Params, groups, n_bodies: int, m: int) -> Fused:
-    n = 3 * n_bodies
+    phi_n, rows, cols, jac, gamma_n = trace_members(graph, params, groups, n_bodies, m)
+    return Fused(kernel(graph, phi_n, "phi"), kernel(graph, jac, "jac"),
+                 kernel(graph, phi_n + jac, "phi_jac"), kernel(graph, gamma_n, "gamma"),
+                 rows, cols, tuple(params.arrays), tuple(graph.functions), m, 3 * n_bodies,
+                 "member", graph, tuple(phi_n), tuple(jac), tuple(gamma_n))
+
+
+def trace_members(graph: Graph, params: _Params, groups, n_bodies: int, m: int
+                  ) -> tuple[list, np.ndarray, np.ndarray, list, list]:
+    """Every constraint of ``groups`` traced member by member into ``graph``: the nodes of
+    Phi (m), the positions (rows, cols) and nodes of Phi_q's non-zero entries, and the
+    nodes of gamma (m)."""
     ground = Body(graph.zero, graph.zero, graph.zero, graph.one, graph.zero)
     bodies = [body_of(graph, 3 * i) for i in range(n_bodies)] + [ground]
     phi: list[Node | None] = [None] * m
@@ -196,10 +207,7 @@ def _fuse_members(graph: Graph, params: _Params, groups, n_bodies: int, m: int) 
     jac = [entries[k] for k in keys]
     phi_n = [graph.zero if x is None else x for x in phi]
     gamma_n = [graph.zero if x is None else x for x in gamma]
-    return Fused(kernel(graph, phi_n, "phi"), kernel(graph, jac, "jac"),
-                 kernel(graph, phi_n + jac, "phi_jac"), kernel(graph, gamma_n, "gamma"),
-                 rows, cols, tuple(params.arrays), tuple(graph.functions), m, n, "member",
-                 graph, tuple(phi_n), tuple(jac), tuple(gamma_n))
+    return phi_n, rows, cols, jac, gamma_n
 
 
 def _fuse_groups(graph: Graph, params: _Params, groups, n_bodies: int, m: int) -> Fused:

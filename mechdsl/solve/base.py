@@ -74,7 +74,7 @@ class Run:
 
     def results(self, status: str, solve_time: float, *, residual: float = 0.0,
                 condition: np.ndarray | None = None, poses: np.ndarray | None = None,
-                rates: np.ndarray | None = None) -> Results:
+                rates: np.ndarray | None = None, method: str = "") -> Results:
         """What the run solved, as :class:`~mechdsl.results.Results`: the output arrays, how
         the run ended and what the user should know."""
         system = self.system
@@ -84,4 +84,4 @@ class Run:
             residual=residual, source_name=system.source.name,
             warnings=tuple(self.warnings), condition=condition, poses=poses, rates=rates,
             units={o.label: o.unit for o in system.outputs if o.unit},
-            time_unit=system.time_unit)
+            time_unit=system.time_unit, method=method)

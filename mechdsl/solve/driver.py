@@ -16,6 +16,12 @@ and owns
 * **failures** (a stepper's message, numpy's LinAlgError from the equations: "failed", with
   the instant) and **interrupts** (a KeyboardInterrupt anywhere: "interrupted", with the
   outputs before it);
+* **stiffness**: given ``stiff = (ImplicitStepper, equations_factory)``, an explicit
+  stepper watches its own step sizes (rule 7) and, once it reports :data:`STIFF`, the
+  integration goes on from the state it reached with the implicit stepper on the equations
+  the factory builds (the index-3 terms: :class:`~mechdsl.solve.motion.Motion`); the
+  outputs, the budget and the counters run on across the switch, and the solution says
+  where it happened (``switched``);
 * **progress**: ``on_output(k, t, y)`` with each output as soon as it is known, and
   ``on_step(t, attempts)`` after every accepted step (one output interval may take
   millions of steps: a display fed by the outputs alone would stand still). It costs a
@@ -29,7 +35,7 @@ from typing import Callable
 
 import numpy as np
 
-from .stepper import OUT_OF_BUDGET, Equations, Stepper
+from .stepper import OUT_OF_BUDGET, STIFF, Equations, Stepper
 
 
 @dataclass(frozen=True)
@@ -52,6 +58,8 @@ class Solution:
     reason: str = ""
     njev: int = 0
     nlu: int = 0
+    #: (the implicit stepper's name, the time, h rho there) where the run switched to it
+    switched: tuple | None = None
 
 
 def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
@@ -59,7 +67,9 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
               scale: np.ndarray | None = None, first_step: float | None = None,
               max_step: float = np.inf, max_steps: int = 1_000_000,
               on_output: Callable[[int, float, np.ndarray], None] | None = None,
-              on_step: Callable[[float, int], None] | None = None) -> Solution:
+              on_step: Callable[[float, int], None] | None = None,
+              stiff: tuple[type[Stepper], Callable[[], Equations]] | None = None
+              ) -> Solution:
     """Integrate y' = equations.rhs(t, y) from ``y0`` at ``t_eval[0]`` to ``t_eval[-1]``
     by steps of ``stepper``, returning the state at every instant of ``t_eval``
     (increasing). ``atol`` (times ``scale``, per component, if given) and ``rtol`` bound
@@ -90,11 +100,15 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         if on_output is not None:
             on_output(k, tt, yy)
 
+    before = np.zeros(5, dtype=int)  # the counters of a stepper switched from
+    switched = None
+
     def done(status: str, message: str = "", reason: str = "") -> Solution:
-        counts = (0, 0, 0, 0, 0) if s is None else (s.naccepted, s.nrejected, s.nfev,
-                                                     s.njev, s.nlu)
+        counts = before + (0 if s is None else np.array(
+            (s.naccepted, s.nrejected, s.nfev, s.njev, s.nlu)))
+        counts = [int(c) for c in counts]
         return Solution(np.array(outs_t), np.array(outs_y).reshape(len(outs_t), n), status,
-                        message, *counts[:3], t, reason, *counts[3:])
+                        message, *counts[:3], t, reason, *counts[3:], switched)
 
     def budget() -> Solution:
         return done("failed", f"its budget of {max_steps:,} steps (accepted and rejected) "
@@ -110,14 +124,20 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         s.max_attempts = max_steps
         if max_step < np.inf:
             s.max_step = max_step
+        if stiff is not None and not stepper.implicit:
+            s.detect_stiffness = True
         while k_next < n_out:
             # checked here too for steppers that take no more than one attempt per call
-            if s.attempts >= max_steps:
+            if s.attempts + int(before[:2].sum()) >= max_steps:
                 return budget()
             message = s.step()
             if message == OUT_OF_BUDGET:
                 return budget()
-            if message is not None:
+            if message == STIFF:
+                # rule 7: the step was accepted; its outputs are emitted below, then the
+                # implicit stepper continues from its end
+                pass
+            elif message is not None:
                 return done("failed", message)
             t_new, y_new = s.t, s.y
             # -- outputs inside the step, by its dense output (one at the step's end is
@@ -130,15 +150,33 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                     emit(k_next, te, project(te, yo) if project is not None else yo)
                     k_next += 1
             at_output = k_next < n_out and t_eval[k_next] <= t_new
-            if project is not None:
+            if project is not None and stepper.constrained:
+                # rule 6: the stepper keeps the constraints; only what is reported is
+                # projected (velocities onto Phi_q qd = nu to the solver's tolerance)
+                if at_output:
+                    y_new = project(t_new, y_new)
+            elif project is not None:
                 y_new = (project if at_output else settle)(t_new, y_new)
                 s.restart(y_new)
             if at_output:
                 emit(k_next, t_new, y_new.copy())
                 k_next += 1
             t = t_new
+            if message == STIFF:
+                implicit, factory = stiff  # type: ignore[misc]
+                h_rho = getattr(s, "h_rho", float("nan"))
+                before += (s.naccepted, s.nrejected, s.nfev, s.njev, s.nlu)
+                equations = factory()
+                project = getattr(equations, "project", None)
+                settle = getattr(equations, "settle", None) or project
+                stepper, s = implicit, None
+                s = implicit(equations, t, y_new, t_end, rtol=rtol, atol=atol, scale=scale)
+                s.max_attempts = max_steps - int(before[:2].sum())
+                if max_step < np.inf:
+                    s.max_step = max_step
+                switched = (implicit.name, t, h_rho)
             if on_step is not None:
-                on_step(t, s.attempts)
+                on_step(t, s.attempts + int(before[:2].sum()))
     except KeyboardInterrupt:
         return done("interrupted")
     except np.linalg.LinAlgError as err:

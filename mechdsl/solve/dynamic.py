@@ -86,6 +86,8 @@ class DynamicRun(Run):
         self.method, self.method_reason = choose(self.opts.method, self.rtol,
                                                  dopri5_from=self.opts.dopri5_from,
                                                  large=self.large, redundant=self.redundant)
+        #: where the automatic choice went on with the implicit method (stiffness found)
+        self.switches: list[str] = []
 
     # -- the equations of one variant --------------------------------------------------------
     def _project(self, t: float, y: np.ndarray) -> np.ndarray:
@@ -176,8 +178,11 @@ class DynamicRun(Run):
             status = "failed"
         poses = None if self.poses is None else self.poses.reshape(V, K, -1, 3)
         rates = None if self.pose_rates is None else self.pose_rates.reshape(V, K, 2, -1, 3)
+        method = self.method_reason
+        if self.switches:
+            method += "; " + "; ".join(self.switches)
         return self.results(status, time.perf_counter() - start, residual=self.residual,
-                            poses=poses, rates=rates)
+                            poses=poses, rates=rates, method=method)
 
     def initial_state(self) -> tuple[np.ndarray | None, str | None]:
         """The first variant's configuration at t0 (the assembly this run starts from) and,
@@ -288,7 +293,8 @@ class DynamicRun(Run):
 
     def _variant(self, v: int, q0: np.ndarray) -> str:
         from .driver import integrate
-        from .integrators import INTEGRATORS
+        from .explicit import STIFF_STEPS
+        from .integrators import INTEGRATORS, stiff_method
 
         #: the system as variant v sees it: its params, its functions
         self.one, self.variant = _one(self.system, v), v
@@ -331,9 +337,20 @@ class DynamicRun(Run):
         try:
             equations = (self.ev if isinstance(self.ev, _augmented())
                          else _Equations(self.ev, self._project, self._settle))
+            stiff = None
+            if self.opts.method == "auto" and not INTEGRATORS[self.method].implicit:
+                implicit = stiff_method()
+                if implicit is not None:
+                    stiff = (implicit, lambda: _augmented()(self.one, self.opts))
             sol = integrate(INTEGRATORS[self.method], equations, y0, times,
                             rtol=self.rtol, atol=self.atol, scale=scale, on_output=record,
-                            on_step=on_step, max_steps=budget)
+                            on_step=on_step, max_steps=budget, stiff=stiff)
+            if sol.switched is not None:
+                name, at, h_rho = sol.switched
+                self.switches.append(
+                    f"{name} from t = {at:.6g}{variant_label(sysm, v)}, where the model "
+                    f"proved stiff ({self.method}'s step held by stability: h rho = "
+                    f"{h_rho:.3g} at {STIFF_STEPS} steps in a row)")
             if sol.status == "failed" and sol.reason != "budget" and equations is not self.ev:
                 # the dense index-1 solve needs Phi_q of full rank: a singular position
                 # met on the way (a parallelogram's collinear one) stops it. The variant is

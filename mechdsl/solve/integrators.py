@@ -87,6 +87,15 @@ def choose(method: str, rtol: float, *, dopri5_from: float, stiff: bool = False,
     return best.name, why
 
 
+def stiff_method() -> type[Stepper] | None:
+    """The implicit stepper the automatic choice goes on with where an explicit pair finds
+    the model stiff during the run (rule 7 of :mod:`mechdsl.solve.stepper`): the registered
+    implicit one of highest order that tolerates redundant constraints, None if there is
+    none."""
+    implicit = [cls for cls in INTEGRATORS.values() if cls.implicit and cls.redundant]
+    return max(implicit, key=lambda cls: cls.order) if implicit else None
+
+
 def _listed() -> str:
     quoted = [f"'{name}'" for name in names()]
     return ", ".join(quoted[:-1]) + " or " + quoted[-1]

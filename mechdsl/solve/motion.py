@@ -95,12 +95,13 @@ from ..errors import MechError
 from .augmented import Factor, plan
 from .diagnose import col_scale, one_variant
 from .options import SolverOptions
+from .triplets import Triplets
 
 
 class Motion:
     """The equations of motion of one variant of a mechanism (the
     :class:`mechdsl.solve.stepper.Equations` protocol), by the augmented Lagrangian (see
-    the module). Sparse matrices are returned as scipy CSR."""
+    the module). Sparse matrices are returned as :class:`~mechdsl.solve.triplets.Triplets`."""
 
     def __init__(self, system: System, options: SolverOptions | None = None,
                  variant: int = 0) -> None:
@@ -143,7 +144,6 @@ class Motion:
         # model's at a state outside a function's domain (the scalar kernels raise there)
         self._array_kernel(d)
         self._penalty(system.guess[0])
-        self._csr: dict[str, tuple] = {}
 
     # -- set-up -----------------------------------------------------------------------------
     def _array_kernel(self, d) -> None:
@@ -164,14 +164,14 @@ class Motion:
         # the same on Python floats: one state at a time, the array kernel's numpy call per
         # operation costs a microsecond where a float operation costs a few dozen
         # nanoseconds (a chain of 300 links: 8.5 ms an evaluation against about 1 ms)
-        self._mq_scalar = None
-        if len(varying):
-            from ..symbolic.codegen import scalar_functions, scalar_kernel
+        from ..symbolic.codegen import scalar_functions, scalar_kernel
 
+        self._mq_scalar = None
+        self._mq_p = [float(np.asarray(x).reshape(-1)[0]) for x in d.params]
+        self._mq_F = scalar_functions(d.functions)
+        if len(varying):
             self._mq_scalar = scalar_kernel(d.graph, [nodes[k] for k in varying],
                                             "motion_terms").fn
-            self._mq_p = [float(np.asarray(x).reshape(-1)[0]) for x in d.params]
-            self._mq_F = scalar_functions(d.functions)
 
     @functools.cached_property
     def _mq_kernel(self):
@@ -412,9 +412,9 @@ class Motion:
                                     "lock-up, or inconsistent constraints)")
 
     def phi_jac(self, t: float, q: np.ndarray) -> tuple[np.ndarray, object]:
-        """Phi(q, t) (m,) and Phi_q (m, n), CSR."""
+        """Phi(q, t) (m,) and Phi_q (m, n)."""
         phi, jv = self._phi_jac_values(t, q)
-        return phi, self._sparse("jac", jv, self.jac_rows, self.jac_cols, (self.m, self.n))
+        return phi, Triplets(jv, self.jac_rows, self.jac_cols, (self.m, self.n))
 
     def nu(self, t: float) -> np.ndarray:
         """nu = -Phi_t (m,): the drives' f'(t) in their rows, zero elsewhere."""
@@ -430,40 +430,63 @@ class Motion:
                                        np.full((1, 1), t))[0, 0]
 
     def mass(self, q: np.ndarray) -> object:
-        """M(q) (n, n), CSR."""
-        return self._sparse("mass", self.mass_values(q), self.mass_rows, self.mass_cols,
-                            (self.n, self.n))
+        """M(q) (n, n)."""
+        return Triplets(self.mass_values(q), self.mass_rows, self.mass_cols, (self.n, self.n))
 
     def loads(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """Q(q, qd, t) (n,)."""
-        return self.system.dynamics.generalised_forces(q[None, None], qd[None, None],
-                                                       np.full((1, 1), t))[0, 0]
+        return self._mass_loads(q, qd, t)[1]
+
+    @functools.cached_property
+    def _load_jacobian(self) -> tuple:
+        """The load derivatives' kernel of floats (None without varying entries) and the
+        positions of dQ/dq's and dQ/dqd's entries in its output."""
+        d = self.system.dynamics
+        lj = d.load_jacobian
+        fn = None
+        if lj.kernel is not None:
+            from ..symbolic.codegen import scalar_kernel
+
+            fn = scalar_kernel(d.graph, list(lj.nodes), "load_jacobian").fn
+        return fn, np.flatnonzero(lj.wrt == 0), np.flatnonzero(lj.wrt == 1)
 
     def load_derivatives(self, t: float, q: np.ndarray, qd: np.ndarray
-                         ) -> tuple[object, object]:
-        """dQ/dq and dQ/dqd (n, n), CSR: exact, from the traced loads
+                         ) -> tuple[Triplets, Triplets]:
+        """dQ/dq and dQ/dqd (n, n): exact, from the traced loads
         (:attr:`mechdsl.compiled.dynamics.Dynamics.load_jacobian`)."""
         d = self.system.dynamics
         lj = d.load_jacobian
-        vals = d.load_derivative_values(q[None, None], qd[None, None], np.full((1, 1), t))[0, 0]
-        out = []
-        for which, name in ((0, "dq"), (1, "dqd")):
-            sel = lj.wrt == which
-            out.append(self._sparse(name, vals[sel], lj.rows[sel], lj.cols[sel],
-                                    (self.n, self.n)))
-        return out[0], out[1]
+        fn, on_q, on_qd = self._load_jacobian
+        vals = None
+        if fn is not None:
+            try:
+                vals = np.fromiter(fn(q.tolist(), qd.tolist(), t, self._mq_p, self._mq_F),
+                                   float, lj.rows.size)
+            except (ValueError, ZeroDivisionError, OverflowError):
+                pass  # outside a function's domain: the array kernel says nan or inf
+        if vals is None:
+            vals = d.load_derivative_values(q[None, None], qd[None, None],
+                                            np.full((1, 1), t))[0, 0]
+        shape = (self.n, self.n)
+        return (Triplets(vals[on_q], lj.rows[on_q], lj.cols[on_q], shape),
+                Triplets(vals[on_qd], lj.rows[on_qd], lj.cols[on_qd], shape))
 
-    def _sparse(self, name: str, values: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-                shape: tuple[int, int]):
-        """A CSR matrix of ``values`` in a fixed pattern, its structure computed once."""
-        from scipy.sparse import csr_matrix
 
-        if name not in self._csr:
-            order = np.lexsort((cols, rows))
-            indptr = np.searchsorted(rows[order], np.arange(shape[0] + 1))
-            self._csr[name] = (order, cols[order].astype(np.int32), indptr.astype(np.int32))
-        order, indices, indptr = self._csr[name]
-        return csr_matrix((values[order], indices, indptr), shape=shape)
+    @functools.cached_property
+    def _curvature(self):
+        from ..compiled.curvature import curvature
+
+        return curvature(self.system)
+
+    def constraint_curvature(self, t: float, q: np.ndarray, lam: np.ndarray) -> Triplets:
+        """d/dq (Phi_q^T lambda) = sum_i lambda_i Phi_i,qq (n, n), exact
+        (:mod:`mechdsl.compiled.curvature`); empty where the constraints are linear."""
+        c = self._curvature
+        if c is None:
+            return Triplets(np.zeros(0), np.zeros(0, np.intp), np.zeros(0, np.intp),
+                            (self.n, self.n))
+        return Triplets(c.matrix_entries(q, np.asarray(lam, dtype=float), t), c.rows, c.cols,
+                        (self.n, self.n))
 
 
 def dense_saddle(mass: np.ndarray, jac: np.ndarray, b: np.ndarray, c: np.ndarray

@@ -18,10 +18,15 @@ unknowns of the step like q and v; velocities and accelerations are never differ
 **The simplified Newton iteration.** The stage residual's Jacobian is replaced by
 h^-1 A^-1 (x) B0 - I (x) J0, with B0 = diag(I, M(q0), 0) and the exact derivatives
 
-    J0 = [[0, I, 0], [dQ/dq, dQ/dv, -Phi_q^T], [Phi_q, 0, 0]]      at (t0, q0, v0)
+    J0 = [[0, I, 0], [K, dQ/dv, -Phi_q^T], [Phi_q, 0, 0]]      at (t0, q0, v0),
 
-(dQ/dq, dQ/dv from ``load_derivatives``); what is neglected is the derivative of M(q) v' and
-of Phi_q(q)^T lambda with respect to q (curvature terms of relative size |lambda| h^2 / |M|).
+    K = dQ/dq - sum_i lambda_i Phi_i,qq
+
+(dQ/dq, dQ/dv from ``load_derivatives``; the constraints' curvature from
+``constraint_curvature`` where the equations give it, :mod:`mechdsl.compiled.curvature`: a
+term of relative size |lambda| h^2 / |M|, the weight of the chain on A02's rockers); what is
+neglected is the derivative of M(q) v' with respect to q (M varies only through the centres
+of mass off the body frames, and v' is bounded).
 Transforming the stages by the eigenvectors of A^-1 (one real eigenvalue gamma, one complex
 pair alpha +- i beta) splits the 3 (2n + m) unknowns into one real and one complex system
 E(c) = c B0 - J0, c = gamma / h or (alpha + i beta) / h. Each is reduced to n + m unknowns by
@@ -71,6 +76,7 @@ import numpy as np
 
 from .radau_stages import CoupledStages, triplets
 from .stepper import Equations, Stepper
+from .triplets import Triplets
 
 
 def _radau_constants() -> dict[str, np.ndarray | float | complex]:
@@ -101,11 +107,16 @@ def _radau_constants() -> dict[str, np.ndarray | float | complex]:
 
 _K = _radau_constants()
 
+#: up to this many equations the multipliers' range part is solved dense
+_DENSE_RANGE = 60
+
 
 def _mat(a: object) -> object:
     """A matrix as the equations gave it, sparse as CSR, dense as a 2-d float array (both
     multiply vectors with @; assembly takes their triplets)."""
     import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
+    if isinstance(a, Triplets):
+        return a
     return a.tocsr() if sp.issparse(a) else np.atleast_2d(np.asarray(a, dtype=float))
 
 
@@ -116,7 +127,7 @@ def _cat(*parts: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def _amax(a: object) -> float:
     import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
-    v = a.data if sp.issparse(a) else a
+    v = a.data if sp.issparse(a) or isinstance(a, Triplets) else a
     return float(np.max(np.abs(v))) if v.size else 0.0
 
 
@@ -138,6 +149,7 @@ class RadauStepper(Stepper):
     order: ClassVar[int] = 5
     implicit: ClassVar[bool] = True
     redundant: ClassVar[bool] = True
+    constrained: ClassVar[bool] = True
     summary: ClassVar[str] = ("Radau IIA order 5 on the index-3 form: stiff models, redundant "
                               "constraints (sparse implicit, error-controlled)")
 
@@ -147,7 +159,8 @@ class RadauStepper(Stepper):
                  max_newton: int = 6, jac_rate: float = 1e-3, keep_ratio: float = 1.2,
                  min_factor: float = 0.2, max_factor: float = 10.0, safety: float = 0.9,
                  regularization: float = 1e-10, stage_jacobians: bool = True,
-                 stagewise_retry: int = 20, index3_scaling: bool = True) -> None:
+                 stagewise_retry: int = 20, index3_scaling: bool = True,
+                 curvature: bool = True) -> None:
         super().__init__(equations, t0, y0, t_bound, rtol=rtol, atol=atol, scale=scale,
                          first_step=first_step)
         self.n, self.m = int(equations.n), int(equations.m)
@@ -164,6 +177,7 @@ class RadauStepper(Stepper):
         self.stage_jacobians, self.stagewise_retry = stage_jacobians, stagewise_retry
         self._stagewise, self._stagewise_steps = False, 0
         self.index3_scaling = index3_scaling
+        self.curvature = curvature
         self.lam = self._multipliers(self.t, self.y)
         self._jac: tuple | None = None  # (M0, dQ/dq, dQ/dv, Phi_q) at the step's start
         self._jac_current = True  # evaluated at the current state (not an older one)
@@ -203,10 +217,25 @@ class RadauStepper(Stepper):
             (0.01 / max(d1, d2)) ** (1 / (self.order + 1))
         return min(100 * h0, h1, abs(self.t_bound - t))
 
+    def _stiffness(self, t: float, q: np.ndarray, v: np.ndarray, lam: np.ndarray) -> object:
+        """d/dq of Q - Phi_q^T lambda: the loads' exact derivative less the constraints'
+        curvature (where the equations give it: ``constraint_curvature``)."""
+        eq = self.equations
+        dq = _mat(eq.load_derivatives(t, q, v)[0])
+        curv = getattr(eq, "constraint_curvature", None)
+        if curv is None or not self.curvature:
+            return dq
+        h = curv(t, q, lam)
+        if not h.nnz:
+            return dq
+        r, c, vals = _cat(triplets(dq), triplets(h, f=-1.0))
+        return Triplets(vals, r, c, (self.n, self.n))
+
     def _jacobian(self, t: float, y: np.ndarray) -> None:
         eq, n = self.equations, self.n
         q, v = y[:n], y[n:]
-        dq, dv = eq.load_derivatives(t, q, v)
+        dv = eq.load_derivatives(t, q, v)[1]
+        dq = self._stiffness(t, q, v, self.lam)
         self._jac = (_mat(eq.mass(q)), _mat(dq), _mat(dv), _mat(eq.phi_jac(t, q)[1]))
         self.njev += 1
         self._set_pattern()
@@ -298,7 +327,8 @@ class RadauStepper(Stepper):
         jacs = []
         for j in range(3):
             tj, qj, vj = t + _K["c"][j] * h, self.y[:n] + Z[j, :n], self.y[n:] + Z[j, n:2 * n]
-            dq, dv = eq.load_derivatives(tj, qj, vj)
+            dv = eq.load_derivatives(tj, qj, vj)[1]
+            dq = self._stiffness(tj, qj, vj, self.lam + Z[j, 2 * n:])
             jacs.append((_mat(eq.mass(qj)), _mat(dq), _mat(dv), _mat(eq.phi_jac(tj, qj)[1])))
             self.njev += 1
         return jacs
@@ -456,15 +486,20 @@ class RadauStepper(Stepper):
         curvature left in Phi along them by delta), is removed; the motion, which sees only
         G^T lambda, is unchanged. Without redundant constraints it is the identity to
         ``regularization``."""
-        import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
-        from scipy.sparse.linalg import splu
         if not self.m:
             return lam
         G = self.equations.phi_jac(t, y[:self.n])[1]
-        G = G.tocsc() if sp.issparse(G) else sp.csc_matrix(np.atleast_2d(G))
         eps = self.regularization * max(_amax(G), 1e-300) ** 2
-        GGt = (G @ G.T + eps * sp.identity(self.m)).tocsc()
-        return splu(GGt, permc_spec="COLAMD").solve(np.asarray(G @ (G.T @ lam)))
+        rhs = G @ (G.T @ lam)
+        if self.m <= _DENSE_RANGE:  # a few equations: dense, no sparse bookkeeping
+            g = G.toarray() if hasattr(G, "toarray") else np.atleast_2d(np.asarray(G))
+            return np.linalg.solve(g @ g.T + eps * np.eye(self.m), rhs)
+        import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
+        from scipy.sparse.linalg import splu
+        G = G.tocsc() if sp.issparse(G) or isinstance(G, Triplets) else \
+            sp.csc_matrix(np.atleast_2d(G))
+        GGt = (G @ G.T + eps * sp.eye(self.m, format="csc")).tocsc()
+        return splu(GGt, permc_spec="COLAMD").solve(np.asarray(rhs))
 
     def _poly(self, x: float) -> np.ndarray:
         """The last step's collocation polynomial of z - z_old at t_old + x h_prev."""

@@ -21,13 +21,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from .triplets import Triplets
+
 
 def triplets(a: object, r0: int = 0, c0: int = 0, f: float = 1.0, transpose: bool = False
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(rows + r0, cols + c0, f values) of the nonzeros of a (or of a^T): a sparse
     matrix's stored entries, a dense array's nonzero ones."""
     import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
-    if sp.issparse(a):
+    if isinstance(a, Triplets):
+        r, c, v = a.rows, a.cols, a.data
+    elif sp.issparse(a):
         coo = a.tocoo()
         r, c, v = coo.row, coo.col, coo.data
     else:

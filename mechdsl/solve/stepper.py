@@ -39,8 +39,16 @@ The rules a stepper keeps:
 6. **Class attributes**: ``name`` (what ``--method`` takes), ``order``, ``implicit`` (it
    uses the derivatives of the equations: stiff models), ``redundant`` (it integrates through
    redundant constraints and singular positions), ``summary``, one line for the command
-   line's help, and ``auto``: whether the automatic choice
-   (:func:`mechdsl.solve.integrators.choose`) may take it.
+   line's help, ``auto``: whether the automatic choice
+   (:func:`mechdsl.solve.integrators.choose`) may take it, and ``constrained``: its steps
+   keep Phi(q, t) = 0 themselves (an index-3 method: positions on the manifold to its Newton
+   tolerance, velocities within its error estimate). The driver then projects only the
+   outputs it reports and never the state the stepper continues from, so that the stepper
+   keeps its extrapolation, its multipliers and its Jacobian across steps (a projection and
+   restart after every step cost Radau on A02 a third of its Newton iterations).
+7. **Stiffness**: a stepper whose ``detect_stiffness`` the driver sets may return
+   :data:`STIFF` from ``step`` after an accepted step (``t``, ``y`` advanced): the driver
+   then continues from that state with the implicit stepper it was given (``stiff``).
 
 The equations a stepper sees are those of one mechanism (:class:`Equations`, a protocol):
 the right-hand side ``rhs(t, y) = (qd, qdd)`` of the index-1 form for explicit methods, and
@@ -108,6 +116,11 @@ class Equations(Protocol):
 #: reports the budget, with the instant reached.
 OUT_OF_BUDGET = "the step budget ran out"
 
+#: What an explicit :meth:`Stepper.step` returns, after an accepted step, where it has found
+#: the model stiff (its step size held by stability, not accuracy; rule 7): the driver goes on
+#: from there with the implicit method it was given, else ignores it.
+STIFF = "the model is stiff"
+
 
 class Stepper:
     """One integrator of the equations of motion (see the module's rules)."""
@@ -118,6 +131,7 @@ class Stepper:
     redundant: ClassVar[bool] = False
     summary: ClassVar[str] = ""
     auto: ClassVar[bool] = False
+    constrained: ClassVar[bool] = False
     #: set by the driver on the instance where it has a limit (rule 2)
     max_step: float = math.inf
     max_attempts: float = math.inf

@@ -1,0 +1,116 @@
+"""The implicit path's pieces against independent truth: the entries-only sparse matrices
+(:mod:`mechdsl.solve.triplets`) against dense algebra, the constraints' curvature
+(:mod:`mechdsl.compiled.curvature`) against central differences of Phi_q^T lambda, Hairer's
+stiffness detection against the stability boundaries of the pairs, and the automatic switch
+to the implicit method on the stiff pendulum against its minimal ODE."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+import dynamics_models as dm  # noqa: E402
+import mechdsl  # noqa: E402
+from mechdsl.solve.explicit import coefficients, stiffness_probe  # noqa: E402
+from mechdsl.solve.motion import Motion  # noqa: E402
+from mechdsl.solve.options import SolverOptions  # noqa: E402
+from mechdsl.solve.triplets import Triplets  # noqa: E402
+
+def _random_triplets(rng, shape=(7, 5), nnz=20):
+    rows = rng.integers(0, shape[0], nnz)
+    cols = rng.integers(0, shape[1], nnz)  # repeats included: they add
+    return Triplets(rng.normal(size=nnz), rows, cols, shape)
+
+
+def test_triplets_products_are_the_dense_matrix_products():
+    rng = np.random.default_rng(1)
+    a = _random_triplets(rng)
+    dense = np.zeros(a.shape)
+    for r, c, v in zip(a.rows, a.cols, a.data):
+        dense[r, c] += v
+    assert np.array_equal(a.toarray(), dense)
+    x = rng.normal(size=5)
+    assert np.allclose(a @ x, dense @ x, rtol=1e-14, atol=1e-14)
+    z = rng.normal(size=5) + 1j * rng.normal(size=5)
+    assert np.allclose(a @ z, dense @ z, rtol=1e-14, atol=1e-14)
+    X = rng.normal(size=(5, 3))
+    assert np.allclose(a @ X, dense @ X, rtol=1e-14, atol=1e-14)
+    y = rng.normal(size=7)
+    assert np.allclose(a.T @ y, dense.T @ y, rtol=1e-14, atol=1e-14)
+    assert np.allclose(a.tocsc().toarray(), dense) and np.allclose(a.tocsr().toarray(), dense)
+
+
+def _central_difference(motion, t, q, lam, step=1e-6):
+    def force(x):
+        return motion.phi_jac(t, x)[1].T @ lam
+    cols = []
+    for j in range(motion.n):
+        e = np.zeros(motion.n)
+        e[j] = step
+        cols.append((force(q + e) - force(q - e)) / (2 * step))
+    return np.column_stack(cols)
+
+
+@pytest.mark.parametrize("text", [
+    dm.a02_text(n=3, t1=1.0),                       # revolutes only (the member layout)
+    dm.a02_text(n=40, t1=1.0),                      # 81 bodies: traced member by member here
+    dm.stiff_pendulum_text(1e4),                    # a prismatic joint
+])
+def test_curvature_is_the_derivative_of_the_constraint_forces(text):
+    motion = Motion(mechdsl.loads(text).compile())
+    rng = np.random.default_rng(2)
+    q = motion.system.guess.reshape(-1)[:motion.n] + 0.1 * rng.normal(size=motion.n)
+    lam = rng.normal(size=motion.m) * 100.0
+    exact = motion.constraint_curvature(0.3, q, lam).toarray()
+    fd = _central_difference(motion, 0.3, q, lam)
+    scale = np.abs(fd).max()
+    assert scale > 1.0  # the constraints are not linear: the test can fail
+    assert np.abs(exact - fd).max() <= 1e-7 * scale
+    assert np.allclose(exact, exact.T, atol=1e-12 * scale)  # a weighted sum of Hessians
+
+
+def test_stiffness_thresholds_lie_inside_the_stability_regions():
+    """Each pair's threshold of h rho: on both axes up to it, |R(z)| <= 1 + 1e-3 (the
+    stability function from the tableau), and the real axis's boundary lies beyond it."""
+    for name in ("dopri5", "dop853", "vern9"):
+        unit, bound = stiffness_probe(name)
+        pair = coefficients(name)
+        s = pair.stages
+        assert unit is not None and pair.c[unit] == 1.0
+        A = np.zeros((s, s))
+        for i in range(1, s):
+            A[i, :len(pair.a[i])] = pair.a[i]
+
+        def R(z):
+            return 1 + z * (pair.b[:s] @ np.linalg.solve(np.eye(s) - z * A, np.ones(s)))
+        assert abs(R(-bound)) <= 1 + 1e-3
+        assert abs(R(-2.5 * bound)) > 1  # the threshold is not far inside on the real axis
+        assert bound > 1.0  # above the h rho of accurate steps of a smooth motion
+
+
+def test_a_stiff_spring_switches_to_the_implicit_method_and_stays_accurate():
+    k = 1e8
+    res = mechdsl.loads(dm.stiff_pendulum_text(k)).simulate()
+    assert res.ok, res.messages
+    assert "radau from t = " in res.method and "proved stiff" in res.method
+    ref = dm.stiff_pendulum_oracle(k)
+    assert abs(res["theta"][-1] - ref[0]) < 1e-5
+    assert abs(res["s"][-1] - ref[1]) < 1e-5
+
+
+def test_a_soft_spring_keeps_the_explicit_pair():
+    res = mechdsl.loads(dm.stiff_pendulum_text(1e2)).simulate()
+    assert res.ok, res.messages
+    assert res.method.startswith("vern9") and "radau" not in res.method
+
+
+def test_a_named_method_is_never_switched():
+    res = mechdsl.loads(dm.stiff_pendulum_text(1e8, t1=0.05)).simulate(
+        options=SolverOptions(method="dopri5"))
+    assert res.ok, res.messages
+    assert res.method.startswith("dopri5") and "radau" not in res.method
