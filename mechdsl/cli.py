@@ -95,6 +95,10 @@ def _parser() -> argparse.ArgumentParser:
                          help="forward dynamics: the integrator's step budget per variant, "
                               "accepted and rejected steps (default 1,000,000); a run that "
                               "uses it up stops with exit 2, the instants so far written")
+        run.add_argument("--blas-threads", type=int, metavar="N",
+                         help="forward dynamics: the BLAS threads while it integrates (default "
+                              "1: its small factorisations lose by more; 0 leaves the "
+                              "library's setting)")
         run.add_argument("--through-singular", action="store_true",
                          help="at a singular position (dead point, change point) continue on the "
                               "branch the motion was on, instead of stopping")

@@ -66,7 +66,7 @@ def _options(args):
     for name in ("backend", "method"):
         if getattr(args, name, None) is not None:
             given[name] = getattr(args, name)
-    for name in ("rtol", "atol", "max_steps"):
+    for name in ("rtol", "atol", "max_steps", "blas_threads"):
         if getattr(args, name, None) is not None:
             given[name] = getattr(args, name)
     limit = _max_memory(args)
@@ -76,7 +76,8 @@ def _options(args):
         return SolverOptions(**given)
     except ValueError as err:
         option = next((f"--{name.replace('_', '-')}" for name in ("backend", "method", "rtol",
-                                                                   "atol", "max_steps")
+                                                                   "atol", "max_steps",
+                                                                   "blas_threads")
                        if str(err).startswith(name)), "--newton-tol")
         raise MechError(f"{option}: {err}") from None
 

@@ -114,3 +114,46 @@ def test_a_named_method_is_never_switched():
         options=SolverOptions(method="dopri5"))
     assert res.ok, res.messages
     assert res.method.startswith("dopri5") and "radau" not in res.method
+
+
+class _Watch:
+    """A progress display that records the BLAS threads at every accepted step."""
+
+    def __init__(self) -> None:
+        self.threads: set[int] = set()
+
+    def __call__(self, done: int, total: int) -> None:  # the instants' display (unused)
+        pass
+
+    def motion(self, t, steps, t0, t1, variant, variants, budget) -> None:
+        from threadpoolctl import threadpool_info
+
+        self.threads.update(d["num_threads"] for d in threadpool_info()
+                            if d["user_api"] == "blas")
+
+
+@pytest.mark.parametrize("limit", [1, 2])
+def test_the_dynamics_runs_with_the_blas_threads_it_is_given(limit):
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from mechdsl.solve.dynamic import DynamicRun
+
+    system = mechdsl.loads(dm.chain_text(3, t1=0.05)).compile()
+    watch = _Watch()
+    with threadpool_limits(limits=4, user_api="blas"):  # the process's own setting
+        before = {d["filepath"]: d["num_threads"] for d in threadpool_info()}
+        res = DynamicRun(system, SolverOptions(blas_threads=limit), progress=watch).run()
+        after = {d["filepath"]: d["num_threads"] for d in threadpool_info()}
+    assert res.ok, res.messages
+    assert watch.threads == {limit}
+    assert after == before  # restored
+
+
+def test_blas_threads_is_a_named_option_error(capsys):
+    from mechdsl.cli import main
+
+    model = Path(__file__).resolve().parents[1] / "examples" / "andrews.mech"
+    assert main(["run", str(model), "--blas-threads", "-1", "-q"]) == 1
+    assert "--blas-threads: blas_threads must be a whole number" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="blas_threads"):
+        SolverOptions(blas_threads=-1)

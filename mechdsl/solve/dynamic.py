@@ -164,14 +164,17 @@ class DynamicRun(Run):
         self.pose_rates = np.full((V, K, 2, n), np.nan) if self.keep_rates else None
         self.residual = 0.0
         status = "ok"
+        from .threads import blas_threads
+
         try:
-            q0 = self._initial_positions()
-            for v in range(V):
-                if q0[v] is None:
-                    continue
-                if self._variant(v, q0[v]) == "interrupted":
-                    status = "interrupted"
-                    break
+            with blas_threads(self.opts.blas_threads):
+                q0 = self._initial_positions()
+                for v in range(V):
+                    if q0[v] is None:
+                        continue
+                    if self._variant(v, q0[v]) == "interrupted":
+                        status = "interrupted"
+                        break
         except KeyboardInterrupt:
             status = "interrupted"
         if status == "ok" and self.failures:

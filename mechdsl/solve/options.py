@@ -62,6 +62,10 @@ class SolverOptions:
     #: (a span of 1e12 s, a tolerance nothing can meet) after 7 to 22 minutes (0.4 to 1.3
     #: ms a step on numpy) instead of never.
     max_steps: int = 1_000_000
+    #: Forward dynamics: the BLAS threads while it integrates (:mod:`mechdsl.solve.threads`:
+    #: its many small factorisations lose by more threads, most on a busy machine); 0
+    #: leaves the BLAS library's own setting.
+    blas_threads: int = 1
     #: Forward dynamics by the augmented Lagrangian (:mod:`mechdsl.solve.motion`): the penalty
     #: kappa, each equation's term in M + Phi_q^T W Phi_q relative to the mass it constrains.
     #: Larger contracts the iteration faster (a factor 1 / (1 + kappa sigma) per iteration,
@@ -240,6 +244,10 @@ class SolverOptions:
                 or self.max_steps < 1):
             raise ValueError(f"max_steps must be a whole number of steps, at least 1, not "
                              f"{self.max_steps!r}")
+        if (isinstance(self.blas_threads, bool) or not isinstance(self.blas_threads, Integral)
+                or self.blas_threads < 0):
+            raise ValueError(f"blas_threads must be a whole number, at least 0, not "
+                             f"{self.blas_threads!r}")
         if not 1 <= self.augmented_penalty <= 1e12:
             raise ValueError(f"augmented_penalty must be in [1, 1e12], not "
                              f"{self.augmented_penalty!r}")
