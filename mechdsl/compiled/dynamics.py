@@ -33,6 +33,7 @@ from ..plugins.contract import Args
 from ..plugins.derived import body_of
 from ..plugins.geometry import Body, Rate, Vec
 from ..symbolic import Graph, GraphError, Kernel, kernel
+from ..symbolic.codegen import LazyKernel
 from .fused import _args, _Params
 
 
@@ -76,9 +77,10 @@ class Dynamics:
     inertia: np.ndarray
     centroid: np.ndarray
     gravity: np.ndarray
-    loads: Kernel
-    mass_entries: Kernel
-    potential: Kernel
+    #: (generated and compiled where first used: :class:`~mechdsl.symbolic.codegen.LazyKernel`)
+    loads: Kernel | LazyKernel
+    mass_entries: Kernel | LazyKernel
+    potential: Kernel | LazyKernel
     #: the non-zero entries of M: entry k is (rows[k], cols[k]) (both triangles)
     rows: np.ndarray
     cols: np.ndarray
@@ -226,8 +228,8 @@ def build(n_bodies: int, mass: np.ndarray, inertia: np.ndarray, centroid: np.nda
             entries.append(graph.lift(value))
     return Dynamics(
         mass=mass, inertia=inertia, centroid=centroid, gravity=gravity,
-        loads=kernel(graph, Q, "loads"), mass_entries=kernel(graph, entries, "mass"),
-        potential=kernel(graph, [potential], "potential"),
+        loads=LazyKernel(graph, Q, "loads"), mass_entries=LazyKernel(graph, entries, "mass"),
+        potential=LazyKernel(graph, [potential], "potential"),
         rows=np.array(rows, dtype=np.intp), cols=np.array(cols, dtype=np.intp),
         params=tuple(params.arrays), functions=tuple(graph.functions), forces=elements,
         v0=v0, v0_given=v0_given, n=n, graph=graph, load_nodes=tuple(Q),
