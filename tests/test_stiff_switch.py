@@ -157,3 +157,18 @@ def test_blas_threads_is_a_named_option_error(capsys):
     assert "--blas-threads: blas_threads must be a whole number" in capsys.readouterr().err
     with pytest.raises(ValueError, match="blas_threads"):
         SolverOptions(blas_threads=-1)
+
+
+def test_radau_passes_a02s_first_collinear_position_at_a_tight_tolerance():
+    """IFToMM A02 (N = 40): every rocker horizontal at t = 0.7216 (Phi_q loses 40 of its
+    rank there); radau at rtol 1e-8 used to stop just before it (the step size underflowed).
+    B0 against the parallelogram branch's one-degree-of-freedom equation, after the
+    passage."""
+    t1 = 1.0
+    assert dm.a02_first_horizontal() < t1
+    res = mechdsl.loads(dm.a02_text(t1=t1, step=0.05, rtol=1e-8, atol=1e-10)).simulate(
+        options=SolverOptions(method="radau"))
+    assert res.ok, res.messages
+    ref = dm.a02_oracle(res.times)
+    err = np.hypot(res["b0x"] - ref[:, 0], res["b0y"] - ref[:, 1])
+    assert err.max() < 1e-7
