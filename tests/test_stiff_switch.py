@@ -78,7 +78,7 @@ def test_stiffness_thresholds_lie_inside_the_stability_regions():
     """Each pair's threshold of h rho: on both axes up to it, |R(z)| <= 1 + 1e-3 (the
     stability function from the tableau), and the real axis's boundary lies beyond it."""
     for name in ("dopri5", "dop853", "vern9"):
-        unit, bound = stiffness_probe(name)
+        unit, bound, weights = stiffness_probe(name)
         pair = coefficients(name)
         s = pair.stages
         assert unit is not None and pair.c[unit] == 1.0
@@ -89,6 +89,8 @@ def test_stiffness_thresholds_lie_inside_the_stability_regions():
         def R(z):
             return 1 + z * (pair.b[:s] @ np.linalg.solve(np.eye(s) - z * A, np.ones(s)))
         assert abs(R(-bound)) <= 1 + 1e-3
+        # y_new - Y_unit = h sum_j w_j K_j: on y' = 1 (every K_j = 1) it is h (1 - c_unit) = 0
+        assert abs(weights.sum() - (1.0 - pair.c[unit])) < 1e-13
         assert abs(R(-2.5 * bound)) > 1  # the threshold is not far inside on the real axis
         assert bound > 1.0  # above the h rho of accurate steps of a smooth motion
 

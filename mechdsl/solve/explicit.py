@@ -80,8 +80,9 @@ STIFF_STEPS, CALM_STEPS = 15, 6
 
 
 @functools.cache
-def stiffness_probe(name: str) -> tuple[int | None, float]:
-    """The stage of pair ``name`` at c = 1 (None if there is none) and the threshold of h rho:
+def stiffness_probe(name: str) -> tuple[int | None, float, np.ndarray]:
+    """The stage s of pair ``name`` at c = 1 (None if there is none), the weights w with
+    y_new - Y_s = h sum_j w_j K_j (b less the row of A of stage s), and the threshold of h rho:
     0.9 times the stability boundary of the pair, the smaller of its extents along the
     negative real axis and the imaginary axis (an undamped stiff spring's eigenvalues are
     imaginary) where |R(z)| <= 1 + 1e-3, R(z) = 1 + z b^T (I - z A)^-1 1, and at least half
@@ -105,7 +106,10 @@ def stiffness_probe(name: str) -> tuple[int | None, float]:
         return x
 
     real = extent(-1.0)
-    return unit, max(0.9 * min(real, extent(1j)), 0.5 * real)
+    weights = b.copy()
+    if unit is not None:
+        weights[:unit] -= pair.a[unit]
+    return unit, max(0.9 * min(real, extent(1j)), 0.5 * real), weights
 
 
 class RungeKutta(Stepper):
@@ -209,14 +213,11 @@ class RungeKutta(Stepper):
         boundary (:func:`stiffness_bound`) at ``STIFF_STEPS`` accepted steps in a row, not
         broken by ``CALM_STEPS`` below it, means the step size is held by stability, not by
         accuracy: an implicit method takes far fewer steps."""
-        unit, bound = stiffness_probe(self.name)
+        unit, bound, weights = stiffness_probe(self.name)
         if unit is None:
             return False
-        K, pair = self.K, self.pair
-        weights = pair.b[:pair.stages].copy()
-        weights[:unit] -= pair.a[unit]
-        weights[unit] = pair.b[unit]
-        dy = h * (weights @ K[:pair.stages])  # y_new - Y_unit
+        K = self.K
+        dy = h * (weights @ K[:len(weights)])  # y_new - Y_unit
         df = f_new - K[unit]
         den = float(dy @ dy)
         self.h_rho = h * math.sqrt(float(df @ df) / den) if den > 0 else 0.0
