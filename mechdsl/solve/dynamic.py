@@ -167,7 +167,9 @@ class DynamicRun(Run):
         from .threads import blas_threads
 
         try:
-            with blas_threads(self.opts.blas_threads):
+            # (a small model's LAPACK calls are below the sizes at which BLAS starts
+            # threads; finding the libraries to limit costs 2 ms, 4 % of Andrews' run)
+            with blas_threads(self.opts.blas_threads if self.large else 0):
                 q0 = self._initial_positions()
                 for v in range(V):
                     if q0[v] is None:

@@ -62,9 +62,10 @@ class SolverOptions:
     #: (a span of 1e12 s, a tolerance nothing can meet) after 7 to 22 minutes (0.4 to 1.3
     #: ms a step on numpy) instead of never.
     max_steps: int = 1_000_000
-    #: Forward dynamics: the BLAS threads while it integrates (:mod:`mechdsl.solve.threads`:
-    #: its many small factorisations lose by more threads, most on a busy machine); 0
-    #: leaves the BLAS library's own setting.
+    #: Forward dynamics: the BLAS threads while it integrates a model of at least
+    #: ``augmented_band_from`` coordinates (:mod:`mechdsl.solve.threads`: its many small
+    #: factorisations lose by more threads, most on a busy machine; a smaller model's are
+    #: below the sizes at which BLAS starts threads); 0 leaves the BLAS library's setting.
     blas_threads: int = 1
     #: Forward dynamics by the augmented Lagrangian (:mod:`mechdsl.solve.motion`): the penalty
     #: kappa, each equation's term in M + Phi_q^T W Phi_q relative to the mass it constrains.

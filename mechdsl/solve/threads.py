@@ -8,7 +8,10 @@ core stalls every evaluation. Measured (benchmarks/dynamics.py, OpenBLAS, two co
 with other jobs): the dense 485 x 485 solve of IFToMM A02 ran seven times slower with
 OpenBLAS's default threads than with one; the augmented Lagrangian's band Cholesky of a
 chain of 30 links 14 % slower with two than with one, and no faster for 100 links. So the
-dynamics limits BLAS to ``SolverOptions.blas_threads`` threads (1) while it integrates,
+dynamics limits BLAS to ``SolverOptions.blas_threads`` threads (1) while it integrates a
+model of ``augmented_band_from`` coordinates or more (a smaller one's dense solves, 41 x 41
+for Andrews, are below the sizes at which OpenBLAS starts threads, and finding the
+libraries to limit costs 2 ms, 4 % of Andrews' run),
 through threadpoolctl (the library scikit-learn uses for the same purpose: it finds every
 BLAS loaded in the process, numpy's and scipy's alike, and restores their settings after).
 """
