@@ -64,8 +64,12 @@ class DynamicRun(Run):
                 "equations) and has no masses: give its bodies mass and inertia to simulate "
                 "its motion, or add drives", source=system.source)
         self.keep_poses, self.keep_rates = poses or rates, rates
-        # refused before anything the size of the run is allocated, as the kinematics is
-        plan(system, self.opts.max_memory, self.opts.max_batch_elements, sparse=False,
+        # refused before anything the size of the run is allocated, as the kinematics is; a
+        # large model's equations of motion are the augmented Lagrangian's band factor and
+        # sparse terms (:mod:`.motion`), not a dense n x n matrix (a chain of 3000 links
+        # was refused at 4.1 GiB)
+        banded = system.n >= self.opts.augmented_band_from or system.m > system.n
+        plan(system, self.opts.max_memory, self.opts.max_batch_elements, sparse=banded,
              poses=poses or rates, rates=rates, extra=extra_memory,
              compiled=self.opts.backend == "compiled")
         tol = system.tolerances  # the file's; options given explicitly override them
