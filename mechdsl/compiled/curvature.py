@@ -10,7 +10,7 @@ the Hessians of the constraints weighted by the multipliers (Haug 1989, sec. 6.3
 IFToMM A02 the rockers carry the weight of the whole chain and the term is of the order of
 M itself at the step sizes of a 1e-6 tolerance, so a Newton matrix without it contracts
 slowly or not at all. The entries are exact: derived by reverse accumulation from the same
-traced graph as Phi_q (:meth:`mechdsl.symbolic.Graph.gradient`), one entry per
+traced graph as Phi_q (:meth:`mechdsl.symbolic.Graph.sparse_gradient`), one entry per
 (equation i, coordinate k, coordinate j) with d(Phi_q)_ik / dq_j not identically zero.
 """
 
@@ -64,15 +64,12 @@ def curvature(system) -> Curvature | None:
         _, rows, cols, jac, _ = trace_members(graph, params, system.groups,
                                               system.n_bodies, system.m)
         arrays = tuple(params.arrays)
-    n = system.n
-    wrt = [graph.var("q", k) for k in range(n)]
+    position = {graph.var("q", k).id: k for k in range(system.n)}
     nodes, eqs, ks, js = [], [], [], []
     for e, node in enumerate(jac):
         if node.op == "const":
             continue
-        for j, d in enumerate(graph.gradient(node, wrt)):
-            if d.op == "const" and d.value == 0.0:
-                continue
+        for j, d in graph.sparse_gradient(node, position):
             nodes.append(d)
             eqs.append(int(rows[e]))
             ks.append(int(cols[e]))

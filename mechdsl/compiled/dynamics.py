@@ -111,13 +111,12 @@ class Dynamics:
         model on first use (the explicit integrators never need them)."""
         g = self.graph
         wrt = [g.var("q", k) for k in range(self.n)] + [g.var("qd", k) for k in range(self.n)]
+        position = {w.id: k for k, w in enumerate(wrt)}
         nodes, rows, cols, which = [], [], [], []
         for i, root in enumerate(self.load_nodes):
             if root.op == "const":
                 continue
-            for k, d in enumerate(g.gradient(root, wrt)):
-                if d.op == "const" and d.value == 0.0:
-                    continue
+            for k, d in g.sparse_gradient(root, position):
                 nodes.append(d)
                 rows.append(i)
                 cols.append(k % self.n)

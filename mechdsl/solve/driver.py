@@ -169,6 +169,8 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                 equations = factory()
                 project = getattr(equations, "project", None)
                 settle = getattr(equations, "settle", None) or project
+                # (s cleared first: its counters are in ``before`` now, and a failure of
+                # the implicit stepper's construction must not count them twice)
                 stepper, s = implicit, None
                 s = implicit(equations, t, y_new, t_end, rtol=rtol, atol=atol, scale=scale)
                 s.max_attempts = max_steps - int(before[:2].sum())

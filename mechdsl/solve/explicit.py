@@ -210,7 +210,7 @@ class RungeKutta(Stepper):
         """Hairer's stiffness detection (DOPRI5, Solving ODEs II, sec. IV.2): with the
         stage s at c_s = 1, rho = |f(y_new) - K_s| / |y_new - Y_s| estimates the dominant
         eigenvalue of the Jacobian along the step's error; h rho above the pair's stability
-        boundary (:func:`stiffness_bound`) at ``STIFF_STEPS`` accepted steps in a row, not
+        boundary (:func:`stiffness_probe`) at ``STIFF_STEPS`` accepted steps in a row, not
         broken by ``CALM_STEPS`` below it, means the step size is held by stability, not by
         accuracy: an implicit method takes far fewer steps."""
         unit, bound, weights = stiffness_probe(self.name)

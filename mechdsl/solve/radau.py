@@ -229,11 +229,11 @@ class RadauStepper(Stepper):
             (0.01 / max(d1, d2)) ** (1 / (self.order + 1))
         return min(100 * h0, h1, abs(self.t_bound - t))
 
-    def _stiffness(self, t: float, q: np.ndarray, v: np.ndarray, lam: np.ndarray) -> object:
-        """d/dq of Q - Phi_q^T lambda: the loads' exact derivative less the constraints'
-        curvature (where the equations give it: ``constraint_curvature``)."""
+    def _stiffness(self, t: float, q: np.ndarray, dq: object, lam: np.ndarray) -> object:
+        """d/dq of Q - Phi_q^T lambda: the loads' exact derivative ``dq`` less the
+        constraints' curvature (where the equations give it: ``constraint_curvature``)."""
         eq = self.equations
-        dq = _mat(eq.load_derivatives(t, q, v)[0])
+        dq = _mat(dq)
         curv = getattr(eq, "constraint_curvature", None)
         if curv is None or not self.curvature:
             return dq
@@ -246,8 +246,8 @@ class RadauStepper(Stepper):
     def _jacobian(self, t: float, y: np.ndarray) -> None:
         eq, n = self.equations, self.n
         q, v = y[:n], y[n:]
-        dv = eq.load_derivatives(t, q, v)[1]
-        dq = self._stiffness(t, q, v, self.lam)
+        dq, dv = eq.load_derivatives(t, q, v)
+        dq = self._stiffness(t, q, dq, self.lam)
         self._jac = (_mat(eq.mass(q)), _mat(dq), _mat(dv), _mat(eq.phi_jac(t, q)[1]))
         self.njev += 1
         self._set_pattern()
@@ -362,8 +362,8 @@ class RadauStepper(Stepper):
         jacs = []
         for j in range(3):
             tj, qj, vj = t + _K["c"][j] * h, self.y[:n] + Z[j, :n], self.y[n:] + Z[j, n:2 * n]
-            dv = eq.load_derivatives(tj, qj, vj)[1]
-            dq = self._stiffness(tj, qj, vj, self.lam + Z[j, 2 * n:])
+            dq, dv = eq.load_derivatives(tj, qj, vj)
+            dq = self._stiffness(tj, qj, dq, self.lam + Z[j, 2 * n:])
             jacs.append((_mat(eq.mass(qj)), _mat(dq), _mat(dv), _mat(eq.phi_jac(tj, qj)[1])))
             self.njev += 1
         return jacs

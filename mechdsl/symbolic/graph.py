@@ -19,7 +19,7 @@ so ascending ids are a topological order: every pass below is a loop, never a re
 from __future__ import annotations
 
 import math
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -368,6 +368,23 @@ class Graph:
     def gradient(self, root: Node, wrt: Sequence[Node]) -> list[Node]:
         """d root / d w for each variable node w of ``wrt``, by reverse accumulation over the
         root's graph (the adjoints are built as nodes, so the result is exact)."""
+        adj = self._adjoints(root)
+        return [adj.get(w.id, self.zero) for w in wrt]
+
+    def sparse_gradient(self, root: Node, position: Mapping[int, int]
+                        ) -> list[tuple[int, Node]]:
+        """(k, d root / d w) for the variables w of the root's graph with ``position[w.id]``
+        = k whose derivative is not identically zero, in increasing k: :meth:`gradient`
+        without its zeros, in time proportional to the root's graph, not to the number of
+        variables (a load or a Jacobian entry depends on a few of a model's coordinates)."""
+        adj = self._adjoints(root)
+        out = [(position[i], d) for i, d in adj.items()
+               if i in position and not (d.op == "const" and d.value == 0.0)]
+        out.sort(key=lambda kd: kd[0])
+        return out
+
+    def _adjoints(self, root: Node) -> dict[int, Node]:
+        """d root / d n for every node n of the root's graph that root depends on, by id."""
         nodes = self.subgraph([root])
         adj: dict[int, Node] = {root.id: self.one}
         for n in reversed(nodes):
@@ -380,7 +397,7 @@ class Graph:
                 term = self.op("mul", a, d)
                 prev = adj.get(arg.id)
                 adj[arg.id] = term if prev is None else self.op("add", prev, term)
-        return [adj.get(w.id, self.zero) for w in wrt]
+        return adj
 
     def time_derivative(self, roots: Sequence[Node], rate: Callable[[Node], Node | None]
                         ) -> list[Node]:
