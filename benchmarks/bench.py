@@ -362,6 +362,30 @@ def startup(rep: Report, quick: bool) -> None:
     rep.table("Start-up (whole process, ms)", ["command", "ms"], rows)
 
 
+def api_again(rep: Report, quick: bool) -> None:
+    """What a user of the API pays to solve a loaded model again (issue 29): the seed's
+    ``Mechanism.simulate()`` called again, with the same values and with a new ``l``, beside
+    the solve of the model compiled beforehand (the solver alone), in one run."""
+    repeat = 7 if quick else 21
+    mech = mechdsl.load(ROOT / "examples" / "slider_crank.mech")
+    system = mech.compile()
+    t_solve, _ = median_time(lambda: simulate(system), repeat)
+    t_again, _ = median_time(lambda: mech.simulate(), repeat)
+    values = iter(3.0 + 1e-3 * k for k in range(10 * repeat))
+    t_new, res = median_time(lambda: mech.simulate(l=next(values)), repeat)
+    t_first, _ = median_time(lambda: mechdsl.load(ROOT / "examples" / "slider_crank.mech"
+                                                  ).simulate(), repeat)
+    rows = [["solve, compiled beforehand (simulate(system))", f"{1e3 * t_solve:.2f}", "1.00"],
+            ["mech.simulate() again, same values", f"{1e3 * t_again:.2f}",
+             f"{t_again / t_solve:.2f}"],
+            ["mech.simulate(l=...) again, a new l each call", f"{1e3 * t_new:.2f}",
+             f"{t_new / t_solve:.2f}"],
+            ["load + simulate() (a fresh Mechanism each call)", f"{1e3 * t_first:.2f}",
+             f"{t_first / t_solve:.2f}"]]
+    rep.table("Solving a loaded model again (the seed, 1001 instants; median ms, ratio to "
+              "the solve alone)", ["call", "ms", "ratio"], rows)
+
+
 def animation(rep: Report, quick: bool) -> None:
     """The animation of a 101-body chain over 1000 instants, solve and GIF."""
     from mechdsl.outputs.draw import animate
@@ -551,7 +575,8 @@ def dynamics_section(rep: Report, quick: bool) -> None:
 
 
 SECTIONS = {"seed": seed, "levers": levers, "work-precision": work_precision, "scaling": scaling,
-            "sweep": sweep, "long": long_span, "startup": startup, "animation": animation,
+            "sweep": sweep, "long": long_span, "startup": startup, "api": api_again,
+            "animation": animation,
             "andrews": andrews, "dynamics": dynamics_section}
 
 

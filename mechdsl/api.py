@@ -34,6 +34,82 @@ from .solve.mobility import Freedom, freedom, redundancy_warning, report
 from .solve.newton import use_sparse
 
 
+#: the compiled models a Mechanism keeps (distinct overrides, the last used kept) ...
+KEEP_COMPILED = 4
+#: ... each of at most this many sweep variants (a study's chunks are compiled once each)
+KEEP_VARIANTS = 64
+
+
+class _Compiled:
+    """The compiled models a :class:`Mechanism` keeps, by the key of their overrides: the
+    last :data:`KEEP_COMPILED` used. A lock keeps it whole where threads share the mechanism
+    (a server re-solving on every request)."""
+
+    def __init__(self) -> None:
+        import threading
+
+        self._lock = threading.Lock()
+        self._systems: dict[tuple, System] = {}
+
+    def get(self, key: tuple | None) -> System | None:
+        if key is None:
+            return None
+        with self._lock:
+            system = self._systems.pop(key, None)
+            if system is not None:
+                self._systems[key] = system  # the most recently used last
+            return system
+
+    def put(self, key: tuple, system: System) -> None:
+        with self._lock:
+            self._systems.pop(key, None)
+            self._systems[key] = system
+            while len(self._systems) > KEEP_COMPILED:
+                del self._systems[next(iter(self._systems))]
+
+    def clear(self) -> None:
+        with self._lock:
+            self._systems.clear()
+
+    def __getstate__(self) -> dict:
+        return {}  # a copy sent to another process compiles there (a lock does not travel)
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__()
+
+
+def _exact(value: object) -> object:
+    """A value of the overrides as part of a key: a number by its bits (0.0 and -0.0 differ,
+    as they may in atan2), a mapping and a list item by item, an expression by its structure
+    (frozen dataclasses: their repr, spans included); TypeError for what cannot be a key."""
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, (int, float, np.number)):
+        return ("number", float(value).hex())
+    if isinstance(value, Mapping):
+        return ("map", tuple(sorted((str(k), _exact(v)) for k, v in value.items())))
+    if isinstance(value, (list, tuple)):
+        return ("list", tuple(_exact(v) for v in value))
+    hash(value)  # a frozen dataclass is hashable; a mutable object is not
+    return ("expr", type(value).__name__, repr(value))
+
+
+def _overrides_key(ov: Overrides | None, need_times: bool) -> tuple | None:
+    """What identifies a compiled model of this mechanism: every field of the overrides,
+    exactly; None where they cannot be compared (a table of variants, numpy arrays: an
+    optimiser's population, compiled once each)."""
+    from dataclasses import fields
+
+    ov = ov or Overrides()
+    if ov.table is not None:
+        return None
+    try:
+        return (bool(need_times),
+                *((f.name, _exact(getattr(ov, f.name))) for f in fields(ov)))
+    except TypeError:
+        return None
+
+
 @dataclass(frozen=True)
 class CheckReport:
     """What ``mechdsl check`` prints (:meth:`Mechanism.check`): what the model declares,
@@ -95,6 +171,7 @@ class Mechanism:
     def __init__(self, model: Model, *, registry: Registry | None = None,
                  plugins: Iterable[object | str] = (),
                  allow_plugins: Iterable[str] = ()) -> None:
+        self._compiled = _Compiled()
         self.model = model
         self._registry = registry
         self._plugins = tuple(plugins)
@@ -102,6 +179,17 @@ class Mechanism:
                                                      if isinstance(p, str))
         # a registry given by the caller still needs the model's own plugin lines
         self._pending_model_plugins = registry is not None and bool(model.plugins)
+
+    @property
+    def model(self) -> Model:
+        """The parsed model (plain data). Setting another one forgets the compiled models
+        kept for the old one."""
+        return self._model
+
+    @model.setter
+    def model(self, model: Model) -> None:
+        self._model = model
+        self._compiled.clear()
 
     @property
     def registry(self) -> Registry:
@@ -243,8 +331,22 @@ class Mechanism:
 
     def compile(self, overrides: Overrides | None = None, *, need_times: bool = True) -> System:
         """Resolve the model against the registry (see
-        :func:`mechdsl.compiled.compile.compile_model`)."""
-        return compile_model(self.model, self.registry, overrides, need_times=need_times)
+        :func:`mechdsl.compiled.compile.compile_model`).
+
+        The compiled model is plain, read-only data, and the solvers keep their state apart
+        from it: the mechanism keeps the last few it compiled (of at most
+        :data:`KEEP_VARIANTS` variants: a single run or a small sweep, not a study's chunks),
+        each with the plans and generated code its first solve made, and gives the same
+        object again for the same overrides (values compared exactly, expressions by their
+        structure), so that solving a model again costs the solve alone."""
+        key = _overrides_key(overrides, need_times)
+        found = self._compiled.get(key)
+        if found is not None:
+            return found
+        system = compile_model(self.model, self.registry, overrides, need_times=need_times)
+        if key is not None and system.n_variants <= KEEP_VARIANTS:
+            self._compiled.put(key, system)
+        return system
 
     def simulate(
         self,

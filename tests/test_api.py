@@ -78,3 +78,66 @@ def test_a_value_out_of_range_is_left_to_the_run_where_an_override_may_fix_it(lo
     with pytest.raises(mechdsl.MechError, match="step must be positive"):
         mech.simulate()
     assert mech.simulate(h=0.5).ok
+
+
+# -- a Mechanism compiles once (issue 29): the same overrides give the same compiled model --
+
+def test_the_same_overrides_give_the_compiled_model_kept():
+    from mechdsl.compiled.variants import Overrides
+
+    mech = mechdsl.loads(SLIDER)
+    first = mech.compile()
+    assert mech.compile() is first
+    assert mech.compile(Overrides(params={"l": 3.0})) is mech.compile(Overrides(params={"l": 3.0}))
+    assert mech.compile(Overrides(params={"l": 3.0})) is not first
+    # numbers are compared by their bits: -0.0 is not 0.0 (atan2 tells them apart)
+    a = mech.compile(Overrides(params={"omega": 0.0}))
+    assert mech.compile(Overrides(params={"omega": -0.0})) is not a
+    # expressions by their structure
+    e1 = mech.compile(Overrides(params={"l": mechdsl.api.parse_expr("2*r", "l", ["r"])}))
+    e2 = mech.compile(Overrides(params={"l": mechdsl.api.parse_expr("2*r", "l", ["r"])}))
+    assert e1 is e2
+
+
+def test_solving_again_gives_each_values_own_closed_form():
+    # kept compiled models are never a stale answer: each run against the closed form of its
+    # own l, in an order that revisits one kept model after others
+    mech = mechdsl.loads(SLIDER)
+    for length in (3.5, 3.0, 4.0, 3.0, 3.5, 5.0, 6.0, 7.0, 3.5):
+        res = mech.simulate(l=length, span=(0, 0.25), step=0.01)
+        t = res["t"]
+        x, v, a = slider_crank(2.0, length, np.pi / 4 + OMEGA * t, OMEGA, 0.0)
+        np.testing.assert_allclose(res["slider.x"], x, rtol=0, atol=1e-12 * length)
+        np.testing.assert_allclose(res["slider.ax"], a, rtol=0, atol=1e-10 * np.abs(a).max())
+
+
+def test_the_kept_models_are_few_and_small_and_follow_the_model():
+    from dataclasses import replace
+
+    from mechdsl.api import KEEP_COMPILED, KEEP_VARIANTS
+    from mechdsl.compiled.variants import Overrides
+
+    mech = mechdsl.loads(SLIDER)
+    kept = [mech.compile(Overrides(params={"l": 3.0 + 0.1 * k})) for k in range(KEEP_COMPILED)]
+    assert mech.compile(Overrides(params={"l": 3.0})) is kept[0]  # used last now
+    mech.compile(Overrides(params={"l": 9.0}))  # one more: the least recently used goes
+    assert mech.compile(Overrides(params={"l": 3.0})) is kept[0]
+    assert mech.compile(Overrides(params={"l": 3.1})) is not kept[1]
+    # a large sweep (a study's chunk) is compiled each time, not kept
+    many = Overrides(sweeps={"l": [3.0 + 0.001 * k for k in range(KEEP_VARIANTS + 1)]})
+    assert mech.compile(many) is not mech.compile(many)
+    # another model (the command line adds traces) is compiled anew
+    before = mech.compile()
+    mech.model = replace(mech.model, traces=mech.model.traces)
+    assert mech.compile() is not before
+
+
+def test_a_mechanism_travels_without_its_compiled_models():
+    import pickle
+
+    mech = mechdsl.loads(SLIDER)
+    mech.compile()
+    copy = pickle.loads(pickle.dumps(mech))
+    res = copy.simulate(span=(0, 0.1), step=0.01)
+    x, _, _ = slider_crank(2.0, 3.5, np.pi / 4 + OMEGA * res["t"], OMEGA, 0.0)
+    np.testing.assert_allclose(res["slider.x"], x, rtol=0, atol=1e-12)
