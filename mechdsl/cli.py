@@ -1,4 +1,4 @@
-"""The ``mechdsl`` command: ``run``, ``check``, ``plot`` and ``plugins``.
+"""The ``mechdsl`` command: ``run``, ``check``, ``view``, ``plot`` and ``plugins``.
 
 Exit status (:class:`ExitCode`): 0 success; 1 the input is wrong (printed as
 ``FILE:LINE:COL: error: ...`` with the source line and a caret), an output cannot be written,
@@ -172,6 +172,18 @@ def _parser() -> argparse.ArgumentParser:
     # clients built on vscode-languageclient's stdio transport, and some others, append it
     lsp.add_argument("--stdio", action="store_true",
                      help="talk over standard input and output (the default and only way)")
+
+    view = sub.add_parser("view", help="a live page of the mechanism: redrawn on every save, "
+                                      "re-solved as a slider moves (pip install mechdsl[view])")
+    view.add_argument("file", metavar="FILE", help="the .mech file")
+    view.add_argument("--port", type=int, default=0, metavar="N",
+                      help="the local port (default: a free one)")
+    view.add_argument("--no-browser", action="store_true",
+                      help="print the page's address, do not open a browser")
+    view.add_argument("--plugin", metavar="MODULE", action="append", default=[],
+                      help="also load the plugin module MODULE")
+    view.add_argument("--allow-plugin", metavar="MODULE", action="append", default=[],
+                      help="let the model's 'plugin \"MODULE\"' line import MODULE")
 
     fmt = sub.add_parser("fmt", help="write .mech files in the canonical layout")
     fmt.add_argument("files", metavar="FILE", nargs="+", help="the .mech files to format")

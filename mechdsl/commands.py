@@ -852,3 +852,28 @@ def plot_command(args) -> int:
     with _writing("-o", out):
         plot_results(results, out, title=os.path.basename(args.file), labels=labels)
     return 0
+
+
+def view_command(args) -> int:
+    """``mechdsl view``: serve the live page of the file until Ctrl-C (:mod:`mechdsl.view`)."""
+    import importlib.util
+
+    missing = [m for m in ("starlette", "uvicorn", "watchfiles", "websockets")
+               if importlib.util.find_spec(m) is None]
+    if missing:
+        raise MechError(f"mechdsl view needs {', '.join(missing)}: pip install 'mechdsl[view]'")
+    if not 0 <= args.port <= 65535:
+        raise MechError(f"--port {args.port}: give a port from 1 to 65535, or 0 for a free one")
+    from .reading import read_data
+    from .view.server import serve
+    from .view.session import Session
+
+    read_data(args.file, "", "MAX_MODEL_BYTES")  # a file that cannot be read: said here
+    session = Session(args.file, plugins=tuple(args.plugin),
+                      allow_plugins=tuple(args.allow_plugin))
+    try:
+        serve(session, args.port, open_browser=not args.no_browser,
+              announce=lambda text: print(text, file=sys.stderr, flush=True))
+    except OSError as err:  # the port is taken
+        raise MechError(f"--port {args.port}: {err.strerror or err}") from None
+    return 0

@@ -1,0 +1,161 @@
+"""A run as the page draws it: one binary message, a JSON header and float64 arrays.
+
+Layout of a message (little-endian)::
+
+    b"MDV1" | uint32 n | n bytes of JSON (UTF-8), padded with spaces to a multiple of 8 |
+    float64 array
+
+The header says where each quantity lies in the array (``o``, its offset in values) and its
+shape; the page reads them as views (``new Float64Array(buffer, 8 + n + 8 o, size)``), with
+no parsing of numbers: the seed's 1001 instants travel as 0.3 MB and are ready as soon as
+they arrive. Positions are the run's own, to the last bit (float64, the world coordinates
+r^P = r + A(phi) s'^P of every drawn point, Haug eq. 2.6.4, as :mod:`mechdsl.outputs.draw`
+computes them for ``--snapshot``).
+
+Every name (bodies, points, outputs, params, messages) is a JSON string: the page shows it as
+text, never as markup.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from ..compiled.system import System
+from ..outputs.draw import outlines, world
+from ..results import Results, summary
+
+MAGIC = b"MDV1"
+
+
+@dataclass(frozen=True)
+class Slider:
+    """A param the page gives a slider: its value now and its range [lo, hi]."""
+
+    name: str
+    value: float
+    lo: float
+    hi: float
+
+
+def default_range(value: float) -> tuple[float, float]:
+    """The slider range of a param without one in the file: from 0 to twice the value (the
+    value's sign kept: a length, a speed, a mass can be halved to zero or doubled), and
+    [-1, 1] around a value of 0."""
+    if value == 0 or not math.isfinite(value):
+        return -1.0, 1.0
+    return (0.0, 2.0 * value) if value > 0 else (2.0 * value, 0.0)
+
+
+class _Packer:
+    """Arrays appended to one float64 buffer, each remembered by its offset."""
+
+    def __init__(self) -> None:
+        self.parts: list[np.ndarray] = []
+        self.size = 0
+
+    def add(self, a: np.ndarray) -> int:
+        a = np.ascontiguousarray(a, dtype="<f8").ravel()
+        at = self.size
+        self.parts.append(a)
+        self.size += a.size
+        return at
+
+    def bytes(self) -> bytes:
+        return np.concatenate(self.parts).tobytes() if self.parts else b""
+
+
+def encode(header: dict, packer: _Packer | None = None) -> bytes:
+    """The message: magic, the header's length, the header, the arrays."""
+    text = json.dumps(header, allow_nan=False, separators=(",", ":")).encode("utf-8")
+    text += b" " * (-len(text) % 8)
+    return MAGIC + len(text).to_bytes(4, "little") + text + (packer.bytes() if packer else b"")
+
+
+def decode(message: bytes) -> tuple[dict, np.ndarray]:
+    """The header and the array of a message (the tests read what the page reads)."""
+    if message[:4] != MAGIC:
+        raise ValueError("not a mechdsl view message")
+    n = int.from_bytes(message[4:8], "little")
+    return json.loads(message[8:8 + n]), np.frombuffer(message[8 + n:], dtype="<f8")
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def _labels(results: Results) -> list[str]:
+    if not results.sweep:
+        return [""]
+    return [", ".join(f"{k} = {v[i]:g}" for k, v in results.sweep.items())
+            for i in range(results.n_variants)]
+
+
+def run_message(system: System, results: Results, sliders: Sequence[Slider], *,
+                file: str, warnings: Iterable[str] = ()) -> bytes:
+    """The page's message for a run (module docstring): the mechanism's drawn points at every
+    instant, the outputs, the sliders, how the run ended."""
+    if results.poses is None:
+        raise ValueError("the view needs the run's poses: simulate(..., poses=True)")
+    pk = _Packer()
+    sk, nb = system.sketch, system.n_bodies
+    poses = results.poses
+    V, K = poses.shape[:2]
+    drawn = outlines(sk)
+    items: list[dict] = []
+    for v in range(V):
+        one = poses[v:v + 1]
+        for i in range(nb):
+            local = drawn[i][v:v + 1]
+            items.append({"kind": "body", "name": system.body_names[i], "v": v,
+                          "p": int(local.shape[1]), "o": pk.add(world(one, i, local))})
+        for body, xy in sk.pins:
+            items.append({"kind": "pin", "v": v, "o": pk.add(world(one, body, xy[v:v + 1]))})
+        for i, edges in enumerate(sk.shapes):
+            if edges is not None:
+                e = edges[v:v + 1]
+                items.append({"kind": "shape", "v": v, "p": int(e.shape[1]),
+                              "o": pk.add(world(one, i, e))})
+        for b1, xy1, b2, xy2 in sk.links:
+            ends = np.stack((world(one, b1, xy1[v:v + 1]), world(one, b2, xy2[v:v + 1])), -2)
+            items.append({"kind": "spring", "v": v, "o": pk.add(ends)})
+        for label, body, xy in sk.traces:
+            items.append({"kind": "trace", "name": label, "v": v,
+                          "o": pk.add(world(one, body, xy[v:v + 1]))})
+        ground = drawn[nb][v:v + 1]  # fixed: its points once
+        items.append({"kind": "ground", "v": v, "p": int(ground.shape[1]),
+                      "o": pk.add(ground)})
+    # every drawn array ends in (x, y): the bounds of the finite points of all of them
+    pts = np.concatenate([p.reshape(-1, 2) for p in pk.parts]) if pk.parts else np.zeros((0, 2))
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    lo, hi = (pts.min(axis=0), pts.max(axis=0)) if pts.size else ((-1.0, -1.0), (1.0, 1.0))
+    bounds = [float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])]
+    series = []
+    for name in results.data:
+        a = np.asarray(results.data[name], dtype=float).reshape(V, K)
+        for v in range(V):
+            series.append({"name": name, "unit": results.units.get(name, ""), "v": v,
+                           "o": pk.add(a[v])})
+    header = {
+        "type": "run", "file": file, "K": int(K), "V": int(V), "t": pk.add(results.times),
+        "time_unit": results.time_unit, "solved": [int(n) for n in results.n_solved],
+        "status": results.status, "messages": list(results.messages),
+        "warnings": [*results.warnings, *warnings], "summary": summary(results),
+        "variants": _labels(results), "bodies": list(system.body_names),
+        "items": items, "series": series, "bounds": bounds,
+        "sliders": [{"name": s.name, "value": _finite(s.value), "lo": _finite(s.lo),
+                     "hi": _finite(s.hi)} for s in sliders],
+    }
+    return encode(header, pk)
+
+
+def error_message(kind: str, texts: Sequence[str], sliders: Sequence[Slider] = ()) -> bytes:
+    """A message without a run: ``kind`` "error" (the file's located errors, as ``mechdsl
+    check`` prints them, or a failure of the solve) with the texts to show."""
+    return encode({"type": kind, "errors": list(texts),
+                   "sliders": [{"name": s.name, "value": _finite(s.value), "lo": _finite(s.lo),
+                                "hi": _finite(s.hi)} for s in sliders]})

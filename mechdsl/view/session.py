@@ -1,0 +1,153 @@
+"""The file a view shows, and the values its sliders set: the view's only mutable state.
+
+A :class:`Session` loads the file as ``mechdsl run`` does (the same plugin permissions: a
+model file imports no module by itself), keeps the last :class:`~mechdsl.api.Mechanism`
+that loaded (it keeps its compiled models: a slider moved back to a value is not compiled
+again), and answers each request with one message of :mod:`.payload`: a run, or the errors
+that stopped one. A file that no longer loads keeps the last good mechanism for the page,
+which keeps its drawing and shows the errors.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+from typing import Mapping
+
+from ..errors import MechError, format_error
+from . import payload
+
+#: The largest number of sliders a page gets (a model with more params shows the first).
+MAX_SLIDERS = 64
+
+
+class Session:
+    """The view of ``path`` (module docstring). ``plugins`` and ``allow_plugins`` are those
+    of ``mechdsl run``; ``options`` the solver's (None: the file's)."""
+
+    def __init__(self, path: str, *, plugins: tuple[str, ...] = (),
+                 allow_plugins: tuple[str, ...] = (), options=None) -> None:
+        self.path = os.path.abspath(path)
+        self.display = os.path.basename(path)
+        self.plugins, self.allow_plugins, self.options = plugins, allow_plugins, options
+        self.mech = None
+        self.values: dict[str, float] = {}
+        self._sliders: list[payload.Slider] = []
+        self._lock = threading.Lock()  # one load or solve at a time
+
+    # -- what the page may set ----------------------------------------------------------------
+    def sliders(self) -> list[payload.Slider]:
+        """The params given sliders (those whose value is a number or an expression of
+        numbers alone), each at its value now."""
+        return [payload.Slider(s.name, self.values.get(s.name, s.value), s.lo, s.hi)
+                for s in self._sliders]
+
+    def watched(self) -> set[str]:
+        """The files whose change reloads the view: the model file, and the tables and meshes
+        it names (as the last model that parsed names them)."""
+        files = {os.path.realpath(self.path)}
+        if self.mech is not None:
+            files.update(self.mech.model.files)
+        return files
+
+    def check_values(self, given: Mapping[str, object]) -> dict[str, float]:
+        """``given`` as param values: ValueError naming what is wrong (an unknown name, a
+        value that is not a finite number)."""
+        known = {s.name for s in self._sliders}
+        out: dict[str, float] = {}
+        for name, value in given.items():
+            if not isinstance(name, str) or name not in known:
+                shown = name if isinstance(name, str) else type(name).__name__
+                raise ValueError(f"no slider '{shown[:80]}'; sliders: "
+                                 f"{', '.join(sorted(known)) or 'none'}")
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+                    not math.isfinite(value):
+                raise ValueError(f"the value of '{name}' must be a finite number")
+            out[name] = float(value)
+        return out
+
+    # -- loading and solving ------------------------------------------------------------------
+    def load(self) -> bytes:
+        """Read and parse the file again, then solve it with the sliders' values: the run's
+        message, or the file's errors (every one that can be found at once)."""
+        from ..api import load
+
+        with self._lock:
+            try:
+                mech = load(self.path, plugins=self.plugins, allow_plugins=self.allow_plugins,
+                            check=False)
+                mech.check_names()
+            except MechError as err:
+                return payload.error_message("error", self._all_errors(err), self.sliders())
+            except OSError as err:  # pragma: no cover - read_data reports these as MechError
+                return payload.error_message("error", [f"{self.display}: error: {err}"])
+            self.mech = mech
+            self._sliders = _sliders(mech)
+            names = {s.name for s in self._sliders}
+            self.values = {k: v for k, v in self.values.items() if k in names}
+            return self._solve()
+
+    def solve(self, values: Mapping[str, float]) -> bytes:
+        """Solve the last good model with ``values`` set (checked by :meth:`check_values`)."""
+        with self._lock:
+            self.values.update(values)
+            if self.mech is None:
+                return payload.error_message("error", ["the file has not loaded yet"])
+            return self._solve()
+
+    def reset(self) -> bytes:
+        """Every slider back to the file's value, and the run."""
+        with self._lock:
+            self.values = {}
+            if self.mech is None:
+                return payload.error_message("error", ["the file has not loaded yet"])
+            return self._solve()
+
+    def _solve(self) -> bytes:
+        mech = self.mech
+        try:
+            results = mech.simulate(params=dict(self.values), poses=True, options=self.options)
+            system = mech.compile(_overrides(mech, self.values))  # the run's, kept
+        except MechError as err:
+            return payload.error_message("failed", [format_error(err)], self.sliders())
+        return payload.run_message(system, results, self.sliders(), file=self.display)
+
+    def _all_errors(self, err: MechError) -> list[str]:
+        """Every located error of the file, as ``mechdsl check`` prints them."""
+        if err.span is None or err.source is None or self.plugins:
+            return [format_error(err)]
+        from ..diagnostics import diagnose
+        from ..plugins.manager import build_registry
+
+        text = err.source.text
+        if "plugin" in text:  # left to the path that loads the plugins it allows
+            return [format_error(err)]
+        found = diagnose(text, err.source.name, build_registry())
+        return [format_error(e) for e in found] or [format_error(err)]
+
+
+def _overrides(mech, values: Mapping[str, float]):
+    """The overrides :meth:`~mechdsl.api.Mechanism.simulate` makes of ``params=values`` (the
+    same key: its compiled model is the one the run used)."""
+    return mech._overrides(None, None, None, dict(values), None)
+
+
+def _sliders(mech) -> list[payload.Slider]:
+    """A slider for each param whose value reads no other param (``param l = 3.5``,
+    ``param omega = 4*pi``), over its range (:func:`.payload.default_range`)."""
+    from ..grammar import expr as E
+
+    out = []
+    for p in mech.model.params:
+        if E.free_names(p.value):
+            continue  # follows other params: moved by theirs
+        try:
+            value = float(E.evaluate(p.value, {}))
+        except (TypeError, ValueError, ZeroDivisionError):
+            continue
+        if not math.isfinite(value):
+            continue
+        lo, hi = payload.default_range(value)
+        out.append(payload.Slider(p.name, value, lo, hi))
+    return out[:MAX_SLIDERS]

@@ -1,0 +1,192 @@
+"""mechdsl view in a real browser (issue 29): `mechdsl view` started as a user starts it,
+its page opened in headless Chromium (Debian's chromium and chromedriver, driven by
+selenium). The first frame is drawn, the positions the page holds are `mechdsl run`'s to
+1e-12, a slider move re-solves and redraws (the rod too short locks up at t = 0.005), a save
+reloads the page, a broken file shows its located error, a request without the token is
+refused, and a unit written as markup is shown as text.
+
+These tests need /usr/bin/chromium and /usr/bin/chromedriver (`apt-get install chromium
+chromium-driver`; .ci/run installs them): without them they fail, they do not skip."""
+
+import csv
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from closed_forms import slider_crank
+from conftest import EXAMPLES
+
+CHROMIUM, DRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
+OMEGA = 4 * np.pi
+
+
+@pytest.fixture(scope="module")
+def browser():
+    assert os.path.exists(CHROMIUM) and os.path.exists(DRIVER), \
+        "the browser tests need Debian's chromium and chromium-driver (apt-get install)"
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = CHROMIUM
+    # the flags this closed network needs (no background connections), headless as root
+    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                 "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--window-size=1400,1000"):
+        opts.add_argument(flag)
+    driver = webdriver.Chrome(service=Service(DRIVER), options=opts)
+    yield driver
+    driver.quit()
+
+
+class Viewer:
+    """`mechdsl view FILE --no-browser` in a child process, and its URL."""
+
+    def __init__(self, path):
+        self.proc = subprocess.Popen([sys.executable, "-m", "mechdsl", "view", str(path),
+                                      "--no-browser"], stderr=subprocess.PIPE, text=True)
+        line = self.proc.stderr.readline()
+        found = re.search(r"(http://127\.0\.0\.1:\d+/[\w-]+/)", line)
+        assert found, line
+        self.url = found.group(1)
+
+    def stop(self) -> int:
+        self.proc.send_signal(signal.SIGINT)
+        try:
+            return self.proc.wait(timeout=20)
+        finally:
+            self.proc.stderr.close()
+
+
+@pytest.fixture
+def seed(tmp_path):
+    path = tmp_path / "slider_crank.mech"
+    path.write_text((EXAMPLES / "slider_crank.mech").read_text())
+    viewer = Viewer(path)
+    yield path, viewer
+    status = viewer.stop()
+    assert status in (0, 130), status  # Ctrl-C stops it cleanly
+
+
+def wait_for(driver, script, timeout=20.0):
+    """The value of ``script`` once it is truthy."""
+    end = time.monotonic() + timeout
+    while True:
+        value = driver.execute_script(script)
+        if value or time.monotonic() > end:
+            assert value, f"timed out waiting for: {script}"
+            return value
+        time.sleep(0.05)
+
+
+def events(driver):
+    return driver.execute_script("return window.mechdslView.events.length")
+
+
+def test_the_page_draws_the_run_and_holds_mechdsl_runs_positions(browser, seed, tmp_path):
+    path, viewer = seed
+    browser.get(viewer.url)
+    wait_for(browser, "return window.mechdslView && window.mechdslView.header && "
+                      "window.mechdslView.header.status === 'ok'")
+    assert browser.find_element("id", "state").text == "ok"
+    # the canvas has been drawn on (not blank)
+    inked = browser.execute_script(
+        "const c = document.getElementById('mechanism'); const d = c.getContext('2d')"
+        ".getImageData(0, 0, c.width, c.height).data; let n = 0;"
+        "for (let i = 3; i < d.length; i += 4) if (d[i]) n++; return n;")
+    assert inked > 1000
+    names = [e.get_attribute("data-param") for e in
+             browser.find_elements("css selector", "#sliders input")]
+    assert names == ["r", "l", "omega"]
+    # the page's slider.x is the CSV's of `mechdsl run`, to 1e-12
+    out = tmp_path / "out.csv"
+    subprocess.run([sys.executable, "-m", "mechdsl", "run", str(path), "-o", str(out), "-q"],
+                   check=True)
+    with open(out) as f:
+        rows = [r for r in csv.reader(f) if r and not r[0].startswith("#")]
+    ran = np.array([float(r[rows[0].index("slider.x")]) for r in rows[1:]])
+    page = np.array(browser.execute_script(
+        "const v = window.mechdslView, h = v.header;"
+        "const s = h.series.find((s) => s.name === 'slider.x');"
+        "return Array.from(v.data.subarray(s.o, s.o + h.K));"))
+    np.testing.assert_allclose(page, ran, rtol=0, atol=1e-12)
+    # the drawn rod at the shown instant: its end C is the slider's closed form
+    browser.execute_script("window.mechdslView.setFrame(123)")
+    rod = np.array(browser.execute_script("return window.mechdslView.positions('rod')"))
+    t = 0.123
+    x, _, _ = slider_crank(2.0, 3.5, np.pi / 4 + OMEGA * t, OMEGA, 0.0)
+    np.testing.assert_allclose(rod[1], [x, 0.0], atol=1e-12)
+
+
+def move(browser, name, value):
+    browser.execute_script(
+        "const i = document.querySelector(`#sliders input[data-param='${arguments[0]}']`);"
+        "i.value = String(arguments[1]); i.dispatchEvent(new Event('input'));", name, value)
+
+
+def test_a_slider_move_re_solves_and_shows_the_lock_up(browser, seed):
+    path, viewer = seed
+    browser.get(viewer.url)
+    wait_for(browser, "return window.mechdslView.header && "
+                      "window.mechdslView.header.status === 'ok'")
+    move(browser, "l", 3.0)
+    wait_for(browser, "return window.mechdslView.latencies.length >= 1")
+    move(browser, "l", 1.5)
+    wait_for(browser, "return window.mechdslView.header.status === 'failed'")
+    assert browser.execute_script("return window.mechdslView.header.solved") == [5]
+    errors = browser.find_element("id", "errors")
+    assert errors.is_displayed() and "t = 0.005" in errors.text
+    assert "--set l=1.5" in browser.find_element("id", "set-text").text
+
+
+def test_a_save_reloads_and_a_typo_shows_its_located_error(browser, seed):
+    path, viewer = seed
+    browser.get(viewer.url)
+    wait_for(browser, "return window.mechdslView.header && "
+                      "window.mechdslView.header.status === 'ok'")
+    before = events(browser)
+    path.write_text(path.read_text().replace("revolute(crank.B", "revolute(cranck.B"))
+    wait_for(browser, f"return window.mechdslView.events.length > {before} && "
+                      "document.getElementById('errors').textContent.includes('cranck')")
+    text = browser.find_element("id", "errors").text
+    assert f"{path}:24:" in text and "unknown body 'cranck'" in text and "^" in text
+    # the last good drawing stays
+    assert browser.execute_script("return window.mechdslView.header.status") == "ok"
+    path.write_text((EXAMPLES / "slider_crank.mech").read_text().replace("4*pi", "2*pi"))
+    wait_for(browser, "return window.mechdslView.header.sliders.find("
+                      "(s) => s.name === 'omega').value < 7")
+    assert not browser.find_element("id", "errors").is_displayed()
+
+
+def test_without_the_token_nothing_is_served(browser, seed):
+    path, viewer = seed
+    root = viewer.url.rsplit("/", 2)[0] + "/"
+    browser.get(root)
+    assert "not found" in browser.find_element("tag name", "body").text
+    browser.get(root + "view.js")
+    assert "not found" in browser.find_element("tag name", "body").text
+
+
+def test_markup_in_the_file_is_shown_as_text(browser, tmp_path):
+    path = tmp_path / "x.mech"
+    text = (EXAMPLES / "slider_crank.mech").read_text()
+    text = text.replace('units length = "m"',
+                        'units length = "<img src=x onerror=window.pwned=1>"')
+    path.write_text(text)
+    viewer = Viewer(path)
+    try:
+        browser.get(viewer.url)
+        wait_for(browser, "return window.mechdslView.header && "
+                          "window.mechdslView.header.status === 'ok'")
+        label = browser.find_element("css selector", "#plots .label").text
+        assert "<img src=x onerror=window.pwned=1>" in label
+        assert browser.execute_script("return document.querySelectorAll('img').length") == 0
+        assert browser.execute_script("return window.pwned") is None
+    finally:
+        viewer.stop()
