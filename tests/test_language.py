@@ -280,3 +280,18 @@ def test_a_file_that_is_not_utf8_is_an_error(tmp_path):
 def test_an_empty_file_parses_and_is_reported_as_having_no_body(registry):
     err = error_of("", registry)
     assert "nothing to simulate" in err.message or "no moving body" in err.message
+
+
+def test_a_param_may_give_its_range_for_the_views_slider():
+    from mechdsl.compiled.variants import Overrides, evaluate, param_ranges
+    from mechdsl.errors import MechError
+
+    m = parse("param r = 2 in 1 .. 3\nparam l = 3.5 in r .. 2*r + 1\nparam k = 1\n")
+    assert [p.range is None for p in m.params] == [False, False, True]
+    env = evaluate(m, Overrides()).env
+    assert param_ranges(m, env) == {"r": (1.0, 3.0), "l": (2.0, 5.0)}
+    with pytest.raises(MechError, match="the range of param 'l' is empty: 5 .. 5") as err:
+        evaluate(parse("param l = 3.5 in 5 .. 5\n"), Overrides())
+    assert (err.value.span.line, err.value.span.column) == (1, 18)
+    with pytest.raises(MechError, match="unknown name 'q'"):
+        parse("param l = 3.5 in q .. 5\n")

@@ -215,3 +215,20 @@ def test_default_slider_ranges():
     assert payload.default_range(-2.0) == (-4.0, 0.0)
     assert payload.default_range(0.0) == (-1.0, 1.0)
     assert payload.default_range(math.inf) == (-1.0, 1.0)
+
+
+def test_a_params_range_is_its_sliders_and_a_wrong_one_is_located(tmp_path):
+    text = (EXAMPLES / "slider_crank.mech").read_text()
+    path = tmp_path / "ranged.mech"
+    path.write_text(text.replace("param r = 2 ", "param r = 2 in 1 .. 2.5 ")
+                        .replace("param l = 3.5 ", "param l = 3.5 in r .. 4*r "))
+    with _client(path) as c, c.websocket_connect(WS, headers=ORIGIN) as ws:
+        header, _ = _receive(ws)
+        ranges = {s["name"]: (s["lo"], s["hi"]) for s in header["sliders"]}
+        assert ranges["r"] == (1.0, 2.5) and ranges["l"] == (2.0, 8.0)
+        assert ranges["omega"] == (0.0, pytest.approx(8 * np.pi))
+        path.write_text(text.replace("param l = 3.5 ", "param l = 3.5 in 5 .. 4 "))
+        c.app.state.hub.request(reload=True)
+        header, _ = _receive(ws)
+        assert header["type"] == "error"
+        assert f"{path}:4:18: error: the range of param 'l' is empty" in header["errors"][0]

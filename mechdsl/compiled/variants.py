@@ -78,9 +78,34 @@ class Variants:
 
 
 def evaluate(model: Model, ov: Overrides) -> Variants:
-    """Every param for every combination of the sweeps (after overrides)."""
+    """Every param for every combination of the sweeps (after overrides); the params'
+    ranges checked (:func:`param_ranges`)."""
     sweep = sweep_table(model, ov)
-    return Variants(sweep, _params(model, ov, sweep))
+    env = _params(model, ov, sweep)
+    param_ranges(model, env)
+    return Variants(sweep, env)
+
+
+def param_ranges(model: Model, env: dict[str, np.ndarray]) -> dict[str, tuple[float, float]]:
+    """The range ``lo .. hi`` of each param that gives one (``param l = 3.5 in 2 .. 6``), in
+    the first variant of ``env``; a bound that is not finite, or lo >= hi in some variant, is
+    an error located at the range."""
+    out = {}
+    for p in model.params:
+        if p.range is None:
+            continue
+        lo, hi = (np.broadcast_to(np.asarray(E.evaluate(b, env), dtype=float), (1,)).ravel()
+                  for b in p.range)
+        span = p.range[0].span or p.span
+        for what, v in (("lower", lo), ("upper", hi)):
+            if not np.all(np.isfinite(v)):
+                raise MechError(f"the {what} end of the range of param '{p.name}' is "
+                                f"{_first_bad(v)}", span)
+        if not np.all(lo < hi):
+            raise MechError(f"the range of param '{p.name}' is empty: {float(lo[0]):g} .. "
+                            f"{float(hi[0]):g} (give lo .. hi with lo < hi)", span)
+        out[p.name] = (float(lo[0]), float(hi[0]))
+    return out
 
 
 def _check_overrides(model: Model, ov: Overrides) -> None:

@@ -214,6 +214,9 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
                 raise MechError(f"'{cut(p.name)}' is reserved and cannot name a param", nspan)
             param_names.add(p.name, nspan)
             check_expr(p.value, defined, f"param '{cut(p.name)}'")
+            if p.range is not None:
+                for bound in p.range:
+                    check_expr(bound, defined, f"the range of param '{cut(p.name)}'")
             defined.add(p.name)
             params.append(p)
         elif isinstance(st, tuple) and st[0] == "ground":

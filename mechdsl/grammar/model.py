@@ -38,9 +38,13 @@ class Vector:
 
 @dataclass(frozen=True)
 class Param:
+    """``param NAME = value [in lo .. hi]``: the range, where given, is where a slider of
+    ``mechdsl view`` moves (numbers, or expressions of numbers and earlier params)."""
+
     name: str
     value: Expr
     span: Span
+    range: tuple[Expr, Expr] | None = None
 
 
 @dataclass(frozen=True)

@@ -248,8 +248,8 @@ class _ToModel(Transformer_NonRecursive):
 
     # -- statements ----------------------------------------------------------------------------
     def param(self, meta, items):
-        name, value = items
-        return Param(str(name), value, _span(meta)), _tspan(name)
+        name, value, *bounds = items
+        return Param(str(name), value, _span(meta), tuple(bounds) or None), _tspan(name)
 
     def point(self, meta, items):
         name, coords = items

@@ -33,7 +33,7 @@ EXPECTS_VALUE = {"param", "body", "joint", "drive", "initial", "force", "sweep",
                  "optimize", "minimize", "maximize"}
 #: Words that are keywords inside one kind of statement only: ``optimize c in 1 .. 2``,
 #: ``subject to ...``
-INNER_KEYWORDS = {"optimize": "in", "subject": "to"}
+INNER_KEYWORDS = {"optimize": "in", "param": "in", "subject": "to"}
 
 #: The statements of the form ``KEYWORD NAME: TYPE(args)``; an ``initial`` statement takes
 #: the drive types, and its name and type are a drive's (:data:`_AS`)

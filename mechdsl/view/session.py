@@ -82,8 +82,12 @@ class Session:
                 return payload.error_message("error", self._all_errors(err), self.sliders())
             except OSError as err:  # pragma: no cover - read_data reports these as MechError
                 return payload.error_message("error", [f"{self.display}: error: {err}"])
+            try:
+                sliders = _sliders(mech)
+            except MechError as err:
+                return payload.error_message("error", [format_error(err)], self.sliders())
             self.mech = mech
-            self._sliders = _sliders(mech)
+            self._sliders = sliders
             names = {s.name for s in self._sliders}
             self.values = {k: v for k, v in self.values.items() if k in names}
             return self._solve()
@@ -135,19 +139,24 @@ def _overrides(mech, values: Mapping[str, float]):
 
 def _sliders(mech) -> list[payload.Slider]:
     """A slider for each param whose value reads no other param (``param l = 3.5``,
-    ``param omega = 4*pi``), over its range (:func:`.payload.default_range`)."""
+    ``param omega = 4*pi``), over the range the file gives it (``param l = 3.5 in 2 .. 6``)
+    or else :func:`.payload.default_range` of its value. MechError where a range is wrong."""
+    from ..compiled.variants import Overrides, param_ranges, sweep_table, _params
     from ..grammar import expr as E
 
+    model = mech.model
+    try:
+        env = _params(model, Overrides(), sweep_table(model, Overrides()))
+        ranges = param_ranges(model, env)
+    except MechError as err:
+        raise err.with_source(model.source) from None
     out = []
-    for p in mech.model.params:
+    for p in model.params:
         if E.free_names(p.value):
             continue  # follows other params: moved by theirs
-        try:
-            value = float(E.evaluate(p.value, {}))
-        except (TypeError, ValueError, ZeroDivisionError):
-            continue
+        value = float(env[p.name][0])
         if not math.isfinite(value):
             continue
-        lo, hi = payload.default_range(value)
+        lo, hi = ranges.get(p.name) or payload.default_range(value)
         out.append(payload.Slider(p.name, value, lo, hi))
     return out[:MAX_SLIDERS]
