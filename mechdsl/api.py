@@ -50,6 +50,9 @@ class _Compiled:
 
         self._lock = threading.Lock()
         self._systems: dict[tuple, System] = {}
+        #: per family of overrides (all but the params' values): None once compiled, then
+        #: the model compiled without folded values that serves new values
+        self._families: dict[tuple, System | None] = {}
 
     def get(self, key: tuple | None) -> System | None:
         if key is None:
@@ -67,9 +70,28 @@ class _Compiled:
             while len(self._systems) > KEEP_COMPILED:
                 del self._systems[next(iter(self._systems))]
 
+    def seen(self, family: tuple) -> bool:
+        """Whether a model of this family (the same overrides but for param values) was
+        compiled before."""
+        with self._lock:
+            return family in self._families
+
+    def template(self, family: tuple) -> System | None:
+        """The family's model compiled without folded values, if one was."""
+        with self._lock:
+            return self._families.get(family)
+
+    def note(self, family: tuple, template: System | None) -> None:
+        with self._lock:
+            self._families.pop(family, None)
+            self._families[family] = template
+            while len(self._families) > KEEP_COMPILED:
+                del self._families[next(iter(self._families))]
+
     def clear(self) -> None:
         with self._lock:
             self._systems.clear()
+            self._families.clear()
 
     def __getstate__(self) -> dict:
         return {}  # a copy sent to another process compiles there (a lock does not travel)
@@ -80,8 +102,8 @@ class _Compiled:
 
 def _exact(value: object) -> object:
     """A value of the overrides as part of a key: a number by its bits (0.0 and -0.0 differ,
-    as they may in atan2), a mapping and a list item by item, an expression by its structure
-    (frozen dataclasses: their repr, spans included); TypeError for what cannot be a key."""
+    as they may in atan2), a mapping and a list item by item, anything else (an expression)
+    by its identity; TypeError for what is not compared (an array)."""
     if value is None or isinstance(value, (bool, str)):
         return value
     if isinstance(value, (int, float, np.number)):
@@ -90,8 +112,37 @@ def _exact(value: object) -> object:
         return ("map", tuple(sorted((str(k), _exact(v)) for k, v in value.items())))
     if isinstance(value, (list, tuple)):
         return ("list", tuple(_exact(v) for v in value))
-    hash(value)  # a frozen dataclass is hashable; a mutable object is not
-    return ("expr", type(value).__name__, repr(value))
+    if isinstance(value, np.ndarray):
+        raise TypeError("an array is not compared")
+    return ("object", _Same(value))
+
+
+class _Same:
+    """An object as part of a key by its identity (an expression given as text is parsed
+    anew at each call: it never matches another, and nothing recurses over its tree, which
+    may be thousands of levels deep)."""
+
+    __slots__ = ("obj",)
+
+    def __init__(self, obj: object) -> None:
+        self.obj = obj  # held: its id cannot be reused while the key lives
+
+    def __hash__(self) -> int:
+        return id(self.obj)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, _Same) and other.obj is self.obj
+
+
+def _family_key(ov: Overrides | None, need_times: bool) -> tuple | None:
+    """The key of the overrides but for the params' values: models that differ only in
+    those share traced code. None for sweeps and tables (compiled for their values)."""
+    from dataclasses import replace
+
+    ov = ov or Overrides()
+    if ov.sweeps or ov.table is not None or ov.variant_range is not None:
+        return None
+    return _overrides_key(replace(ov, params={}), need_times)
 
 
 def _overrides_key(ov: Overrides | None, need_times: bool) -> tuple | None:
@@ -343,10 +394,49 @@ class Mechanism:
         found = self._compiled.get(key)
         if found is not None:
             return found
-        system = compile_model(self.model, self.registry, overrides, need_times=need_times)
+        family = _family_key(overrides, need_times)
+        if family is None or not self._compiled.seen(family):
+            # the first values of these overrides (or a sweep): the code for them, folded
+            system = compile_model(self.model, self.registry, overrides, need_times=need_times)
+            if family is not None:
+                self._compiled.note(family, None)
+        else:
+            # other values of params seen before: code traced once where every value that a
+            # param changes is a param of the code serves them all (compile_model's reuse)
+            template = self._compiled.template(family)
+            if template is None:
+                template = self._template(overrides, need_times)
+                self._compiled.note(family, template)
+            system = compile_model(self.model, self.registry, overrides, need_times=need_times,
+                                   reuse=template)
         if key is not None and system.n_variants <= KEEP_VARIANTS:
             self._compiled.put(key, system)
         return system
+
+    def _template(self, overrides: Overrides | None, need_times: bool) -> System:
+        """The model compiled to serve other values of its params: for two variants, these
+        values and every param moved a little (each by its own small fraction), so that the
+        traced code holds as constants only the values no param changes; where that cannot
+        be compiled (a param sets the time grid, which must be the same in all variants),
+        compiled without folding any value."""
+        from dataclasses import replace
+
+        from .compiled.variants import evaluate
+
+        ov = overrides or Overrides()
+        try:
+            env = evaluate(self.model, ov).env
+            table = {}
+            for k, (name, value) in enumerate(env.items()):
+                x = float(value[0])
+                nudge = 1e-3 * (1 + (0.6180339887498949 * (k + 1)) % 1)
+                table[name] = np.array([x, x + (abs(x) + 1.0) * nudge])
+            return compile_model(self.model, self.registry,
+                                 replace(ov, params={}, table=table or None),
+                                 need_times=need_times)
+        except MechError:
+            return compile_model(self.model, self.registry, ov, need_times=need_times,
+                                 fold=False)
 
     def simulate(
         self,

@@ -72,6 +72,9 @@ def _parser() -> argparse.ArgumentParser:
         run.add_argument("--export", metavar="OUT.xdmf",
                          help="write the motion as meshes for ParaView: .xdmf (a time series) or "
                               ".vtu (a file per instant and a .pvd index)")
+        run.add_argument("--html", metavar="OUT.html",
+                         help="write one page that animates the run and plots its outputs, "
+                              "offline, without a server (every variant of a sweep)")
         run.add_argument("--frames", type=int, default=100, metavar="N",
                          help="frames of the animation at most, at least 2 (default 100)")
         run.add_argument("--trace", metavar="BODY.POINT", action="append", default=[],

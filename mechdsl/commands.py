@@ -350,7 +350,7 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
         _check_reduced(args, system)
     store = _store(args)
     client = _client(args)
-    drawing = bool(args.snapshot or args.animate)
+    drawing = bool(args.snapshot or args.animate or args.html)
     from .memory import outputs_bytes
 
     extra = outputs_bytes(system, figures=bool(args.plot), drawing=drawing,
@@ -390,8 +390,8 @@ def _store(args) -> str | None:
 
     if not args.output or store_kind(args.output) is None:
         return None
-    for option, given in (("--plot", args.plot), ("--snapshot", args.snapshot),
-                          ("--animate", args.animate), ("--export", args.export)):
+    for option, given in ((f.option, getattr(args, f.arg)) for f in FORMATS.values()
+                          if f.kind == "plot" or f.mechanism):
         if given:
             raise MechError(f"{option} with -o {args.output}: a store is written a chunk at "
                             f"a time and never held whole; draw from it afterwards with "
@@ -541,8 +541,8 @@ def _optimum_lines(file: str, mech: Mechanism, best, signum: int | None) -> list
 def _check_reduced(args, system: System) -> None:
     """A run of reductions keeps one value per variant, no motion: refuse what draws one."""
     first = system.reductions[0].label
-    for option, given in (("--snapshot", args.snapshot), ("--animate", args.animate),
-                          ("--export", args.export)):
+    for option, given in ((f.option, getattr(args, f.arg)) for f in FORMATS.values()
+                          if f.mechanism):
         if given:
             raise MechError(f"{option} draws the motion, and this run keeps one value per "
                             f"variant ('{first}'): write the histories in a run without "

@@ -93,10 +93,15 @@ def test_the_same_overrides_give_the_compiled_model_kept():
     # numbers are compared by their bits: -0.0 is not 0.0 (atan2 tells them apart)
     a = mech.compile(Overrides(params={"omega": 0.0}))
     assert mech.compile(Overrides(params={"omega": -0.0})) is not a
-    # expressions by their structure
-    e1 = mech.compile(Overrides(params={"l": mechdsl.api.parse_expr("2*r", "l", ["r"])}))
-    e2 = mech.compile(Overrides(params={"l": mechdsl.api.parse_expr("2*r", "l", ["r"])}))
-    assert e1 is e2
+    # an expression by its identity: the same object is the same model; one parsed anew is
+    # compiled anew (never another's model), and a deep one is no recursion
+    e = mechdsl.api.parse_expr("2*r", "l", ["r"])
+    assert mech.compile(Overrides(params={"l": e})) is mech.compile(Overrides(params={"l": e}))
+    other = mechdsl.api.parse_expr("2*r", "l", ["r"])
+    assert mech.compile(Overrides(params={"l": other})) is not \
+        mech.compile(Overrides(params={"l": e}))
+    deep = mechdsl.api.parse_expr("0*2" + "^1" * 3000, "l", ["r"])
+    assert mech.compile(Overrides(params={"omega": deep})).n_variants == 1
 
 
 def test_solving_again_gives_each_values_own_closed_form():
@@ -141,3 +146,54 @@ def test_a_mechanism_travels_without_its_compiled_models():
     res = copy.simulate(span=(0, 0.1), step=0.01)
     x, _, _ = slider_crank(2.0, 3.5, np.pi / 4 + OMEGA * res["t"], OMEGA, 0.0)
     np.testing.assert_allclose(res["slider.x"], x, rtol=0, atol=1e-12)
+
+
+# -- new param values reuse the code traced once (issue 29) ---------------------------------
+
+OSCILLATOR = """
+param k = 400
+param m = 4
+param x0 = 0.1
+ground { point C = (0, 0) }
+body block { guess = (1 + x0, 0, 0)  mass = m  inertia = 1  v0 = (0, 0, 0) }
+joint slide: prismatic(ground.origin, block.origin, axis = (1, 0))
+force s: spring(block.origin, ground.C, k = k, length = 1)
+initial start: x(point = block.origin) = 1 + x0, rate = 0
+simulate t = 0 .. 1 step 0.01, rtol = 1e-10, atol = 1e-12
+output block.x
+"""
+
+
+def test_new_values_reuse_the_traced_code_and_keep_their_own_closed_form():
+    # a block on a spring along a guide: x(t) = 1 + x0 cos(sqrt(k/m) t) for each (k, m, x0);
+    # after the first two sets of values, the code traced without folding serves the rest
+    mech = mechdsl.loads(OSCILLATOR)
+    graphs = []
+    for k, m, x0 in ((400, 4, 0.1), (100, 1, 0.2), (900, 9, 0.05), (50, 2, 0.3),
+                     (400, 1, 0.1), (100, 1, 0.2)):
+        res = mech.simulate(k=k, m=m, x0=x0)
+        assert res.ok, res.messages
+        t = res["t"]
+        exact = 1 + x0 * np.cos(np.sqrt(k / m) * t)
+        np.testing.assert_allclose(res["block.x"], exact, rtol=0, atol=2e-8)
+        graphs.append(mech.compile(mechdsl.api.Overrides(
+            params={"k": k, "m": m, "x0": x0})).fused.graph)
+    assert graphs[0] is not graphs[1]       # the file's first values: their own folded code
+    assert all(g is graphs[1] for g in graphs[2:])  # then one traced code for all
+
+
+def test_the_seeds_new_values_share_code_and_plans():
+    from mechdsl.compiled.variants import Overrides
+
+    mech = mechdsl.loads(SLIDER)
+    systems = [mech.compile(Overrides(params={"l": v})) for v in (3.5, 3.6, 3.7, 3.8)]
+    for s in systems:
+        s.one_state  # what a solve makes on first use
+    assert systems[2].fused.graph is systems[1].fused.graph is systems[3].fused.graph
+    twin = systems[1].template  # traced for two variants: what a param changes is a param
+    assert twin is not None and systems[2].template is twin and systems[3].template is twin
+    assert twin.n_variants == 2 and systems[3].n_variants == 1
+    assert systems[3].lu is systems[1].lu is twin.lu
+    assert systems[0].template is None  # the file's values: their own folded code
+    assert systems[3].one_state.phi_jac is systems[1].one_state.phi_jac
+    assert systems[3].one_state.params != systems[1].one_state.params

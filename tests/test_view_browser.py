@@ -10,58 +10,24 @@ chromium-driver`; .ci/run installs them): without them they fail, they do not sk
 
 import csv
 import os
-import re
-import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
 
+from browser import READY, Viewer, chromium, wait_for
 from closed_forms import slider_crank
 from conftest import EXAMPLES
 
-CHROMIUM, DRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 OMEGA = 4 * np.pi
 
 
 @pytest.fixture(scope="module")
 def browser():
-    assert os.path.exists(CHROMIUM) and os.path.exists(DRIVER), \
-        "the browser tests need Debian's chromium and chromium-driver (apt-get install)"
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = CHROMIUM
-    # the flags this closed network needs (no background connections), headless as root
-    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                 "--no-first-run", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--window-size=1400,1000"):
-        opts.add_argument(flag)
-    driver = webdriver.Chrome(service=Service(DRIVER), options=opts)
+    driver = chromium()
     yield driver
     driver.quit()
-
-
-class Viewer:
-    """`mechdsl view FILE --no-browser` in a child process, and its URL."""
-
-    def __init__(self, path):
-        self.proc = subprocess.Popen([sys.executable, "-m", "mechdsl", "view", str(path),
-                                      "--no-browser"], stderr=subprocess.PIPE, text=True)
-        line = self.proc.stderr.readline()
-        found = re.search(r"(http://127\.0\.0\.1:\d+/[\w-]+/)", line)
-        assert found, line
-        self.url = found.group(1)
-
-    def stop(self) -> int:
-        self.proc.send_signal(signal.SIGINT)
-        try:
-            return self.proc.wait(timeout=20)
-        finally:
-            self.proc.stderr.close()
 
 
 @pytest.fixture
@@ -74,17 +40,6 @@ def seed(tmp_path):
     assert status in (0, 130), status  # Ctrl-C stops it cleanly
 
 
-def wait_for(driver, script, timeout=20.0):
-    """The value of ``script`` once it is truthy."""
-    end = time.monotonic() + timeout
-    while True:
-        value = driver.execute_script(script)
-        if value or time.monotonic() > end:
-            assert value, f"timed out waiting for: {script}"
-            return value
-        time.sleep(0.05)
-
-
 def events(driver):
     return driver.execute_script("return window.mechdslView.events.length")
 
@@ -95,6 +50,10 @@ def test_the_page_draws_the_run_and_holds_mechdsl_runs_positions(browser, seed, 
     wait_for(browser, "return window.mechdslView && window.mechdslView.header && "
                       "window.mechdslView.header.status === 'ok'")
     assert browser.find_element("id", "state").text == "ok"
+    shots = os.environ.get("MECHDSL_SCREENSHOTS")  # the README's picture comes from here
+    if shots:
+        browser.execute_script("window.mechdslView.setFrame(180)")
+        browser.save_screenshot(os.path.join(shots, "view.png"))
     # the canvas has been drawn on (not blank)
     inked = browser.execute_script(
         "const c = document.getElementById('mechanism'); const d = c.getContext('2d')"
@@ -190,3 +149,21 @@ def test_markup_in_the_file_is_shown_as_text(browser, tmp_path):
         assert browser.execute_script("return window.pwned") is None
     finally:
         viewer.stop()
+
+
+def test_a_saved_page_animates_every_variant_offline(browser, tmp_path):
+    # mechdsl run --html: one file, opened from the disk with no server, animates the sweep
+    page = tmp_path / "out.html"
+    subprocess.run([sys.executable, "-m", "mechdsl", "run", str(EXAMPLES / "fourbar.mech"),
+                    "--sweep", "d=3.8,4.2", "--html", str(page), "-q"], check=True)
+    browser.get(page.as_uri())
+    wait_for(browser, READY)
+    header = browser.execute_script("return window.mechdslView.header")
+    assert header["V"] == 2 and header["variants"] == ["d = 3.8", "d = 4.2"]
+    assert header["status"] == "ok" and header["solved"] == [1001, 1001]
+    first = browser.execute_script("return window.mechdslView.frame()")
+    wait_for(browser, f"return window.mechdslView.frame() !== {first}")  # it plays
+    # both variants are drawn: each one's rocker where its own run puts it
+    for v in (0, 1):
+        assert browser.execute_script(f"return window.mechdslView.positions('rocker', {v})")
+    assert "d = 4.2" in browser.find_element("id", "sliders").text

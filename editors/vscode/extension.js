@@ -1,8 +1,11 @@
 // The mechdsl extension's client: starts `mechdsl lsp` (the language server of the Python
-// package, mechdsl/lsp.py) over standard input and output for every `.mech` file on disk.
+// package, mechdsl/lsp.py) over standard input and output for every `.mech` file on disk,
+// and the command "mechdsl: open preview", which starts `mechdsl view FILE --no-browser`
+// (mechdsl/view) and opens its page in VS Code's Simple Browser beside the editor.
 // Plain CommonJS, no build step: VS Code loads this file as it is (package.json "main").
 'use strict';
 
+const childProcess = require('child_process');
 const path = require('path');
 const vscode = require('vscode');
 const { LanguageClient } = require('vscode-languageclient/node');
@@ -91,7 +94,80 @@ async function stopClient() {
   }
 }
 
+/** The running previews: file path -> { process, url }. */
+const previews = new Map();
+const URL_LINE = /(http:\/\/127\.0\.0\.1:\d+\/[\w-]+\/)/;
+
+/**
+ * `mechdsl view FILE --no-browser` with the program of mechdsl.server.command (its "lsp"
+ * argument replaced by the view's): resolves with the page's address, which the view
+ * prints on its standard error, or rejects with what it printed before exiting.
+ */
+function startView(file) {
+  const { command, args } = serverCommand();
+  const at = args.lastIndexOf('lsp');
+  const viewArgs = [...(at >= 0 ? args.slice(0, at) : args), 'view', file, '--no-browser'];
+  return new Promise((resolve, reject) => {
+    let proc;
+    try {
+      proc = childProcess.spawn(command, viewArgs, {
+        cwd: workspaceFolder(), stdio: ['ignore', 'ignore', 'pipe'],
+      });
+    } catch (err) {
+      reject(err);
+      return;
+    }
+    let text = '';
+    proc.stderr.setEncoding('utf8');
+    proc.stderr.on('data', (chunk) => {
+      text += chunk;
+      const found = URL_LINE.exec(text);
+      if (found) {
+        previews.set(file, { process: proc, url: found[1] });
+        resolve(found[1]);
+      }
+    });
+    proc.on('error', reject);
+    proc.on('exit', (code) => {
+      previews.delete(file);
+      reject(new Error(`exit ${code}: ${text.trim().slice(-400)}`));
+    });
+  });
+}
+
+/** The command "mechdsl: open preview": the view of the active .mech file, beside it. */
+async function openPreview() {
+  const editor = vscode.window.activeTextEditor;
+  const doc = editor && editor.document;
+  if (!doc || doc.uri.scheme !== 'file' || doc.languageId !== 'mech') {
+    vscode.window.showErrorMessage('mechdsl: open a .mech file saved on disk to preview it.');
+    return undefined;
+  }
+  const file = doc.uri.fsPath;
+  try {
+    const running = previews.get(file);
+    const url = running ? running.url : await startView(file);
+    await vscode.commands.executeCommand('simpleBrowser.show', url);
+    return url;
+  } catch (err) {
+    const detail = err && err.message ? err.message : String(err);
+    vscode.window.showErrorMessage(
+      `mechdsl: the preview could not start (${detail}). It needs ` +
+      'pip install "mechdsl[view]" in the environment of "mechdsl.server.command".');
+    return undefined;
+  }
+}
+
+function stopPreviews() {
+  for (const { process: proc } of previews.values()) {
+    proc.kill('SIGINT'); // the view stops cleanly on Ctrl-C
+  }
+  previews.clear();
+}
+
 async function activate(context) {
+  context.subscriptions.push(
+    vscode.commands.registerCommand('mechdsl.openPreview', openPreview));
   context.subscriptions.push(vscode.workspace.onDidChangeConfiguration(async (event) => {
     if (event.affectsConfiguration(`mechdsl.${SETTING}`)) {
       await stopClient();
@@ -102,7 +178,8 @@ async function activate(context) {
 }
 
 function deactivate() {
+  stopPreviews();
   return stopClient();
 }
 
-module.exports = { activate, deactivate, serverCommand };
+module.exports = { activate, deactivate, serverCommand, openPreview };

@@ -28,7 +28,7 @@ from ..plugins.derived import EquationError
 from ..plugins.manager import PLUGIN_FAILURES
 from ..plugins.registry import Registry
 from .files import read_files, read_tables
-from .fused import Fused, TraceFailure, fuse
+from .fused import Fused, TraceFailure, fuse, rebind
 from .shapes import mass_properties, shape_edges
 from .sparse import Pattern
 from . import dynamics as dyn
@@ -48,8 +48,18 @@ def _readonly(a: np.ndarray) -> np.ndarray:
 
 
 def compile_model(model: Model, registry: Registry, overrides: Overrides | None = None,
-                  *, need_times: bool = True) -> System:
+                  *, need_times: bool = True, fold: bool = True,
+                  reuse: System | None = None) -> System:
     """Resolve ``model`` against ``registry`` for every sweep variant.
+
+    ``fold``: values the same in every variant are constants of the generated code (the
+    fastest code for these values); without it every value is a param of the code, which
+    then serves other values too. ``reuse``: a System compiled from the same model without
+    ``fold``; where the structure is the same (the same joints, drives and forces between
+    the same bodies, only values differ) its traced and generated code is taken with the
+    new values instead of tracing again (:func:`mechdsl.compiled.fused.rebind`), and so are
+    its plans: the LU's pivot order (a pivot that becomes small falls back to partial
+    pivoting, as over a run) and the code on floats.
 
     Raises :class:`MechError` (with the model's source attached) for every unknown name, bad
     argument, non-finite value or inconsistent time grid.
@@ -57,9 +67,13 @@ def compile_model(model: Model, registry: Registry, overrides: Overrides | None 
     model = read_files(model)  # (already read by mechdsl.load: then the model itself)
     overrides = read_tables(overrides or Overrides(), model.source)
     try:
-        return _Compiler(model, registry, overrides).run(need_times)
+        system = _Compiler(model, registry, overrides, fold, reuse).run(need_times)
     except MechError as err:
         raise err.with_source(model.source) from None
+    if reuse is not None and system.fused is not None and reuse.fused is not None and \
+            system.fused.graph is reuse.fused.graph:
+        system = replace(system, template=reuse.template or reuse)
+    return system
 
 
 def check_structure(model: Model, registry: Registry) -> None:
@@ -92,13 +106,31 @@ class _Unevaluated:
         return np.zeros((1, len(v.items)))
 
 
-def _fused(groups: list[Group], constraints: list[Constraint], n_bodies: int, source
-           ) -> Fused:
+def _same_structure(groups, others) -> bool:
+    """Whether two lists of groups bind the same types to the same bodies in the same rows,
+    with arguments of the same shapes (their values may differ)."""
+    if others is None or len(groups) != len(others):
+        return False
+    for g, h in zip(groups, others):
+        if g.ctype is not h.ctype or len(g.members) != len(h.members) or \
+                not np.array_equal(g.slots, h.slots) or not np.array_equal(g.rows, h.rows) or \
+                g.params.keys() != h.params.keys():
+            return False
+        for k, a in g.params.items():
+            b = h.params[k]
+            if isinstance(a, np.ndarray) != isinstance(b, np.ndarray) or (
+                    isinstance(a, np.ndarray) and a.shape[1:] != b.shape[1:]):
+                return False
+    return True
+
+
+def _fused(groups: list[Group], constraints: list[Constraint], n_bodies: int, source,
+           fold: bool = True) -> Fused:
     """The whole mechanism's equations traced, differentiated and compiled; a type whose
     equations cannot be traced is a located error at the constraint where it failed."""
     m = constraints[-1].rows[1] if constraints else 0
     try:
-        return fuse(groups, n_bodies, m)
+        return fuse(groups, n_bodies, m, fold=fold)
     except TraceFailure as fail:
         ctype, err = fail.group.ctype, fail.error
         c = constraints[fail.group.members[fail.member]]
@@ -112,8 +144,10 @@ def _fused(groups: list[Group], constraints: list[Constraint], n_bodies: int, so
 
 
 class _Compiler:
-    def __init__(self, model: Model, registry: Registry, ov: Overrides) -> None:
+    def __init__(self, model: Model, registry: Registry, ov: Overrides, fold: bool = True,
+                 reuse: System | None = None) -> None:
         self.model, self.registry, self.ov = model, registry, ov
+        self.fold, self.reuse = fold, reuse
         self.evaluated = True  # False while only names are resolved (structure())
         self._units: dict[str, str] = {}
         self.param_names = [p.name for p in model.params]
@@ -142,8 +176,16 @@ class _Compiler:
         constraints, groups, drive_rows, drive_fns = self._constraints()
         self.constraints, self.groups = constraints, groups
         force_groups, elements = self._forces()
-        fused = _fused(groups, constraints, len(self.bodies), self.model.source)
-        pattern = Pattern.from_entries(fused.rows, fused.cols, (fused.m, fused.n))
+        if self.reuse is not None and not (_same_structure(groups, self.reuse.groups)
+                                           and _same_structure(force_groups,
+                                                               self._reused_forces())):
+            self.reuse = None  # another structure: traced anew
+        fused = self.reuse and self.reuse.fused and rebind(self.reuse.fused, groups)
+        if not fused:
+            fused = _fused(groups, constraints, len(self.bodies), self.model.source, self.fold)
+            self.reuse = None
+        pattern = (self.reuse.pattern if self.reuse is not None else
+                   Pattern.from_entries(fused.rows, fused.cols, (fused.m, fused.n)))
         outputs = self._outputs()
         times = (time_grid(self.model, self.ov, self.var, len(outputs)) if need_times
                  else None)
@@ -256,6 +298,11 @@ class _Compiler:
                 (len(elements) - 1, slots, params, (0, 0)))
         return [self._group(ftype, members) for ftype, members in packed.values()], elements
 
+    def _reused_forces(self) -> list | None:
+        """The force groups of the System reused (none where it has no dynamics)."""
+        d = self.reuse.dynamics if self.reuse is not None else None
+        return list(d.force_groups) if d is not None else []
+
     def _dynamics(self, force_groups, elements, outputs) -> "dyn.Dynamics | None":
         """The masses and loads, where the model has any (or an output asks for reactions)."""
         model = self.model
@@ -291,9 +338,15 @@ class _Compiler:
                 given[3 * i : 3 * i + 3] = True
         gravity = (self.var.vector(model.gravity, "gravity") if model.gravity is not None
                    else np.zeros((V, 2)))
+        template = self.reuse.dynamics if self.reuse is not None else None
+        if template is not None:
+            again = dyn.rebind(template, nb, mass, inertia, centroid, gravity, force_groups,
+                               tuple(elements), _readonly(v0), _readonly(given))
+            if again is not None:
+                return again
         try:
             return dyn.build(nb, mass, inertia, centroid, gravity, force_groups,
-                             tuple(elements), _readonly(v0), _readonly(given))
+                             tuple(elements), _readonly(v0), _readonly(given), self.fold)
         except dyn.ForceError as err:
             raise MechError(str(err), self.model.forces[0].span if self.model.forces
                             else None) from None

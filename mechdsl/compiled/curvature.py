@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..symbolic.codegen import first_floats
 from ..symbolic import Graph
 from .fused import _Params, trace_members
 
@@ -76,7 +77,7 @@ def curvature(system) -> Curvature | None:
             js.append(j)
     if not nodes:
         return None
-    p = [float(np.asarray(x).reshape(-1)[0]) for x in arrays]
+    p = first_floats(arrays)
     return Curvature(scalar_kernel(graph, nodes, "curvature").fn,
                      np.array(eqs, dtype=np.intp), np.array(ks, dtype=np.intp),
                      np.array(js, dtype=np.intp), p, scalar_functions(graph.functions))

@@ -34,7 +34,7 @@ from ..plugins.derived import body_of
 from ..plugins.geometry import Body, Rate, Vec
 from ..symbolic import Graph, GraphError, Kernel, kernel
 from ..symbolic.codegen import LazyKernel
-from .fused import _args, _Params
+from .fused import _args, _Params, replayed
 
 
 class ForceError(ValueError):
@@ -95,6 +95,10 @@ class Dynamics:
     graph: Graph | None = None
     load_nodes: tuple = ()
     mass_nodes: tuple = ()
+    #: the force groups traced (their structure: what :func:`rebind` may serve)
+    force_groups: tuple = ()
+    #: the values' leaves in the order traced: the constant folded, or None for P[j]
+    leaves: tuple = ()
 
     def variant(self, v: int) -> "Dynamics":
         """The same for sweep variant ``v`` alone."""
@@ -159,15 +163,52 @@ class Dynamics:
         return np.broadcast_to(out[..., 0], q.shape[:-1])
 
 
+def _inputs(graph: Graph, params: _Params, n_bodies: int, mass: np.ndarray,
+            inertia: np.ndarray, centroid: np.ndarray, gravity: np.ndarray,
+            force_groups: list) -> tuple[list, list]:
+    """The leaves of the values, in the order the code reads them: each force element's
+    arguments (per group, per member), then per body (m, J, centroid s', gravity g)."""
+    forces = [[Args(_args(graph, params, g, j)) for j in range(len(g.members))]
+              for g in force_groups]
+    bodies = [(params.leaf(mass[:, i]), params.leaf(inertia[:, i]),
+               Vec(params.leaf(centroid[:, i, 0]), params.leaf(centroid[:, i, 1])),
+               params.leaf(gravity[:, 0]), params.leaf(gravity[:, 1]))
+              for i in range(n_bodies)]
+    return forces, bodies
+
+
+def rebind(template: Dynamics, n_bodies: int, mass: np.ndarray, inertia: np.ndarray,
+           centroid: np.ndarray, gravity: np.ndarray, force_groups: list,
+           elements: tuple[ForceElement, ...], v0: np.ndarray, v0_given: np.ndarray
+           ) -> Dynamics | None:
+    """``template``'s code (traced by :func:`build` for force groups of the same structure)
+    with these values; None where they do not fit it (as
+    :func:`mechdsl.compiled.fused.rebind`)."""
+    graph = Graph()
+    params = _Params(graph, replay=template.leaves)
+    _inputs(graph, params, n_bodies, mass, inertia, centroid, gravity, force_groups)
+    if not replayed(template.leaves, template.params, template.functions, params, graph):
+        return None
+    again = replace(template, mass=mass, inertia=inertia, centroid=centroid, gravity=gravity,
+                    params=tuple(params.arrays), functions=tuple(graph.functions),
+                    forces=elements, v0=v0, v0_given=v0_given, force_groups=tuple(force_groups))
+    if "load_jacobian" in template.__dict__:  # its code: no value in it
+        again.__dict__["load_jacobian"] = template.__dict__["load_jacobian"]
+    return again
+
+
 def build(n_bodies: int, mass: np.ndarray, inertia: np.ndarray, centroid: np.ndarray,
           gravity: np.ndarray, force_groups: list, elements: tuple[ForceElement, ...],
-          v0: np.ndarray, v0_given: np.ndarray) -> Dynamics:
+          v0: np.ndarray, v0_given: np.ndarray, fold: bool = True) -> Dynamics:
     """Trace the loads, the mass matrix and the potential of a mechanism of ``n_bodies``
     moving bodies; ``force_groups``: :class:`~mechdsl.compiled.system.Group` per force
-    type (its ``ctype`` a :class:`~mechdsl.plugins.force.ForceType`)."""
+    type (its ``ctype`` a :class:`~mechdsl.plugins.force.ForceType`); ``fold`` as for
+    :func:`mechdsl.compiled.fused.fuse`."""
     n = 3 * n_bodies
     graph = Graph()
-    params = _Params(graph)
+    params = _Params(graph, fold)
+    force_args, body_leaves = _inputs(graph, params, n_bodies, mass, inertia, centroid,
+                                      gravity, force_groups)
     t = graph.var("t")
     zero = graph.zero
     ground = Body(zero, zero, zero, graph.one, zero)
@@ -180,11 +221,11 @@ def build(n_bodies: int, mass: np.ndarray, inertia: np.ndarray, centroid: np.nda
     def add(k: int, value) -> None:
         Q[k] = graph.lift(value) if Q[k] is zero else graph.lift(Q[k] + value)
 
-    for g in force_groups:
+    for g, group_args in zip(force_groups, force_args):
         ftype = g.ctype
         for j in range(len(g.members)):
             slots = [int(b) for b in g.slots[j]]
-            args = Args(_args(graph, params, g, j))
+            args = group_args[j]
             try:
                 loads = list(ftype.loads(tuple(bodies[b] for b in slots),
                                          tuple(rates[b] for b in slots), args, t))
@@ -209,10 +250,8 @@ def build(n_bodies: int, mass: np.ndarray, inertia: np.ndarray, centroid: np.nda
     rows, cols = [], []
     for i in range(n_bodies):
         body, rate = bodies[i], rates[i]
-        m, J = params.leaf(mass[:, i]), params.leaf(inertia[:, i])
-        s = Vec(params.leaf(centroid[:, i, 0]), params.leaf(centroid[:, i, 1]))
+        m, J, s, gx, gy = body_leaves[i]
         a = body.rotate(s)
-        gx, gy = params.leaf(gravity[:, 0]), params.leaf(gravity[:, 1])
         add(3 * i, m * gx + m * a.x * rate.phi * rate.phi)
         add(3 * i + 1, m * gy + m * a.y * rate.phi * rate.phi)
         add(3 * i + 2, a.cross(Vec(m * gx, m * gy)))
@@ -232,4 +271,5 @@ def build(n_bodies: int, mass: np.ndarray, inertia: np.ndarray, centroid: np.nda
         rows=np.array(rows, dtype=np.intp), cols=np.array(cols, dtype=np.intp),
         params=tuple(params.arrays), functions=tuple(graph.functions), forces=elements,
         v0=v0, v0_given=v0_given, n=n, graph=graph, load_nodes=tuple(Q),
-        mass_nodes=tuple(entries))
+        mass_nodes=tuple(entries), force_groups=tuple(force_groups),
+        leaves=tuple(params.leaves))

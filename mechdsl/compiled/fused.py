@@ -22,6 +22,7 @@ does not grow with the number of constraints.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Sequence
 
 import numpy as np
 
@@ -58,6 +59,8 @@ class Fused:
     phi_nodes: tuple = ()
     jac_nodes: tuple = ()
     gamma_nodes: tuple = ()
+    #: the arguments' leaves in the order traced: the constant folded, or None for P[j]
+    leaves: tuple = ()
 
     def evaluate_phi(self, q: np.ndarray) -> np.ndarray:
         return self.phi(q, None, None, self.params, self.functions)
@@ -100,19 +103,37 @@ def _trace(group, member: int, graph: Graph, bodies, args):
 
 
 class _Params:
-    """Argument values as graph leaves: a constant where every variant has the same value,
-    else a variable reading P[j]."""
+    """Argument values as graph leaves: a constant where every variant has the same value
+    (``fold``), else a variable reading P[j]. Without ``fold`` every value is a variable.
+    ``leaves`` records each decision in order (the constant, or None for a variable), so
+    that the same code can be given other values without tracing again (``replay``:
+    :func:`rebind`)."""
 
-    def __init__(self, graph: Graph) -> None:
+    def __init__(self, graph: Graph, fold: bool = True, replay: tuple | None = None) -> None:
         self.graph = graph
+        self.fold = fold
         self.arrays: list[np.ndarray] = []
+        self.leaves: list[float | None] = []
+        self.replay = replay
+        self.mismatch = False  # (replaying) a value the code holds as a constant differs
 
     def leaf(self, values: np.ndarray):
         """``values``: (V,) for one constraint, or (V, J) for a group."""
         values = np.asarray(values, dtype=float)
         first = values.flat[0] if values.size else 0.0
-        if (values == first).all():
-            return self.graph.const(float(first))
+        if self.replay is not None:
+            k = len(self.leaves)
+            held = self.replay[k] if k < len(self.replay) else None
+            fold = k < len(self.replay) and held is not None
+            if fold and not (values == held).all():
+                self.mismatch = True
+        else:
+            fold = self.fold and bool((values == first).all())
+            held = float(first)
+        if fold:
+            self.leaves.append(held)
+            return self.graph.const(held)
+        self.leaves.append(None)
         self.arrays.append(values[:, None] if values.ndim == 1 else values[:, None, :])
         return self.graph.var("p", len(self.arrays) - 1)
 
@@ -145,22 +166,59 @@ def _args(graph: Graph, params: _Params, group, j: int | None = None) -> dict:
     return args
 
 
-def fuse(groups, n_bodies: int, m: int, force: str | None = None) -> Fused:
+def fuse(groups, n_bodies: int, m: int, force: str | None = None, fold: bool = True
+         ) -> Fused:
     """Trace and compile every constraint of ``groups`` (see :class:`mechdsl.compiled.system.
     Group`) of a mechanism of ``n_bodies`` moving bodies and ``m`` equations. ``force``:
-    "member" or "group" to choose the layout (else by size)."""
+    "member" or "group" to choose the layout (else by size); ``fold``: values the same in
+    every variant become constants of the code (else every value is a param, P[j])."""
     n = 3 * n_bodies
     members = sum(len(g.members) for g in groups)
     layout = force or ("member" if members <= MEMBER_LIMIT else "group")
     graph = Graph()
-    params = _Params(graph)
+    params = _Params(graph, fold)
     if layout == "group":
         try:
             return _fuse_groups(graph, params, groups, n_bodies, m)
         except _Duplicate:
             graph = Graph()
-            params = _Params(graph)
+            params = _Params(graph, fold)
     return _fuse_members(graph, params, groups, n_bodies, m)
+
+
+def same_leaves(template: Sequence[np.ndarray], arrays: Sequence[np.ndarray]) -> bool:
+    """Whether ``arrays`` are values for the leaves of ``template`` (as many, of the same
+    shapes but for the variants' axis)."""
+    return len(template) == len(arrays) and all(
+        a.shape[1:] == b.shape[1:] for a, b in zip(template, arrays))
+
+
+def replayed(template_leaves: tuple, template_params: tuple, template_functions: tuple,
+             params: "_Params", graph: Graph) -> bool:
+    """Whether a replay of the leaves (:class:`_Params` with ``replay``) matched the
+    template: every leaf made, every constant of the code the same, the params and function
+    arguments of the same shapes."""
+    return (not params.mismatch and len(params.leaves) == len(template_leaves)
+            and same_leaves(template_params, params.arrays)
+            and len(graph.functions) == len(template_functions))
+
+
+def rebind(template: Fused, groups) -> Fused | None:
+    """``template``'s code with the values of ``groups``: the arguments' leaves made again,
+    in the order the trace made them, without tracing (``template`` traced on groups of the
+    same structure: the caller's check). None where the values do not fit the code: a value
+    that the code holds as a constant differs (the caller traces anew)."""
+    graph = Graph()
+    params = _Params(graph, replay=template.leaves)
+    for g in groups:
+        if template.layout == "group":
+            _args(graph, params, g)
+        else:
+            for j in range(len(g.members)):
+                _args(graph, params, g, j)
+    if not replayed(template.leaves, template.params, template.functions, params, graph):
+        return None
+    return replace(template, params=tuple(params.arrays), functions=tuple(graph.functions))
 
 
 def _fuse_members(graph: Graph, params: _Params, groups, n_bodies: int, m: int) -> Fused:
@@ -168,7 +226,8 @@ def _fuse_members(graph: Graph, params: _Params, groups, n_bodies: int, m: int) 
     return Fused(kernel(graph, phi_n, "phi"), kernel(graph, jac, "jac"),
                  kernel(graph, phi_n + jac, "phi_jac"), kernel(graph, gamma_n, "gamma"),
                  rows, cols, tuple(params.arrays), tuple(graph.functions), m, 3 * n_bodies,
-                 "member", graph, tuple(phi_n), tuple(jac), tuple(gamma_n))
+                 "member", graph, tuple(phi_n), tuple(jac), tuple(gamma_n),
+                 tuple(params.leaves))
 
 
 def trace_members(graph: Graph, params: _Params, groups, n_bodies: int, m: int
@@ -285,7 +344,8 @@ def _fuse_groups(graph: Graph, params: _Params, groups, n_bodies: int, m: int) -
         kernel(graph, list(p_nodes) + jac_nodes, "phi_jac", list(p_pos) + jac_shift, m + nnz,
                constants),
         kernel(graph, list(g_nodes), "gamma", list(g_pos), m, constants),
-        rows_sorted, cols_sorted, tuple(params.arrays), tuple(graph.functions), m, n, "group")
+        rows_sorted, cols_sorted, tuple(params.arrays), tuple(graph.functions), m, n, "group",
+        leaves=tuple(params.leaves))
 
 
 class _Constant:

@@ -23,10 +23,10 @@ The numbers are the batched kernels' to round-off: the same operations in the sa
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
-from ..symbolic.codegen import ScalarKernel, scalar_functions, scalar_kernel
+from ..symbolic.codegen import ScalarKernel, first_floats, scalar_functions, scalar_kernel
 from .lu import LUPlan, scalar_lines
 
 
@@ -67,6 +67,15 @@ def _lu_source(lu: LUPlan) -> str:
              ["def solve_t(F, b):", f"    {', '.join(s)}, = F", f"    {', '.join(c)}, = b"]
              + [f"    {ln}" for ln in solve_t] + [f"    return [{', '.join(w)}]"]]
     return "\n\n".join("\n".join(part) for part in parts) + "\n"
+
+
+def with_values(one: OneState, fused) -> OneState:
+    """``one``'s code with the params of ``fused`` (the same code traced with other values:
+    :func:`mechdsl.compiled.fused.rebind`), variant 0."""
+
+    return replace(one, params=tuple(first_floats(fused.params)),
+                   functions=scalar_functions(fused.variant(0).functions) if fused.functions
+                   else ())
 
 
 def one_state(system, v: int = 0) -> OneState | None:

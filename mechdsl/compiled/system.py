@@ -197,12 +197,19 @@ class System:
     #: where a forward-dynamics run starts: guesses given, ``initial`` statements (None
     #: for a model without masses)
     start: Start | None = None
+    #: the model whose traced code this one runs with other values (compile_model's
+    #: ``reuse``): its plans (the LU, the code on floats) serve this one too
+    template: "System | None" = field(default=None, repr=False, compare=False)
 
     @functools.cached_property
     def lu(self) -> LUPlan | None:
         """The generated sparse LU of Phi_q (square systems), its pivot order chosen on the
         Jacobian at the first variant's guess (:mod:`mechdsl.compiled.lu`); None where that
-        Jacobian is singular in its pattern."""
+        Jacobian is singular in its pattern. A model with a ``template`` takes the
+        template's (the same pattern and code: a pivot that becomes small for these values
+        falls back to partial pivoting, as one does over a run)."""
+        if self.template is not None:
+            return self.template.lu
         if self.fused is None or self.m != self.n or not 0 < self.n <= MAX_N:
             return None
         f = self.fused
@@ -229,9 +236,21 @@ class System:
         it does not apply."""
         if self.n_variants != 1:
             return None
+        from .scalar import with_values
+
+        if self.template is not None:
+            one = self.template.state_code
+            return None if one is None else with_values(one, self.fused)
+        return self.state_code
+
+    @functools.cached_property
+    def state_code(self):
+        """:attr:`one_state` of the first variant whatever the number of variants: the code
+        a model compiled as a template (compile_model's ``reuse``) lends to the models that
+        run it with other values."""
         from .scalar import one_state
 
-        return one_state(self)
+        return one_state(self, 0)
 
     @functools.cached_property
     def scalar_kernels(self):
@@ -246,6 +265,9 @@ class System:
         from ..symbolic.codegen import joint_scalar_kernel, scalar_kernel
 
         f, d = self.fused, self.dynamics
+        if self.template is not None and d is not None and self.template.dynamics is not None \
+                and d.graph is self.template.dynamics.graph:
+            return self.template.scalar_kernels
         if f is None or d is None or f.layout != "member" or d.graph is None:
             return None
         nodes = [*f.jac_nodes, *f.gamma_nodes, *d.mass_nodes, *d.load_nodes]

@@ -7,6 +7,7 @@ within its limit, and the time grid to be the same for all variants.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -61,14 +62,19 @@ class Variants:
     sweep: dict[str, np.ndarray]
     env: dict[str, np.ndarray]
 
-    @property
+    @functools.cached_property
     def count(self) -> int:
         return len(next(iter(self.sweep.values()))) if self.sweep else 1
 
     def values(self, e: E.Expr, what: str, span: Span | None) -> np.ndarray:
         """An expression of params, for every variant: shape (V,); finite or an error."""
-        value = np.broadcast_to(np.asarray(E.evaluate(e, self.env), dtype=float), (self.count,))
-        if not np.all(np.isfinite(value)):
+        V = self.count
+        if type(e) is E.Num and math.isfinite(e.value):  # a number: most values are
+            return np.full(V, float(e.value))
+        value = np.asarray(E.evaluate(e, self.env), dtype=float)
+        if value.shape != (V,):
+            value = np.broadcast_to(value, (V,))
+        if not (math.isfinite(value[0]) if V == 1 else np.isfinite(value).all()):
             raise MechError(f"{what} is {_first_bad(value)}", span)
         return value
 

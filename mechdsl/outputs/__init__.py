@@ -1,6 +1,7 @@
 """What a run writes, one module per kind: the CSV of the results and its reader
 (:mod:`.csv`), time-history plots (:mod:`.plot`), drawings and animations of the mechanism
-(:mod:`.draw`), meshes for ParaView (:mod:`.export`). matplotlib and meshio are imported in
+(:mod:`.draw`), meshes for ParaView (:mod:`.export`), a page to open offline (:mod:`.html`).
+matplotlib and meshio are imported in
 those modules only, and only when something is drawn or written.
 
 :data:`FORMATS` is the one registry of them: for each kind of output, the option of
@@ -74,4 +75,6 @@ FORMATS: dict[str, Format] = {f.kind: f for f in (
     Format("export", "--export", "export", frozenset({"xdmf", "vtu"}),
            "use .xdmf (one time series) or .vtu (one file per instant, with a .pvd index)",
            "export:export", mechanism=True),
+    Format("page", "--html", "html", frozenset({"html", "htm"}),
+           "a page is an .html file", "html:write_page", mechanism=True),
 )}

@@ -43,6 +43,7 @@ from .assembly import gauss_newton
 from .base import Progress, Run
 from .diagnose import constraint_names, variant_label
 from .options import SolverOptions
+from ..symbolic.codegen import first_floats
 
 
 #: The integrator's tolerances where neither the options nor the simulate statement give them
@@ -526,9 +527,9 @@ class _Evaluator:
         self.scalar = kernels is not None
         if self.scalar:
             self.k_phi_jac, self.k_motion, fixed = kernels
-            self.p = [float(np.asarray(x).reshape(-1)[0]) for x in f.params]
+            self.p = first_floats(f.params)
             self.F = scalar_functions(f.functions)
-            self.pd = [float(np.asarray(x).reshape(-1)[0]) for x in d.params]
+            self.pd = first_floats(d.params)
             self.Fd = scalar_functions(d.functions)
             self.p_arr, self.pd_arr = np.array(self.p), np.array(self.pd)
             rows, cols = f.rows, f.cols

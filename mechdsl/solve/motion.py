@@ -94,6 +94,7 @@ from ..compiled.system import System
 from ..errors import MechError
 from .augmented import Factor, plan
 from .diagnose import col_scale, one_variant
+from ..symbolic.codegen import first_floats
 from .options import SolverOptions
 from .triplets import Triplets
 
@@ -130,9 +131,9 @@ class Motion:
             from ..symbolic.codegen import scalar_functions
 
             self.k_phi_jac, k_motion, fixed = kernels
-            self.p = [float(np.asarray(x).reshape(-1)[0]) for x in f.params]
+            self.p = first_floats(f.params)
             self.F = scalar_functions(f.functions)
-            self.pd = [float(np.asarray(x).reshape(-1)[0]) for x in d.params]
+            self.pd = first_floats(d.params)
             self.Fd = scalar_functions(d.functions)
             self._motion = k_motion.fn
             given = np.isnan(fixed)
@@ -167,7 +168,7 @@ class Motion:
         from ..symbolic.codegen import scalar_functions, scalar_kernel
 
         self._mq_scalar = None
-        self._mq_p = [float(np.asarray(x).reshape(-1)[0]) for x in d.params]
+        self._mq_p = first_floats(d.params)
         self._mq_F = scalar_functions(d.functions)
         if len(varying):
             self._mq_scalar = scalar_kernel(d.graph, [nodes[k] for k in varying],

@@ -317,6 +317,12 @@ def joint_scalar_kernel(parts: Sequence[tuple[Graph, Sequence[Node]]],
 _NAME = re.compile(r"\bg\d+\w*")
 
 
+def first_floats(arrays: Sequence) -> list[float]:
+    """The first variant's value of each param array (``P[j]``, shaped (V, ...)) as a float:
+    what the kernels on floats take for their params."""
+    return [float(np.asarray(x).reshape(-1)[0]) for x in arrays]
+
+
 def scalar_functions(functions: Sequence) -> tuple:
     """The function arguments ``(f, f', f'')`` of a kernel as functions of one float."""
 

@@ -21,6 +21,9 @@ function makeWorld({ setting, folders, startError } = {}) {
     clients: [],
     errors: [],
     configListeners: [],
+    commands: {},
+    executed: [],
+    editor: undefined,
   };
   class LanguageClient {
     constructor(id, name, serverOptions, clientOptions) {
@@ -58,6 +61,19 @@ function makeWorld({ setting, folders, startError } = {}) {
       showErrorMessage(message) {
         world.errors.push(message);
         return Promise.resolve(undefined);
+      },
+      get activeTextEditor() {
+        return world.editor;
+      },
+    },
+    commands: {
+      registerCommand(name, fn) {
+        world.commands[name] = fn;
+        return { dispose() {} };
+      },
+      executeCommand(...args) {
+        world.executed.push(args);
+        return Promise.resolve();
       },
     },
   };
@@ -181,6 +197,37 @@ test('changing the setting restarts the client with the new command', async () =
   await world.configListeners[0]({ affectsConfiguration: (s) => s === 'editor.tabSize' });
   assert.strictEqual(world.clients.length, 2);
   assert.ok(!world.clients[1].stopped);
+});
+
+// a stand-in for `mechdsl`: `... view FILE --no-browser` prints the view's address line
+// on standard error and waits, as mechdsl view does; anything else exits 1
+const FAKE = path.join(__dirname, 'fake-mechdsl.js');
+
+test('"mechdsl: open preview" starts the view and opens its page beside the editor', async () => {
+  const file = path.resolve('/work/project/crank.mech');
+  const { world, extension } = await activated({ setting: [process.execPath, FAKE, 'lsp'] });
+  assert.ok(world.commands['mechdsl.openPreview'], 'the command is not registered');
+  world.editor = { document: { uri: { scheme: 'file', fsPath: file }, languageId: 'mech' } };
+  const url = await world.commands['mechdsl.openPreview']();
+  assert.strictEqual(url, 'http://127.0.0.1:4567/t0ken/');
+  assert.deepStrictEqual(world.executed, [['simpleBrowser.show', url]]);
+  // the same file again: the running view, not a second one
+  assert.strictEqual(await world.commands['mechdsl.openPreview'](), url);
+  assert.strictEqual(world.executed.length, 2);
+  await extension.deactivate();
+});
+
+test('a preview that cannot start names pip install "mechdsl[view]"', async () => {
+  const { world, extension } = await activated({ setting: [process.execPath, FAKE, 'broken'] });
+  world.editor = { document: { uri: { scheme: 'file', fsPath: '/x/a.mech' }, languageId: 'mech' } };
+  assert.strictEqual(await world.commands['mechdsl.openPreview'](), undefined);
+  assert.strictEqual(world.errors.length, 1);
+  assert.ok(world.errors[0].includes('pip install "mechdsl[view]"'), world.errors[0]);
+  // not a .mech file on disk: said, nothing started
+  world.editor = { document: { uri: { scheme: 'untitled', fsPath: '' }, languageId: 'mech' } };
+  await world.commands['mechdsl.openPreview']();
+  assert.strictEqual(world.errors.length, 2);
+  await extension.deactivate();
 });
 
 test('deactivate() stops the client', async () => {

@@ -13,7 +13,7 @@
   // what the page holds, for the user and for the tests (window.mechdslView)
   const view = {
     header: null, data: null, k: 0, playing: true, speed: 1, simTime: 0,
-    latencies: [], events: [], sliders: {}, nextId: 1, sent: {}, inFlight: null, queued: null,
+    latencies: [], handled: [], events: [], sliders: {}, nextId: 1, sent: {}, inFlight: null, queued: null,
   };
   window.mechdslView = view;
 
@@ -43,9 +43,11 @@
     socket.onclose = () => { setState("disconnected: the server stopped"); };
     socket.onmessage = (ev) => {
       if (!(ev.data instanceof ArrayBuffer)) return;
+      const start = performance.now();
       let msg;
       try { msg = parse(ev.data); } catch (e) { showErrors([String(e)]); return; }
       receive(msg.header, msg.data);
+      view.handled.push(performance.now() - start);  // the page's own share of a latency
     };
   }
 
@@ -54,7 +56,7 @@
   }
 
   function receive(header, data) {
-    if (header.sliders) buildSliders(header.sliders);
+    if (header.sliders && !view.static) buildSliders(header.sliders);
     if (header.id != null && header.id === view.inFlight) {
       view.inFlight = null;
       if (view.queued) { const q = view.queued; view.queued = null; requestSet(q); }
@@ -388,7 +390,7 @@
       // the instants are evenly spaced: the index from the time
       const step = h.K > 1 ? (t[h.K - 1] - t[0]) / (h.K - 1) : 1;
       const k = Math.min(solved - 1, Math.max(0, Math.floor((view.simTime - t[0]) / step + 1e-9)));
-      if (k !== view.k) { view.k = k; draw(); }
+      if (k !== view.k) { view.k = k; view.draw(); }
     }
     last = now;
     requestAnimationFrame(tick);
@@ -433,6 +435,7 @@
     return lines.join("\n") + "\n";
   }
   view.svg = frameSvg;
+  view.draw = draw;  // (replaceable: the benchmark times it)
   view.csv = runCsv;
 
   // -- wiring -----------------------------------------------------------------------------
@@ -460,6 +463,27 @@
     download(`${stem()}.csv`, new Blob([runCsv()], { type: "text/csv" })));
   window.addEventListener("resize", () => { fitCanvas(); draw(); });
 
-  connect();
+  // a page written by `mechdsl run --html`: the run is inside it, there is no server
+  const embedded = document.getElementById("mechdsl-run");
+  if (embedded) {
+    const text = atob(embedded.textContent.trim());
+    const bytes = new Uint8Array(text.length);
+    for (let i = 0; i < text.length; i++) bytes[i] = text.charCodeAt(i);
+    const msg = parse(bytes.buffer);
+    view.static = true;
+    $("setline").hidden = true;
+    const heading = $("right").querySelector("h2");
+    if (msg.header.V > 1) {
+      heading.textContent = "Variants (computed beforehand)";
+      $("sliders").textContent = msg.header.variants.join("\n");
+      $("sliders").style.whiteSpace = "pre-line";
+    } else {
+      heading.hidden = true;
+    }
+    receive(msg.header, msg.data);
+    setState("a saved run: mechdsl run --html");
+  } else {
+    connect();
+  }
   requestAnimationFrame(tick);
 })();
