@@ -1632,6 +1632,9 @@ def main() -> int:
     ap.add_argument("--replay", type=int, metavar="INDEX", help="run input INDEX of --seed only")
     ap.add_argument("--only", metavar="CLASS", choices=[name for name, _, _ in HOSTILE],
                     help="only hostile inputs of this class (numbered as such)")
+    ap.add_argument("--view", type=int, default=5, metavar="N",
+                    help="sessions of hostile messages to mechdsl view (benchmarks/"
+                         "fuzz_view.py; 0: none)")
     args = ap.parse_args()
     if args.only:
         os.environ["MECHDSL_FUZZ_ONLY"] = args.only
@@ -1653,6 +1656,14 @@ def main() -> int:
     for label, c in sorted(stats.get("hostile classes", {}).items()):
         print(f"    {label}: {c['n']}, {c['seconds'] / c['n']:.2f} s each: "
               + ", ".join(f"{k} {v}" for k, v in sorted(c["kinds"].items())))
+    view_bad = False
+    if args.view:
+        import fuzz_view
+
+        counts_view = fuzz_view.run(args.view, args.seed)
+        print(f"mechdsl view: {args.view} sessions of hostile messages: "
+              + ", ".join(f"{k} {v}" for k, v in counts_view.items()))
+        view_bad = any(counts_view.values())
     if bad:
         save(bad, args.failures)
         kinds = {}
@@ -1660,6 +1671,8 @@ def main() -> int:
             kinds[f.kind] = kinds.get(f.kind, 0) + 1
         print(f"{len(bad)} failures ({', '.join(f'{k} {v}' for k, v in sorted(kinds.items()))})"
               f" saved in {args.failures}/")
+        return 1
+    if view_bad:
         return 1
     print("no internal error, traceback, unlocated error, hang or other defect")
     return 0

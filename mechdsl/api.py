@@ -53,6 +53,8 @@ class _Compiled:
         #: per family of overrides (all but the params' values): None once compiled, then
         #: the model compiled without folded values that serves new values
         self._families: dict[tuple, System | None] = {}
+        #: the compiled form of the model's expressions (compile_model's ``memo``)
+        self.memo: dict = {}
 
     def get(self, key: tuple | None) -> System | None:
         if key is None:
@@ -92,6 +94,7 @@ class _Compiled:
         with self._lock:
             self._systems.clear()
             self._families.clear()
+            self.memo.clear()
 
     def __getstate__(self) -> dict:
         return {}  # a copy sent to another process compiles there (a lock does not travel)
@@ -397,7 +400,8 @@ class Mechanism:
         family = _family_key(overrides, need_times)
         if family is None or not self._compiled.seen(family):
             # the first values of these overrides (or a sweep): the code for them, folded
-            system = compile_model(self.model, self.registry, overrides, need_times=need_times)
+            system = compile_model(self.model, self.registry, overrides, need_times=need_times,
+                                   memo=self._compiled.memo)
             if family is not None:
                 self._compiled.note(family, None)
         else:
@@ -408,7 +412,7 @@ class Mechanism:
                 template = self._template(overrides, need_times)
                 self._compiled.note(family, template)
             system = compile_model(self.model, self.registry, overrides, need_times=need_times,
-                                   reuse=template)
+                                   reuse=template, memo=self._compiled.memo)
         if key is not None and system.n_variants <= KEEP_VARIANTS:
             self._compiled.put(key, system)
         return system

@@ -172,7 +172,8 @@ def test_malformed_oversized_and_unknown_messages_get_an_error_not_a_crash(seed)
     bad = ["not json", "[1, 2]", '{"type": "exec", "code": "1"}', '{"type": "set"}',
            '{"type": "set", "params": {"nope": 1}}', '{"type": "set", "params": {"l": "1"}}',
            '{"type": "set", "params": {"l": 1e999}}', '{"type": "set", "params": {"l": true}}',
-           "[" * 100000, "x" * (MAX_MESSAGE + 1)]
+           "[" * 100000, "x" * (MAX_MESSAGE + 1),
+           '{"type": "set", "params": {"l": ' + "9" * 1000 + "}}"]  # float() overflows
     with _client(seed) as c, c.websocket_connect(WS, headers=ORIGIN) as ws:
         _receive(ws)
         for text in bad:

@@ -49,17 +49,21 @@ def _readonly(a: np.ndarray) -> np.ndarray:
 
 def compile_model(model: Model, registry: Registry, overrides: Overrides | None = None,
                   *, need_times: bool = True, fold: bool = True,
-                  reuse: System | None = None) -> System:
+                  reuse: System | None = None, memo: dict | None = None) -> System:
     """Resolve ``model`` against ``registry`` for every sweep variant.
 
     ``fold``: values the same in every variant are constants of the generated code (the
     fastest code for these values); without it every value is a param of the code, which
-    then serves other values too. ``reuse``: a System compiled from the same model without
-    ``fold``; where the structure is the same (the same joints, drives and forces between
-    the same bodies, only values differ) its traced and generated code is taken with the
+    then serves other values too. ``reuse``: a System compiled from the same model (by
+    :meth:`mechdsl.api.Mechanism.compile`: for two variants, each param moved a little,
+    so that its code holds as constants only what no param changes); where the structure is
+    the same (the same joints, drives and forces between the same bodies, only values
+    differ) and the values fit its code, its traced and generated code is taken with the
     new values instead of tracing again (:func:`mechdsl.compiled.fused.rebind`), and so are
-    its plans: the LU's pivot order (a pivot that becomes small falls back to partial
-    pivoting, as over a run) and the code on floats.
+    its plans (``System.template``): the LU's pivot order (a pivot that becomes small falls
+    back to partial pivoting, as over a run) and the code on floats. ``memo``: a dict the
+    caller keeps for this model, in which each expression's compiled form is kept from one
+    compilation to the next.
 
     Raises :class:`MechError` (with the model's source attached) for every unknown name, bad
     argument, non-finite value or inconsistent time grid.
@@ -67,7 +71,7 @@ def compile_model(model: Model, registry: Registry, overrides: Overrides | None 
     model = read_files(model)  # (already read by mechdsl.load: then the model itself)
     overrides = read_tables(overrides or Overrides(), model.source)
     try:
-        system = _Compiler(model, registry, overrides, fold, reuse).run(need_times)
+        system = _Compiler(model, registry, overrides, fold, reuse, memo).run(need_times)
     except MechError as err:
         raise err.with_source(model.source) from None
     if reuse is not None and system.fused is not None and reuse.fused is not None and \
@@ -145,9 +149,9 @@ def _fused(groups: list[Group], constraints: list[Constraint], n_bodies: int, so
 
 class _Compiler:
     def __init__(self, model: Model, registry: Registry, ov: Overrides, fold: bool = True,
-                 reuse: System | None = None) -> None:
+                 reuse: System | None = None, memo: dict | None = None) -> None:
         self.model, self.registry, self.ov = model, registry, ov
-        self.fold, self.reuse = fold, reuse
+        self.fold, self.reuse, self.memo = fold, reuse, memo
         self.evaluated = True  # False while only names are resolved (structure())
         self._units: dict[str, str] = {}
         self.param_names = [p.name for p in model.params]
@@ -164,7 +168,7 @@ class _Compiler:
         self._sketch(groups)
 
     def run(self, need_times: bool) -> System:
-        self.var = evaluate(self.model, self.ov)
+        self.var = evaluate(self.model, self.ov, self.memo)
         self.V = self.var.count
         if self.V > 1:
             model = self.model

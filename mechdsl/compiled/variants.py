@@ -55,12 +55,20 @@ def as_expr(v: E.Expr | float) -> E.Expr:
     return E.Num(float(v)) if isinstance(v, (int, float, np.number)) else v
 
 
+#: Expressions whose compiled form a memo keeps at most (a long session of values given as
+#: text would otherwise keep every one)
+MEMO_SIZE = 10_000
+
+
 @dataclass(frozen=True)
 class Variants:
-    """The swept values ``sweep[name]`` and every param's value ``env[name]``, each (V,)."""
+    """The swept values ``sweep[name]`` and every param's value ``env[name]``, each (V,).
+    ``memo`` (the caller's, kept across compilations of one model) holds each expression's
+    compiled form by identity, with the expression itself (so that its id is not reused)."""
 
     sweep: dict[str, np.ndarray]
     env: dict[str, np.ndarray]
+    memo: dict | None = field(default=None, compare=False, repr=False)
 
     @functools.cached_property
     def count(self) -> int:
@@ -71,25 +79,37 @@ class Variants:
         V = self.count
         if type(e) is E.Num and math.isfinite(e.value):  # a number: most values are
             return np.full(V, float(e.value))
-        value = np.asarray(E.evaluate(e, self.env), dtype=float)
+        value = np.asarray(self._run(e), dtype=float)
         if value.shape != (V,):
             value = np.broadcast_to(value, (V,))
         if not (math.isfinite(value[0]) if V == 1 else np.isfinite(value).all()):
             raise MechError(f"{what} is {_first_bad(value)}", span)
         return value
 
+    def _run(self, e: E.Expr):
+        memo = self.memo
+        if memo is None:
+            return E.evaluate(e, self.env)
+        held = memo.get(id(e))
+        if held is None or held[0] is not e:
+            if len(memo) >= MEMO_SIZE:
+                memo.clear()
+            held = memo[id(e)] = (e, E.compile_expr(e))
+        with np.errstate(all="ignore"):
+            return held[1](self.env)
+
     def vector(self, v: Vector, what: str) -> np.ndarray:
         """A vector of expressions: shape (V, len)."""
         return np.stack([self.values(e, what, e.span) for e in v.items], axis=-1)
 
 
-def evaluate(model: Model, ov: Overrides) -> Variants:
+def evaluate(model: Model, ov: Overrides, memo: dict | None = None) -> Variants:
     """Every param for every combination of the sweeps (after overrides); the params'
-    ranges checked (:func:`param_ranges`)."""
+    ranges checked (:func:`param_ranges`). ``memo``: see :class:`Variants`."""
     sweep = sweep_table(model, ov)
     env = _params(model, ov, sweep)
     param_ranges(model, env)
-    return Variants(sweep, env)
+    return Variants(sweep, env, memo)
 
 
 def param_ranges(model: Model, env: dict[str, np.ndarray]) -> dict[str, tuple[float, float]]:

@@ -61,10 +61,14 @@ class Session:
                 shown = name if isinstance(name, str) else type(name).__name__
                 raise ValueError(f"no slider '{shown[:80]}'; sliders: "
                                  f"{', '.join(sorted(known)) or 'none'}")
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or \
-                    not math.isfinite(value):
+            try:  # (a JSON integer may have a thousand digits: float() overflows)
+                number = float(value) if isinstance(value, (int, float)) and \
+                    not isinstance(value, bool) else math.nan
+            except OverflowError:
+                number = math.inf
+            if not math.isfinite(number):
                 raise ValueError(f"the value of '{name}' must be a finite number")
-            out[name] = float(value)
+            out[name] = number
         return out
 
     # -- loading and solving ------------------------------------------------------------------
