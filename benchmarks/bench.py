@@ -567,6 +567,13 @@ def andrews(rep: Report, quick: bool) -> None:
     plt.close(fig)
 
 
+def view_section(rep: Report, quick: bool) -> None:
+    """mechdsl view's latencies measured by the page in headless Chromium (issue 29), by
+    benchmarks/view_latency.py (which also runs alone)."""
+    import view_latency
+    view_latency.run(rep, quick)
+
+
 def dynamics_section(rep: Report, quick: bool) -> None:
     """Forward dynamics beside the peers (issue 28): A02, the chain, the stiff pendulum and
     the car axis, by benchmarks/dynamics.py (which also runs alone)."""
@@ -577,7 +584,7 @@ def dynamics_section(rep: Report, quick: bool) -> None:
 SECTIONS = {"seed": seed, "levers": levers, "work-precision": work_precision, "scaling": scaling,
             "sweep": sweep, "long": long_span, "startup": startup, "api": api_again,
             "animation": animation,
-            "andrews": andrews, "dynamics": dynamics_section}
+            "andrews": andrews, "dynamics": dynamics_section, "view": view_section}
 
 
 def main(argv: list[str] | None = None) -> None:

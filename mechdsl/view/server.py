@@ -295,8 +295,11 @@ def serve(session: Session, port: int = 0, *, open_browser: bool = True,
         import webbrowser
 
         webbrowser.open(url)
+    # no permessage-deflate: a run's float64 arrays hardly compress, and deflating a 0.3 MB
+    # message on the loopback costs more than sending it
     config = uvicorn.Config(app, log_level="warning", lifespan="on", ws_max_size=MAX_MESSAGE,
-                            ws="websockets-sansio" if _has_sansio() else "auto")
+                            ws="websockets-sansio" if _has_sansio() else "auto",
+                            ws_per_message_deflate=False)
     uvicorn.Server(config).run(sockets=[sock])
 
 
