@@ -52,7 +52,9 @@ def test_the_page_draws_the_run_and_holds_mechdsl_runs_positions(browser, seed, 
     assert browser.find_element("id", "state").text == "ok"
     shots = os.environ.get("MECHDSL_SCREENSHOTS")  # the README's picture comes from here
     if shots:
-        browser.execute_script("window.mechdslView.setFrame(180)")
+        browser.set_window_size(1280, 820)
+        browser.execute_script("window.dispatchEvent(new Event('resize'));"
+                               "window.mechdslView.setFrame(40)")
         browser.save_screenshot(os.path.join(shots, "view.png"))
     # the canvas has been drawn on (not blank)
     inked = browser.execute_script(
