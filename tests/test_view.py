@@ -233,3 +233,31 @@ def test_a_params_range_is_its_sliders_and_a_wrong_one_is_located(tmp_path):
         header, _ = _receive(ws)
         assert header["type"] == "error"
         assert f"{path}:4:18: error: the range of param 'l' is empty" in header["errors"][0]
+
+
+def test_traced_points_carry_their_velocity_and_acceleration(tmp_path):
+    # the crank's tip B at constant omega: v = omega r (-sin, cos), a = -omega^2 r (cos, sin);
+    # the slider's pin C moves along x with the closed form's velocity and acceleration
+    path = tmp_path / "traced.mech"
+    path.write_text((EXAMPLES / "slider_crank.mech").read_text()
+                    .replace("simulate t", "trace crank.B, rod.C\nsimulate t"))
+    with _client(path) as c, c.websocket_connect(WS, headers=ORIGIN) as ws:
+        header, data = _receive(ws)
+    K = header["K"]
+    t = data[header["t"]:header["t"] + K]
+    theta = np.pi / 4 + OMEGA * t
+    tip, pin = (next(i for i in header["items"] if i["kind"] == "trace" and i["name"] == n)
+                for n in ("crank.B", "rod.C"))
+    vel = data[tip["vo"]:tip["vo"] + 2 * K].reshape(K, 2)
+    acc = data[tip["ao"]:tip["ao"] + 2 * K].reshape(K, 2)
+    np.testing.assert_allclose(vel, 2 * OMEGA * np.c_[-np.sin(theta), np.cos(theta)], atol=1e-9)
+    np.testing.assert_allclose(acc, -2 * OMEGA ** 2 * np.c_[np.cos(theta), np.sin(theta)],
+                               atol=1e-7)
+    _, v, a = slider_crank(2.0, 3.5, theta, OMEGA, 0.0)
+    np.testing.assert_allclose(data[pin["vo"]:pin["vo"] + 2 * K].reshape(K, 2),
+                               np.c_[v, 0 * v], atol=1e-9)
+    np.testing.assert_allclose(data[pin["ao"]:pin["ao"] + 2 * K].reshape(K, 2),
+                               np.c_[a, 0 * a], atol=1e-7)
+    # the drawing's bounds are the positions' (not the vectors', which are far larger)
+    x0, y0, x1, y1 = header["bounds"]
+    assert -2.01 < x0 < -1.99 and 5.49 < x1 < 5.51 and -2.01 < y0 and y1 < 2.01

@@ -56,12 +56,15 @@ class _Packer:
 
     def __init__(self) -> None:
         self.parts: list[np.ndarray] = []
+        self.points: list[np.ndarray] = []  # the positions drawn, for the drawing's bounds
         self.size = 0
 
-    def add(self, a: np.ndarray) -> int:
+    def add(self, a: np.ndarray, points: bool = False) -> int:
         a = np.ascontiguousarray(a, dtype="<f8").ravel()
         at = self.size
         self.parts.append(a)
+        if points:
+            self.points.append(a)
         self.size += a.size
         return at
 
@@ -95,6 +98,21 @@ def _labels(results: Results) -> list[str]:
             for i in range(results.n_variants)]
 
 
+def _point_rates(poses: np.ndarray, rates: np.ndarray, body: int, at: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The velocity and acceleration (K, 2) of a point of ``body`` that is at ``at`` (K, 2),
+    from the body's pose (K, bodies, 3) and rates (K, 2, bodies, 3) (Haug eq. 2.6.5 and
+    2.6.6): with d = A s' the point's arm from the body's frame and d_perp = (-d_y, d_x),
+    v^P = r' + phi' d_perp and a^P = r'' + phi'' d_perp - phi'^2 d. The ground's are 0."""
+    if body >= poses.shape[1]:
+        return np.zeros_like(at), np.zeros_like(at)
+    d = at - poses[:, body, :2]
+    perp = np.stack((-d[:, 1], d[:, 0]), axis=-1)
+    vel, acc = rates[:, 0, body], rates[:, 1, body]
+    return (vel[:, :2] + vel[:, 2:3] * perp,
+            acc[:, :2] + acc[:, 2:3] * perp - vel[:, 2:3] ** 2 * d)
+
+
 def run_message(system: System, results: Results, sliders: Sequence[Slider], *,
                 file: str, warnings: Iterable[str] = ()) -> bytes:
     """The page's message for a run (module docstring): the mechanism's drawn points at every
@@ -112,25 +130,30 @@ def run_message(system: System, results: Results, sliders: Sequence[Slider], *,
         for i in range(nb):
             local = drawn[i][v:v + 1]
             items.append({"kind": "body", "name": system.body_names[i], "v": v,
-                          "p": int(local.shape[1]), "o": pk.add(world(one, i, local))})
+                          "p": int(local.shape[1]), "o": pk.add(world(one, i, local), True)})
         for body, xy in sk.pins:
-            items.append({"kind": "pin", "v": v, "o": pk.add(world(one, body, xy[v:v + 1]))})
+            items.append({"kind": "pin", "v": v, "o": pk.add(world(one, body, xy[v:v + 1]), True)})
         for i, edges in enumerate(sk.shapes):
             if edges is not None:
                 e = edges[v:v + 1]
                 items.append({"kind": "shape", "v": v, "p": int(e.shape[1]),
-                              "o": pk.add(world(one, i, e))})
+                              "o": pk.add(world(one, i, e), True)})
         for b1, xy1, b2, xy2 in sk.links:
             ends = np.stack((world(one, b1, xy1[v:v + 1]), world(one, b2, xy2[v:v + 1])), -2)
-            items.append({"kind": "spring", "v": v, "o": pk.add(ends)})
+            items.append({"kind": "spring", "v": v, "o": pk.add(ends, True)})
         for label, body, xy in sk.traces:
-            items.append({"kind": "trace", "name": label, "v": v,
-                          "o": pk.add(world(one, body, xy[v:v + 1]))})
+            at = world(one, body, xy[v:v + 1])
+            item = {"kind": "trace", "name": label, "v": v, "o": pk.add(at, True)}
+            if results.rates is not None:
+                vel, acc = _point_rates(poses[v], results.rates[v], body, at[0])
+                item["vo"], item["ao"] = pk.add(vel), pk.add(acc)
+            items.append(item)
         ground = drawn[nb][v:v + 1]  # fixed: its points once
         items.append({"kind": "ground", "v": v, "p": int(ground.shape[1]),
-                      "o": pk.add(ground)})
-    # every drawn array ends in (x, y): the bounds of the finite points of all of them
-    pts = np.concatenate([p.reshape(-1, 2) for p in pk.parts]) if pk.parts else np.zeros((0, 2))
+                      "o": pk.add(ground, True)})
+    # every drawn position ends in (x, y): the bounds of the finite points of them all
+    pts = np.concatenate([p.reshape(-1, 2) for p in pk.points]) if pk.points else \
+        np.zeros((0, 2))
     pts = pts[np.isfinite(pts).all(axis=1)]
     lo, hi = (pts.min(axis=0), pts.max(axis=0)) if pts.size else ((-1.0, -1.0), (1.0, 1.0))
     bounds = [float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])]
@@ -148,6 +171,8 @@ def run_message(system: System, results: Results, sliders: Sequence[Slider], *,
         "summary": summary(results).replace(results.source_name, file, 1)
         if results.source_name else summary(results),
         "variants": _labels(results), "bodies": list(system.body_names),
+        "sweep": {k: [float(x) for x in np.asarray(a, dtype=float).ravel()]
+                  for k, a in results.sweep.items()},
         "items": items, "series": series, "bounds": bounds,
         "sliders": [{"name": s.name, "value": _finite(s.value), "lo": _finite(s.lo),
                      "hi": _finite(s.hi)} for s in sliders],

@@ -113,10 +113,20 @@ class Session:
             return self._solve()
 
     def _solve(self) -> bytes:
+        from ..solve import simulate
+        from ..study import plan
+
         mech = self.mech
         try:
-            results = mech.simulate(params=dict(self.values), poses=True, options=self.options)
-            system = mech.compile(_overrides(mech, self.values))  # the run's, kept
+            ov = _overrides(mech, self.values)
+            system, total, size, _ = plan(mech, ov)
+            if total <= size:  # one run: the traced points' velocities and accelerations too
+                results = simulate(system, self.options, poses=True,
+                                   rates=bool(system.sketch and system.sketch.traces))
+            else:  # a sweep of many chunks: as the API solves it, without the vectors
+                results = mech.simulate(params=dict(self.values), poses=True,
+                                        options=self.options)
+                system = mech.compile(ov)
         except MechError as err:
             return payload.error_message("failed", [format_error(err)], self.sliders())
         return payload.run_message(system, results, self.sliders(), file=self.display)

@@ -65,6 +65,8 @@
       const first = view.header === null;
       view.header = header; view.data = data;
       setupPlots();
+      setupSweepPlots();
+      setupVectors();
       const solved = Math.max(...header.solved, 1);
       $("scrub").max = String(solved - 1);
       if (view.k > solved - 1) view.k = 0;
@@ -226,6 +228,7 @@
       else if (it.kind === "shape") drawEdges(slice(it, 4 * it.p), it.p, c);
       else if (it.kind === "spring") drawSpring(slice(it, 4), c, unit);
     }
+    drawVectors(h, unit);
     for (const it of h.items) {
       if (it.kind !== "pin") continue;
       const a = slice(it, 2);
@@ -312,6 +315,99 @@
       ctx.fillStyle = "#222";
       ctx.fillText(label, box * 2.4, box * 1.9 + v * box * 1.5);
     });
+  }
+
+  // -- velocity and acceleration of the traced points --------------------------------------
+  const vectorScale = { v: 0, a: 0 };
+  function setupVectors() {
+    const h = view.header, traced = h.items.filter((i) => i.kind === "trace" && i.vo != null);
+    $("vectors").hidden = $("vectors-a").hidden = traced.length === 0;
+    // the largest over the run is drawn a fifth of the drawing's size
+    const [x0, y0, x1, y1] = h.bounds, size = 0.2 * Math.max(x1 - x0, y1 - y0, 1e-9);
+    for (const [key, field] of [["v", "vo"], ["a", "ao"]]) {
+      let most = 0;
+      for (const it of traced) {
+        const a = view.data.subarray(it[field], it[field] + 2 * h.K);
+        for (let k = 0; k < h.solved[it.v]; k++) {
+          const m = Math.hypot(a[2 * k], a[2 * k + 1]);
+          if (m > most) most = m;
+        }
+      }
+      vectorScale[key] = most > 0 ? size / most : 0;
+    }
+  }
+
+  function arrow(x, y, dx, dy, c, unit) {
+    const X0 = X(x), Y0 = Y(y), X1 = X(x + dx), Y1 = Y(y + dy);
+    const len = Math.hypot(X1 - X0, Y1 - Y0);
+    if (!(len > 1)) return;
+    const ux = (X1 - X0) / len, uy = (Y1 - Y0) / len, head = Math.min(len / 3, unit * 4);
+    ctx.strokeStyle = c; ctx.fillStyle = c; ctx.lineWidth = unit * 0.5;
+    ctx.beginPath(); ctx.moveTo(X0, Y0); ctx.lineTo(X1, Y1); ctx.stroke();
+    ctx.beginPath(); ctx.moveTo(X1, Y1);
+    ctx.lineTo(X1 - head * ux - head * 0.5 * uy, Y1 - head * uy + head * 0.5 * ux);
+    ctx.lineTo(X1 - head * ux + head * 0.5 * uy, Y1 - head * uy - head * 0.5 * ux);
+    ctx.closePath(); ctx.fill();
+  }
+
+  function drawVectors(h, unit) {
+    const showV = $("show-v").checked, showA = $("show-a").checked;
+    if (!showV && !showA) return;
+    for (const it of h.items) {
+      if (it.kind !== "trace" || it.vo == null || view.k >= h.solved[it.v]) continue;
+      const p = slice(it, 2);
+      if (showV) {
+        const v = view.data.subarray(it.vo + 2 * view.k, it.vo + 2 * view.k + 2);
+        arrow(p[0], p[1], v[0] * vectorScale.v, v[1] * vectorScale.v, "#111111", unit);
+      }
+      if (showA) {
+        const a = view.data.subarray(it.ao + 2 * view.k, it.ao + 2 * view.k + 2);
+        arrow(p[0], p[1], a[0] * vectorScale.a, a[1] * vectorScale.a, "#b000b0", unit);
+      }
+    }
+  }
+
+  // -- a sweep's outputs against its param --------------------------------------------------
+  function setupSweepPlots() {
+    const h = view.header, box = $("sweep-plots"), names = Object.keys(h.sweep || {});
+    box.textContent = "";
+    const show = h.V > 1 && names.length === 1;
+    $("sweep-title").hidden = !show;
+    if (!show) return;
+    const xs = h.sweep[names[0]], order = xs.map((_, i) => i).sort((a, b) => xs[a] - xs[b]);
+    for (const name of [...new Set(h.series.map((s) => s.name))]) {
+      const lo = [], hi = [];
+      for (const s of h.series.filter((s) => s.name === name)) {
+        let a = Infinity, b = -Infinity;
+        const arr = view.data.subarray(s.o, s.o + h.solved[s.v]);
+        for (const x of arr) if (Number.isFinite(x)) { if (x < a) a = x; if (x > b) b = x; }
+        lo[s.v] = a; hi[s.v] = b;
+      }
+      const div = document.createElement("div"); div.className = "plot";
+      const label = document.createElement("div"); label.className = "label";
+      label.textContent = `${name}: least and largest over the run, against ${names[0]}`;
+      const cv = document.createElement("canvas"); cv.width = 560; cv.height = 140;
+      div.append(label, cv); box.append(div);
+      const c = cv.getContext("2d"), W = cv.width, H = cv.height;
+      const finite = [...lo, ...hi].filter(Number.isFinite);
+      if (!finite.length) continue;
+      let ymin = Math.min(...finite), ymax = Math.max(...finite);
+      if (ymax === ymin) { ymin -= 1; ymax += 1; }
+      const xmin = xs[order[0]], xmax = xs[order[order.length - 1]] > xmin ? xs[order[order.length - 1]] : xmin + 1;
+      const px = (x) => 8 + (x - xmin) / (xmax - xmin) * (W - 16);
+      const py = (y) => H - 6 - (y - ymin) / (ymax - ymin) * (H - 12);
+      for (const [ys, col] of [[hi, "#d62728"], [lo, "#1f77b4"]]) {
+        c.strokeStyle = col; c.fillStyle = col; c.lineWidth = 1.5; c.beginPath();
+        order.forEach((v, j) => {
+          if (!Number.isFinite(ys[v])) return;
+          if (j) c.lineTo(px(xs[v]), py(ys[v])); else c.moveTo(px(xs[v]), py(ys[v]));
+        });
+        c.stroke();
+        for (const v of order) {
+          if (Number.isFinite(ys[v])) { c.beginPath(); c.arc(px(xs[v]), py(ys[v]), 2.5, 0, 2 * Math.PI); c.fill(); }
+        }
+      }
+    }
   }
 
   // -- plots ------------------------------------------------------------------------------
@@ -450,6 +546,8 @@
     draw();
   });
   $("speed").addEventListener("change", () => { view.speed = Number($("speed").value); });
+  $("show-v").addEventListener("change", () => draw());
+  $("show-a").addEventListener("change", () => draw());
   $("reset").addEventListener("click", () => send({ type: "reset" }));
   $("copy-set").addEventListener("click", () => {
     const text = setText();
