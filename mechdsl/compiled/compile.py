@@ -602,10 +602,16 @@ class _Compiler:
 
     def _drive_function(self, d: Drive) -> DriveFunction:
         f = d.function
+        held = self.memo.get(("drive", id(f))) if self.memo is not None else None
+        if held is not None and held[0] is f:  # (kept with f: its id is not reused)
+            return held[1]
         fd = derivative(f, TIME)
         fdd = derivative(fd, TIME)
-        return DriveFunction(E.compile_expr(f), E.compile_expr(fd), E.compile_expr(fdd),
+        made = DriveFunction(E.compile_expr(f), E.compile_expr(fd), E.compile_expr(fdd),
                              (f, fd, fdd))
+        if self.memo is not None:
+            self.memo[("drive", id(f))] = (f, made)
+        return made
 
     # -- outputs -------------------------------------------------------------------------------
     def _sketch(self, groups: list[Group]) -> Sketch:

@@ -181,6 +181,8 @@ def _known(name: str, names: list[str], what: str) -> None:
 
 
 def _sweep_table(model: Model, ov: Overrides) -> dict[str, np.ndarray]:
+    if not model.sweeps and not ov.sweeps:
+        return {}
     base = _params(model, ov, {})
     swept = {s.name for s in model.sweeps if s.name not in ov.params} | set(ov.sweeps)
     tainted = _dependents(model, ov, swept)
