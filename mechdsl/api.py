@@ -50,6 +50,8 @@ class _Compiled:
 
         self._lock = threading.Lock()
         self._systems: dict[tuple, System] = {}
+        #: counts the models: what was compiled for an earlier one is not kept for this one
+        self.generation = 0
         #: per family of overrides (all but the params' values): None once compiled, then
         #: the model compiled without folded values that serves new values
         self._families: dict[tuple, System | None] = {}
@@ -65,8 +67,10 @@ class _Compiled:
                 self._systems[key] = system  # the most recently used last
             return system
 
-    def put(self, key: tuple, system: System) -> None:
+    def put(self, key: tuple, system: System, generation: int) -> None:
         with self._lock:
+            if generation != self.generation:
+                return  # compiled from a model replaced meanwhile
             self._systems.pop(key, None)
             self._systems[key] = system
             while len(self._systems) > KEEP_COMPILED:
@@ -83,8 +87,10 @@ class _Compiled:
         with self._lock:
             return self._families.get(family)
 
-    def note(self, family: tuple, template: System | None) -> None:
+    def note(self, family: tuple, template: System | None, generation: int) -> None:
         with self._lock:
+            if generation != self.generation:
+                return
             self._families.pop(family, None)
             self._families[family] = template
             while len(self._families) > KEEP_COMPILED:
@@ -92,6 +98,7 @@ class _Compiled:
 
     def clear(self) -> None:
         with self._lock:
+            self.generation += 1
             self._systems.clear()
             self._families.clear()
             self.memo.clear()
@@ -394,6 +401,7 @@ class Mechanism:
         object again for the same overrides (values compared exactly, expressions by their
         structure), so that solving a model again costs the solve alone."""
         key = _overrides_key(overrides, need_times)
+        generation = self._compiled.generation
         found = self._compiled.get(key)
         if found is not None:
             return found
@@ -403,18 +411,18 @@ class Mechanism:
             system = compile_model(self.model, self.registry, overrides, need_times=need_times,
                                    memo=self._compiled.memo)
             if family is not None:
-                self._compiled.note(family, None)
+                self._compiled.note(family, None, generation)
         else:
             # other values of params seen before: code traced once where every value that a
             # param changes is a param of the code serves them all (compile_model's reuse)
             template = self._compiled.template(family)
             if template is None:
                 template = self._template(overrides, need_times)
-                self._compiled.note(family, template)
+                self._compiled.note(family, template, generation)
             system = compile_model(self.model, self.registry, overrides, need_times=need_times,
                                    reuse=template, memo=self._compiled.memo)
         if key is not None and system.n_variants <= KEEP_VARIANTS:
-            self._compiled.put(key, system)
+            self._compiled.put(key, system, generation)
         return system
 
     def _template(self, overrides: Overrides | None, need_times: bool) -> System:

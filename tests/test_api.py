@@ -197,3 +197,31 @@ def test_the_seeds_new_values_share_code_and_plans():
     assert systems[0].template is None  # the file's values: their own folded code
     assert systems[3].one_state.phi_jac is systems[1].one_state.phi_jac
     assert systems[3].one_state.params != systems[1].one_state.params
+
+
+def test_a_value_the_template_holds_as_a_constant_is_traced_anew_in_a_large_model():
+    # 50 driven cranks (the group layout of a large model); the ground's points sit at
+    # height max(a, 1) - 1: a constant of the template's code for a = 0.6 (0 in both of its
+    # variants and for every crank), which a = 2 changes. The model is then traced anew for
+    # a = 2, with its own plans (not the template's): x = 3 i - (a - 2) cos t and
+    # y = max(a, 1) - 1 - (a - 2) sin t for crank i
+    n = 50
+    lines = ["param a = 0.5", "ground {"] + \
+        [f"  point O{i} = ({3 * i}, max(a, 1) - 1)" for i in range(n)] + ["}"]
+    for i in range(n):
+        lines += [f"body c{i} {{ guess = ({3 * i + 1.5}, 0, 0)  point P = (a - 2, 0) }}",
+                  f"joint J{i}: revolute(ground.O{i}, c{i}.P)",
+                  f"drive D{i}: angle(c{i}) = t"]
+    lines += ["simulate t = 0 .. 1 step 0.1", "output c0.x, c0.y, c49.x"]
+    mech = mechdsl.loads("\n".join(lines) + "\n")
+    for a in (0.5, 0.6, 2.0, 0.8):
+        res = mech.simulate(a=a)
+        t = res["t"]
+        assert res.ok, res.messages
+        np.testing.assert_allclose(res["c0.x"], -(a - 2) * np.cos(t), atol=1e-10)
+        np.testing.assert_allclose(res["c0.y"], max(a, 1) - 1 - (a - 2) * np.sin(t),
+                                   atol=1e-10)
+        np.testing.assert_allclose(res["c49.x"], 147 - (a - 2) * np.cos(t), atol=1e-9)
+    from mechdsl.compiled.variants import Overrides
+    assert mech.compile(Overrides(params={"a": 2.0})).template is None  # traced anew
+    assert mech.compile(Overrides(params={"a": 0.8})).template is not None

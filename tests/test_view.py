@@ -30,8 +30,20 @@ def _client(path, **kwargs):
     return TestClient(app, base_url=f"http://{HOST}")
 
 
-def _receive(ws):
-    return payload.decode(ws.receive_bytes())
+def _receive(ws, within: int = 60):
+    """The next message, decoded; a failure (not a hang) if none comes ``within`` seconds."""
+    import signal
+
+    def late(signum, frame):
+        raise AssertionError(f"no message from the server within {within} s")
+
+    before = signal.signal(signal.SIGALRM, late)
+    signal.alarm(within)
+    try:
+        return payload.decode(ws.receive_bytes())
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, before)
 
 
 def _array(header, data, item):
@@ -261,3 +273,54 @@ def test_traced_points_carry_their_velocity_and_acceleration(tmp_path):
     # the drawing's bounds are the positions' (not the vectors', which are far larger)
     x0, y0, x1, y1 = header["bounds"]
     assert -2.01 < x0 < -1.99 and 5.49 < x1 < 5.51 and -2.01 < y0 and y1 < 2.01
+
+
+def test_a_save_of_a_table_in_another_folder_reloads(tmp_path):
+    # the drive reads data/motion.csv: a save of that file (not of the model) reloads, through
+    # the real watcher, and the new motion is the closed form's
+    (tmp_path / "data").mkdir()
+    table = tmp_path / "data" / "motion.csv"
+    table.write_text("t,angle\n0,0.7853981633974483\n1,13.351768777756622\n")  # pi/4 + 4 pi t
+    path = tmp_path / "tabled.mech"
+    path.write_text((EXAMPLES / "slider_crank.mech").read_text().replace(
+        "angle(crank) = pi/4 + omega*t", 'angle(crank) = table("data/motion.csv", t)'))
+    app = create_app(Session(str(path)), TOKEN, PORT, watch=True)
+    with TestClient(app, base_url=f"http://{HOST}") as c, \
+            c.websocket_connect(WS, headers=ORIGIN) as ws:
+        header, data = _receive(ws)
+        assert header["status"] == "ok"
+        table.write_text("t,angle\n0,0.7853981633974483\n1,7.0685834705770345\n")  # 2 pi t
+        header, data = _receive(ws)
+        assert header["reason"] == "saved" and header["status"] == "ok"
+        t = data[header["t"]:header["t"] + header["K"]]
+        x, _, _ = slider_crank(2.0, 3.5, np.pi / 4 + 2 * np.pi * t, 2 * np.pi, 0.0)
+        np.testing.assert_allclose(_series(header, data, "slider.x"), x, atol=1e-9)
+
+
+def test_refusals_answer_their_request_and_a_nan_id_stops_nothing(seed):
+    with _client(seed) as c, c.websocket_connect(WS, headers=ORIGIN) as ws:
+        _receive(ws)
+        ws.send_text('{"type": "set", "params": {"nope": 1}, "id": 5}')
+        header, _ = _receive(ws)
+        assert header["type"] == "protocol" and header["id"] == 5
+        ws.send_text('{"type": "reset", "id": NaN}')  # JSON's NaN: no id in the answer
+        header, _ = _receive(ws)
+        assert header["type"] == "run" and header["id"] is None
+        ws.send_text('{"type": "set", "params": {"l": 3.0}, "id": "next"}')
+        header, _ = _receive(ws)
+        assert header["type"] == "run" and header["id"] == "next"
+
+
+def test_a_value_for_a_slider_that_a_reload_removed_is_dropped(seed):
+    with _client(seed) as c, c.websocket_connect(WS, headers=ORIGIN) as ws:
+        _receive(ws)
+        session = c.app.state.hub.session
+        seed.write_text(seed.read_text().replace("param l = 3.5", "param rod = 3.5")
+                        .replace("-l/2", "-rod/2").replace("l/2", "rod/2"))
+        c.app.state.hub.request(reload=True)
+        header, _ = _receive(ws)
+        assert [s["name"] for s in header["sliders"]] == ["r", "rod", "omega"]
+        session.solve({"l": 3.0})  # checked against the sliders before the reload
+        ws.send_text('{"type": "set", "params": {"rod": 3.0}, "id": 1}')
+        header, _ = _receive(ws)
+        assert header["status"] == "ok" and header["id"] == 1

@@ -36,7 +36,7 @@ from .system import (
     Constraint, DriveFunction, EnergyOutput, ExprOutput, Group, OutputSpec, ReactionOutput,
     ReductionOutput, Sketch, Start, System,
 )
-from .variants import Overrides, evaluate, time_grid
+from .variants import MEMO_SIZE, Overrides, evaluate, time_grid
 
 __all__ = ["compile_model", "Overrides", "System"]
 
@@ -70,12 +70,12 @@ def compile_model(model: Model, registry: Registry, overrides: Overrides | None 
     """
     model = read_files(model)  # (already read by mechdsl.load: then the model itself)
     overrides = read_tables(overrides or Overrides(), model.source)
+    compiler = _Compiler(model, registry, overrides, fold, reuse, memo)
     try:
-        system = _Compiler(model, registry, overrides, fold, reuse, memo).run(need_times)
+        system = compiler.run(need_times)
     except MechError as err:
         raise err.with_source(model.source) from None
-    if reuse is not None and system.fused is not None and reuse.fused is not None and \
-            system.fused.graph is reuse.fused.graph:
+    if compiler.reuse is not None:  # its code was taken (not traced anew): and its plans
         system = replace(system, template=reuse.template or reuse)
     return system
 
@@ -610,6 +610,8 @@ class _Compiler:
         made = DriveFunction(E.compile_expr(f), E.compile_expr(fd), E.compile_expr(fdd),
                              (f, fd, fdd))
         if self.memo is not None:
+            if len(self.memo) >= MEMO_SIZE:  # (an initial statement's drive is new each time)
+                self.memo.clear()
             self.memo[("drive", id(f))] = (f, made)
         return made
 

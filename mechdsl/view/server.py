@@ -32,6 +32,7 @@ import asyncio
 import contextlib
 import hmac
 import json
+import math
 import os
 import secrets
 import socket
@@ -60,7 +61,8 @@ def _headers(port: int) -> dict[str, str]:
         "Content-Security-Policy": (
             "default-src 'none'; script-src 'self'; style-src 'self'; "
             f"img-src 'self' data: blob:; connect-src 'self' {origins}; base-uri 'none'; "
-            "form-action 'none'; frame-ancestors 'none'"),
+            # VS Code's Simple Browser shows the page in a frame of its webview
+            "form-action 'none'; frame-ancestors 'self' vscode-webview: vscode-file:"),
         "X-Content-Type-Options": "nosniff",
         "Referrer-Policy": "no-referrer",  # the token is in the URL
         "Cache-Control": "no-store",
@@ -102,12 +104,12 @@ class Hub:
                         return self.session.solve(values)
                 ident = self.last_id
                 try:
-                    message = await asyncio.to_thread(job)
+                    message = _tag(await asyncio.to_thread(job), reason, ident)
                 except Exception as err:  # noqa: BLE001 - a defect: said on the page, the
                     # server goes on (the command line reports the same as an internal error)
                     message = payload.error_message(
                         "failed", [f"mechdsl: internal error: {type(err).__name__}: {err}"])
-                await self.broadcast(_tag(message, reason, ident))
+                await self.broadcast(message)
 
     def request(self, **what) -> None:
         if what.get("values"):
@@ -126,12 +128,25 @@ class Hub:
                 self.sockets.discard(ws)
 
 
+def _ident(value: object) -> int | float | str | None:
+    """A request's id as the page may give it: a finite number or a short text, else None
+    (JSON allows NaN, which the replies, strict JSON, cannot carry)."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, (int, float)):
+        try:
+            return value if math.isfinite(value) else None
+        except OverflowError:  # an integer of a thousand digits
+            return None
+    return value if isinstance(value, str) and len(value) <= 100 else None
+
+
 def _tag(message: bytes, reason: str, ident: object) -> bytes:
     """``message`` with why it was sent and the id of the last request it answers (the page
     measures its latency from it)."""
     header, data = payload.decode(message)
     header["reason"] = reason
-    header["id"] = ident if isinstance(ident, (int, float, str)) or ident is None else None
+    header["id"] = _ident(ident)
     return payload.encode(header) + data.tobytes()
 
 
@@ -179,6 +194,8 @@ def create_app(session: Session, token: str, port: int, *, watch: bool = True):
     @contextlib.asynccontextmanager
     async def lifespan(app):
         hub.wake = asyncio.Event()
+        if hub.last is None:  # the first run before the first page: and the watcher knows
+            hub.last = _tag(await asyncio.to_thread(session.load), "saved", None)  # the files
         tasks = [asyncio.create_task(hub.worker())]
         stop = asyncio.Event()
         if watch:
@@ -198,46 +215,71 @@ def create_app(session: Session, token: str, port: int, *, watch: bool = True):
     return _Guard(app, token, hosts, headers)
 
 
+def _refuse(text: str, ident: object = None) -> bytes:
+    """The error sent back for a request refused, with its id (the page waits for it)."""
+    return _tag(payload.error_message("protocol", [text]), "refused", ident)
+
+
 def _handle(hub: Hub, text: str) -> bytes | None:
     """A page's message: a request queued (None), or the error to send back."""
     if len(text.encode("utf-8", "replace")) > MAX_MESSAGE:
-        return payload.error_message("protocol", [f"a message is at most {MAX_MESSAGE} bytes"])
+        return _refuse(f"a message is at most {MAX_MESSAGE} bytes")
     try:
         msg = json.loads(text)
     except (ValueError, RecursionError):
-        return payload.error_message("protocol", ["a message is a JSON object"])
+        return _refuse("a message is a JSON object")
+    ident = msg.get("id") if isinstance(msg, dict) else None
     if not isinstance(msg, dict) or msg.get("type") not in ("set", "reset", "reload"):
-        return payload.error_message("protocol", ['a message is {"type": "set", "params": '
-                                                  '{...}}, {"type": "reset"} or '
-                                                  '{"type": "reload"}'])
-    hub.last_id = msg.get("id") if isinstance(msg.get("id"), (int, float, str)) else None
+        return _refuse('a message is {"type": "set", "params": {...}}, {"type": "reset"} or '
+                       '{"type": "reload"}', ident)
     if msg["type"] == "set":
         params = msg.get("params")
         if not isinstance(params, dict):
-            return payload.error_message("protocol", ['"params" is an object of names and '
-                                                      'numbers'])
+            return _refuse('"params" is an object of names and numbers', ident)
         try:
             values = hub.session.check_values(params)
         except ValueError as err:
-            return payload.error_message("protocol", [str(err)])
+            return _refuse(str(err), ident)
+        hub.last_id = ident
         hub.request(values=values)
     elif msg["type"] == "reset":
+        hub.last_id = ident
         hub.request(reset=True)
     else:
+        hub.last_id = ident
         hub.request(reload=True)
     return None
 
 
 async def _watch(session: Session, hub: Hub, stop: asyncio.Event) -> None:
-    """Reload on every save of the watched files (:meth:`Session.watched`)."""
+    """Reload on every save of the watched files (:meth:`Session.watched`: the model and
+    the tables and meshes it names, wherever they are): their folders are watched, again
+    whenever a reload changes which they are."""
     from watchfiles import awatch
 
-    folder = os.path.dirname(session.path)
-    async for changes in awatch(folder, stop_event=stop, debounce=400, step=SAVE_SETTLE_MS,
-                                recursive=False, watch_filter=None):
+    while not stop.is_set():
         watched = session.watched()
-        if any(os.path.realpath(path) in watched for _, path in changes):
-            hub.request(reload=True)
+        folders = sorted({os.path.dirname(f) for f in watched if os.path.isdir(
+            os.path.dirname(f))})
+        moved = asyncio.Event()
+
+        async def relay() -> None:  # stop this watch on the server's stop or a new set
+            while not stop.is_set():
+                if session.watched() != watched:
+                    break
+                await asyncio.sleep(0.25)
+            moved.set()
+
+        relaying = asyncio.create_task(relay())
+        try:
+            async for changes in awatch(*folders, stop_event=moved, debounce=400,
+                                        step=SAVE_SETTLE_MS, recursive=False,
+                                        watch_filter=None):
+                now = session.watched()
+                if any(os.path.realpath(path) in now for _, path in changes):
+                    hub.request(reload=True)
+        finally:
+            relaying.cancel()
 
 
 class _Guard:
@@ -291,16 +333,34 @@ def serve(session: Session, port: int = 0, *, open_browser: bool = True,
     app = create_app(session, token, port)
     url = f"http://127.0.0.1:{port}/{token}/"
     announce(f"mechdsl view: {url}  (Ctrl-C to stop)")
-    if open_browser:
-        import webbrowser
-
-        webbrowser.open(url)
+    opened = _open_browser(url) if open_browser else None
     # no permessage-deflate: a run's float64 arrays hardly compress, and deflating a 0.3 MB
     # message on the loopback costs more than sending it
     config = uvicorn.Config(app, log_level="warning", lifespan="on", ws_max_size=MAX_MESSAGE,
                             ws="websockets-sansio" if _has_sansio() else "auto",
                             ws_per_message_deflate=False)
-    uvicorn.Server(config).run(sockets=[sock])
+    try:
+        uvicorn.Server(config).run(sockets=[sock])
+    finally:
+        if opened:
+            with contextlib.suppress(OSError):
+                os.unlink(opened)
+
+
+def _open_browser(url: str) -> str | None:
+    """Open ``url`` in the user's browser through a file only the user can read that
+    redirects to it (as Jupyter does): the token never appears in a process's command line,
+    which other users of the machine can list. Returns the file (removed when the server
+    stops)."""
+    import tempfile
+    import webbrowser
+
+    fd, path = tempfile.mkstemp(prefix="mechdsl-view-", suffix=".html")  # mode 0600
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(f'<!DOCTYPE html><meta charset="utf-8"><meta http-equiv="refresh" '
+                f'content="0;url={url}"><a href="{url}">mechdsl view</a>\n')
+    webbrowser.open(Path(path).as_uri())
+    return path
 
 
 def _has_sansio() -> bool:

@@ -99,7 +99,8 @@ class Session:
     def solve(self, values: Mapping[str, float]) -> bytes:
         """Solve the last good model with ``values`` set (checked by :meth:`check_values`)."""
         with self._lock:
-            self.values.update(values)
+            names = {s.name for s in self._sliders}  # (a reload may have renamed one)
+            self.values.update({k: v for k, v in values.items() if k in names})
             if self.mech is None:
                 return payload.error_message("error", ["the file has not loaded yet"])
             return self._solve()

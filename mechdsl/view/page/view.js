@@ -56,8 +56,10 @@
   }
 
   function receive(header, data) {
-    if (header.sliders && !view.static) buildSliders(header.sliders);
-    if (header.id != null && header.id === view.inFlight) {
+    if (header.sliders && header.sliders.length && !view.static) buildSliders(header.sliders);
+    // any answer ends the request in flight (the server merges requests, and a reload or a
+    // reset drops those waiting): the next move goes now
+    if (view.inFlight !== null) {
       view.inFlight = null;
       if (view.queued) { const q = view.queued; view.queued = null; requestSet(q); }
     }
@@ -136,7 +138,8 @@
     for (const s of list) {
       const w = view.sliders[s.name];
       if (!w) continue;
-      const lo = s.lo ?? -1, hi = s.hi ?? 1;
+      // a value outside the range widens it (a clamped slider would copy a wrong value)
+      const v = s.value ?? 0, lo = Math.min(s.lo ?? -1, v), hi = Math.max(s.hi ?? 1, v);
       w.input.min = String(lo); w.input.max = String(hi);
       w.input.step = "any";  // a value of the file, or typed, is kept as it is
       if (document.activeElement !== w.input && s.value != null) {
