@@ -324,3 +324,18 @@ def test_a_value_for_a_slider_that_a_reload_removed_is_dropped(seed):
         ws.send_text('{"type": "set", "params": {"rod": 3.0}, "id": 1}')
         header, _ = _receive(ws)
         assert header["status"] == "ok" and header["id"] == 1
+
+
+def test_ctrl_c_stops_the_view_at_once_during_a_long_solve(tmp_path):
+    import time
+
+    from browser import Viewer
+
+    path = tmp_path / "long.mech"  # the seed over 2 million instants: many seconds to solve
+    path.write_text((EXAMPLES / "slider_crank.mech").read_text()
+                    .replace("step 0.001", "step 5e-7"))
+    viewer = Viewer(path)
+    time.sleep(1.5)  # the first run is under way
+    start = time.monotonic()
+    status = viewer.stop()
+    assert status in (0, 130) and time.monotonic() - start < 5

@@ -104,7 +104,7 @@ class Hub:
                         return self.session.solve(values)
                 ident = self.last_id
                 try:
-                    message = _tag(await asyncio.to_thread(job), reason, ident)
+                    message = _tag(await _in_thread(job), reason, ident)
                 except Exception as err:  # noqa: BLE001 - a defect: said on the page, the
                     # server goes on (the command line reports the same as an internal error)
                     message = payload.error_message(
@@ -126,6 +126,36 @@ class Hub:
                 await ws.send_bytes(message)
             except Exception:  # noqa: BLE001 - a page that went away
                 self.sockets.discard(ws)
+
+
+async def _in_thread(job):
+    """``job()`` in a thread of its own, awaited. A daemon thread, not the event loop's
+    executor: Ctrl-C stops the server at once, where the executor would wait for a long
+    solve to end."""
+    import threading
+
+    loop = asyncio.get_running_loop()
+    done = loop.create_future()
+
+    def run() -> None:
+        try:
+            result, error = job(), None
+        except BaseException as err:  # noqa: BLE001 - handed to the awaiting task
+            result, error = None, err
+        if not loop.is_closed():
+            loop.call_soon_threadsafe(_settle, done, result, error)
+
+    threading.Thread(target=run, daemon=True, name="mechdsl-view-solve").start()
+    return await done
+
+
+def _settle(future, result, error) -> None:
+    if future.cancelled():
+        return
+    if error is not None:
+        future.set_exception(error)
+    else:
+        future.set_result(result)
 
 
 def _ident(value: object) -> int | float | str | None:
@@ -176,9 +206,7 @@ def create_app(session: Session, token: str, port: int, *, watch: bool = True):
         await ws.accept()
         hub.sockets.add(ws)
         try:
-            if hub.last is None:
-                hub.request(reload=True)
-            else:
+            if hub.last is not None:  # else the first run comes as soon as it is solved
                 await ws.send_bytes(hub.last)
             while True:
                 text = await ws.receive_text()
@@ -194,9 +222,9 @@ def create_app(session: Session, token: str, port: int, *, watch: bool = True):
     @contextlib.asynccontextmanager
     async def lifespan(app):
         hub.wake = asyncio.Event()
-        if hub.last is None:  # the first run before the first page: and the watcher knows
-            hub.last = _tag(await asyncio.to_thread(session.load), "saved", None)  # the files
+        await _in_thread(session.read)  # the watcher then knows the files the model names
         tasks = [asyncio.create_task(hub.worker())]
+        hub.request(reload=True)  # the first run, sent to the pages as they connect
         stop = asyncio.Event()
         if watch:
             tasks.append(asyncio.create_task(_watch(session, hub, stop)))

@@ -75,26 +75,33 @@ class Session:
     def load(self) -> bytes:
         """Read and parse the file again, then solve it with the sliders' values: the run's
         message, or the file's errors (every one that can be found at once)."""
+        with self._lock:
+            failed = self._read()
+            return failed if failed is not None else self._solve()
+
+    def read(self) -> bytes | None:
+        """Read and parse the file again without solving it (what the watcher needs to know
+        the files it names): None, or the message of its errors."""
+        with self._lock:
+            return self._read()
+
+    def _read(self) -> bytes | None:
         from ..api import load
 
-        with self._lock:
-            try:
-                mech = load(self.path, plugins=self.plugins, allow_plugins=self.allow_plugins,
-                            check=False)
-                mech.check_names()
-            except MechError as err:
-                return payload.error_message("error", self._all_errors(err), self.sliders())
-            except OSError as err:  # pragma: no cover - read_data reports these as MechError
-                return payload.error_message("error", [f"{self.display}: error: {err}"])
-            try:
-                sliders = _sliders(mech)
-            except MechError as err:
-                return payload.error_message("error", [format_error(err)], self.sliders())
-            self.mech = mech
-            self._sliders = sliders
-            names = {s.name for s in self._sliders}
-            self.values = {k: v for k, v in self.values.items() if k in names}
-            return self._solve()
+        try:
+            mech = load(self.path, plugins=self.plugins, allow_plugins=self.allow_plugins,
+                        check=False)
+            mech.check_names()
+            sliders = _sliders(mech)
+        except MechError as err:
+            return payload.error_message("error", self._all_errors(err), self.sliders())
+        except OSError as err:  # pragma: no cover - read_data reports these as MechError
+            return payload.error_message("error", [f"{self.display}: error: {err}"])
+        self.mech = mech
+        self._sliders = sliders
+        names = {s.name for s in self._sliders}
+        self.values = {k: v for k, v in self.values.items() if k in names}
+        return None
 
     def solve(self, values: Mapping[str, float]) -> bytes:
         """Solve the last good model with ``values`` set (checked by :meth:`check_values`)."""
