@@ -118,7 +118,7 @@ def _exact(value: object) -> object:
         return value
     if isinstance(value, (int, float, np.number)):
         return ("number", float(value).hex())
-    if isinstance(value, Mapping):
+    if isinstance(value, dict) or isinstance(value, Mapping):
         return ("map", tuple(sorted((str(k), _exact(v)) for k, v in value.items())))
     if isinstance(value, (list, tuple)):
         return ("list", tuple(_exact(v) for v in value))

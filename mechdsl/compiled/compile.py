@@ -195,6 +195,7 @@ class _Compiler:
                  else None)
         order = max((o.order for o in outputs), default=0)
         env = {k: _readonly(v[:, None]) for k, v in self.var.env.items()}
+        guess = self._guess()
         system = System(
             source=self.model.source,
             body_names=tuple(b.name for b in self.bodies),
@@ -207,8 +208,8 @@ class _Compiler:
             env=env,
             sweep={k: _readonly(v) for k, v in self.var.sweep.items()},
             n_variants=self.V,
-            guess=_readonly(self._guess()),
-            scale=_readonly(self._scale()),
+            guess=_readonly(guess),
+            scale=_readonly(self._scale(guess)),
             times=None if times is None else _readonly(times),
             outputs=tuple(outputs),
             order=order,
@@ -387,14 +388,14 @@ class _Compiler:
                 g[:, 3 * i : 3 * i + 3] = self.var.vector(b.guess, f"the guess of {b.name}")
         return g
 
-    def _scale(self) -> np.ndarray:
+    def _scale(self, guess: np.ndarray) -> np.ndarray:
         """A length characteristic of the model, per variant: the largest point coordinate or
         guessed position (1 if all are zero). Convergence tests on lengths are relative to it."""
         s = np.zeros(self.V)
         for pts in self.points.values():
             for xy in pts.values():
                 s = np.maximum(s, np.abs(xy).max(axis=-1))
-        g = self._guess().reshape(self.V, -1, 3)[..., :2]
+        g = guess.reshape(self.V, -1, 3)[..., :2]
         if g.size:
             s = np.maximum(s, np.abs(g).max(axis=(-1, -2)))
         return np.where(s > 0, s, 1.0)

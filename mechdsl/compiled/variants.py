@@ -100,7 +100,10 @@ class Variants:
 
     def vector(self, v: Vector, what: str) -> np.ndarray:
         """A vector of expressions: shape (V, len)."""
-        return np.stack([self.values(e, what, e.span) for e in v.items], axis=-1)
+        out = np.empty((self.count, len(v.items)))
+        for k, e in enumerate(v.items):
+            out[:, k] = self.values(e, what, e.span)
+        return out
 
 
 def evaluate(model: Model, ov: Overrides, memo: dict | None = None) -> Variants:
