@@ -295,3 +295,15 @@ def test_a_param_may_give_its_range_for_the_views_slider():
     assert (err.value.span.line, err.value.span.column) == (1, 18)
     with pytest.raises(MechError, match="unknown name 'q'"):
         parse("param l = 3.5 in q .. 5\n")
+
+
+def test_a_range_of_a_swept_param_is_checked_in_every_variant():
+    from mechdsl.compiled.variants import Overrides, evaluate, param_ranges
+    from mechdsl.errors import MechError
+
+    m = parse("param r = 2\nparam l = 3.5 in r .. 4*r\nsweep r = [1.5, 2]\n")
+    assert param_ranges(m, evaluate(m, Overrides()).env) == {"l": (1.5, 6.0)}
+    # empty for r = 2 only (3 .. 3): said with that variant's ends
+    with pytest.raises(MechError, match="the range of param 'l' is empty: 3 .. 3"):
+        evaluate(parse("param r = 2\nparam l = 3.5 in 2*r - 1 .. 3\nsweep r = [1.5, 2]\n"),
+                 Overrides())

@@ -120,10 +120,11 @@ def param_ranges(model: Model, env: dict[str, np.ndarray]) -> dict[str, tuple[fl
     the first variant of ``env``; a bound that is not finite, or lo >= hi in some variant, is
     an error located at the range."""
     out = {}
+    V = len(next(iter(env.values()))) if env else 1
     for p in model.params:
         if p.range is None:
             continue
-        lo, hi = (np.broadcast_to(np.asarray(E.evaluate(b, env), dtype=float), (1,)).ravel()
+        lo, hi = (np.broadcast_to(np.asarray(E.evaluate(b, env), dtype=float), (V,))
                   for b in p.range)
         span = p.range[0].span or p.span
         for what, v in (("lower", lo), ("upper", hi)):
@@ -131,8 +132,9 @@ def param_ranges(model: Model, env: dict[str, np.ndarray]) -> dict[str, tuple[fl
                 raise MechError(f"the {what} end of the range of param '{p.name}' is "
                                 f"{_first_bad(v)}", span)
         if not np.all(lo < hi):
-            raise MechError(f"the range of param '{p.name}' is empty: {float(lo[0]):g} .. "
-                            f"{float(hi[0]):g} (give lo .. hi with lo < hi)", span)
+            i = int(np.flatnonzero(~(lo < hi))[0])  # the first variant where it is empty
+            raise MechError(f"the range of param '{p.name}' is empty: {float(lo[i]):g} .. "
+                            f"{float(hi[i]):g} (give lo .. hi with lo < hi)", span)
         out[p.name] = (float(lo[0]), float(hi[0]))
     return out
 
