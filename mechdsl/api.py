@@ -118,7 +118,7 @@ def _exact(value: object) -> object:
         return value
     if isinstance(value, (int, float, np.number)):
         return ("number", float(value).hex())
-    if isinstance(value, dict) or isinstance(value, Mapping):
+    if isinstance(value, Mapping):
         return ("map", tuple(sorted((str(k), _exact(v)) for k, v in value.items())))
     if isinstance(value, (list, tuple)):
         return ("list", tuple(_exact(v) for v in value))
@@ -398,8 +398,9 @@ class Mechanism:
         from it: the mechanism keeps the last few it compiled (of at most
         :data:`KEEP_VARIANTS` variants: a single run or a small sweep, not a study's chunks),
         each with the plans and generated code its first solve made, and gives the same
-        object again for the same overrides (values compared exactly, expressions by their
-        structure), so that solving a model again costs the solve alone."""
+        object again for the same overrides (numbers compared by their bits, expressions by
+        identity), so that solving a model again costs the solve alone. New values of params
+        alone run code traced once for them all (:meth:`_template`)."""
         key = _overrides_key(overrides, need_times)
         generation = self._compiled.generation
         found = self._compiled.get(key)

@@ -36,7 +36,7 @@ from .system import (
     Constraint, DriveFunction, EnergyOutput, ExprOutput, Group, OutputSpec, ReactionOutput,
     ReductionOutput, Sketch, Start, System,
 )
-from .variants import MEMO_SIZE, Overrides, evaluate, time_grid
+from .variants import Overrides, evaluate, remembered, time_grid
 
 __all__ = ["compile_model", "Overrides", "System"]
 
@@ -303,7 +303,7 @@ class _Compiler:
                 (len(elements) - 1, slots, params, (0, 0)))
         return [self._group(ftype, members) for ftype, members in packed.values()], elements
 
-    def _reused_forces(self) -> list | None:
+    def _reused_forces(self) -> list:
         """The force groups of the System reused (none where it has no dynamics)."""
         d = self.reuse.dynamics if self.reuse is not None else None
         return list(d.force_groups) if d is not None else []
@@ -602,19 +602,13 @@ class _Compiler:
         return ExprFunction(exprs, var, env)
 
     def _drive_function(self, d: Drive) -> DriveFunction:
-        f = d.function
-        held = self.memo.get(("drive", id(f))) if self.memo is not None else None
-        if held is not None and held[0] is f:  # (kept with f: its id is not reused)
-            return held[1]
-        fd = derivative(f, TIME)
-        fdd = derivative(fd, TIME)
-        made = DriveFunction(E.compile_expr(f), E.compile_expr(fd), E.compile_expr(fdd),
-                             (f, fd, fdd))
-        if self.memo is not None:
-            if len(self.memo) >= MEMO_SIZE:  # (an initial statement's drive is new each time)
-                self.memo.clear()
-            self.memo[("drive", id(f))] = (f, made)
-        return made
+        def make() -> DriveFunction:
+            f = d.function
+            fd = derivative(f, TIME)
+            fdd = derivative(fd, TIME)
+            return DriveFunction(E.compile_expr(f), E.compile_expr(fd), E.compile_expr(fdd),
+                                 (f, fd, fdd))
+        return remembered(self.memo, "drive", d.function, make)
 
     # -- outputs -------------------------------------------------------------------------------
     def _sketch(self, groups: list[Group]) -> Sketch:

@@ -60,6 +60,22 @@ def as_expr(v: E.Expr | float) -> E.Expr:
 MEMO_SIZE = 10_000
 
 
+def remembered(memo: dict | None, tag: str, obj: object, make):
+    """``make()``, kept in ``memo`` (the caller's, per model) under ``obj``'s identity and
+    ``tag``, with ``obj`` itself, so that its id is not reused while the entry lives; made
+    anew without a memo. The memo is emptied when it holds :data:`MEMO_SIZE` entries."""
+    if memo is None:
+        return make()
+    held = memo.get((tag, id(obj)))
+    if held is not None and held[0] is obj:
+        return held[1]
+    if len(memo) >= MEMO_SIZE:
+        memo.clear()
+    made = make()
+    memo[(tag, id(obj))] = (obj, made)
+    return made
+
+
 @dataclass(frozen=True)
 class Variants:
     """The swept values ``sweep[name]`` and every param's value ``env[name]``, each (V,).
@@ -87,16 +103,9 @@ class Variants:
         return value
 
     def _run(self, e: E.Expr):
-        memo = self.memo
-        if memo is None:
-            return E.evaluate(e, self.env)
-        held = memo.get(id(e))
-        if held is None or held[0] is not e:
-            if len(memo) >= MEMO_SIZE:
-                memo.clear()
-            held = memo[id(e)] = (e, E.compile_expr(e))
-        with np.errstate(all="ignore"):
-            return held[1](self.env)
+        run = remembered(self.memo, "expr", e, lambda: E.compile_expr(e))
+        with np.errstate(all="ignore"):  # (as E.evaluate: the caller checks finiteness)
+            return run(self.env)
 
     def vector(self, v: Vector, what: str) -> np.ndarray:
         """A vector of expressions: shape (V, len)."""
