@@ -714,12 +714,9 @@ def _interrupted_text(args, results, written: list[str], signum: int) -> str:
 
 def _all_errors(args, err: MechError) -> MechError:
     """The error to raise for ``err``, found while loading or checking the file: every
-    syntax and name error of the file at once (:mod:`mechdsl.diagnostics`), all but the last
-    printed here, the last returned. An error that is not in the file (memory, reading), or
-    a file with ``plugin`` lines (left to the path that loads the plugins it allows), keeps
-    its one error."""
-    from .diagnostics import diagnose
-    from .plugins.manager import build_registry
+    syntax and name error of the file at once (:func:`mechdsl.diagnostics.every_error`),
+    all but the last printed here, the last returned."""
+    from .diagnostics import every_error
     from .reading import read_data
 
     if err.span is None or args.plugin:
@@ -728,11 +725,7 @@ def _all_errors(args, err: MechError) -> MechError:
         text = read_data(args.file, "", "MAX_MODEL_BYTES").decode("utf-8")
     except (MechError, UnicodeDecodeError):
         return err
-    if "plugin" in text:
-        return err
-    errors = diagnose(text, args.file, build_registry())
-    if not errors:
-        return err
+    errors = every_error(err, text, args.file)
     for other in errors[:-1]:
         print(format_error(other), file=sys.stderr)
     return errors[-1]

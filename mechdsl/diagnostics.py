@@ -113,3 +113,17 @@ def diagnose(text: str, name: str = "<string>", registry: Registry | None = None
         key = (err.span.line, err.span.column) if err.span else (0, 0)
         unique.setdefault((key, err.message), err)
     return [unique[k] for k in sorted(unique)][:max_errors]
+
+
+def every_error(err: MechError, text: str | None, name: str, plugins_given: bool = False
+                ) -> list[MechError]:
+    """``err``, found while loading the file ``name`` of ``text``, with every other syntax
+    and name error of that file (:func:`diagnose` against the installed plugins), in the
+    order of the text: what ``mechdsl check`` and ``mechdsl view`` show. An error that is not
+    in the file (memory, reading), a run given plugin modules, or a file with ``plugin``
+    lines (left to the path that loads the plugins it allows) keeps its one error."""
+    if err.span is None or text is None or plugins_given or "plugin" in text:
+        return [err]
+    from .plugins.manager import build_registry
+
+    return diagnose(text, name, build_registry()) or [err]

@@ -85,6 +85,8 @@ class Variants:
     sweep: dict[str, np.ndarray]
     env: dict[str, np.ndarray]
     memo: dict | None = field(default=None, compare=False, repr=False)
+    #: the params' ranges, ``param l = 3.5 in 2 .. 6`` (:func:`param_ranges`)
+    ranges: dict = field(default_factory=dict, compare=False)
 
     @functools.cached_property
     def count(self) -> int:
@@ -120,8 +122,7 @@ def evaluate(model: Model, ov: Overrides, memo: dict | None = None) -> Variants:
     ranges checked (:func:`param_ranges`). ``memo``: see :class:`Variants`."""
     sweep = sweep_table(model, ov)
     env = _params(model, ov, sweep)
-    param_ranges(model, env)
-    return Variants(sweep, env, memo)
+    return Variants(sweep, env, memo, param_ranges(model, env))
 
 
 def param_ranges(model: Model, env: dict[str, np.ndarray]) -> dict[str, tuple[float, float]]:

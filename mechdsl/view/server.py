@@ -80,6 +80,7 @@ class Hub:
     pending: dict = field(default_factory=dict)  # values not solved yet
     reload: bool = False
     reset: bool = False
+    opened: bool = False  # the file read at start: its first run
     last_id: object = None
     wake: asyncio.Event | None = None
 
@@ -89,12 +90,14 @@ class Hub:
         while True:
             await self.wake.wait()
             self.wake.clear()
-            while self.reload or self.reset or self.pending:
+            while self.reload or self.reset or self.opened or self.pending:
                 if self.reload:
                     self.reload, reason, job = False, "saved", self.session.load
                     self.pending.clear()
-                elif self.reset:
-                    self.reset, reason, job = False, "reset", self.session.reset
+                elif self.reset or self.opened:  # the file's values, read already
+                    reason = "reset" if self.reset else "opened"
+                    self.reset = self.opened = False
+                    job = self.session.reset
                     self.pending.clear()
                 else:
                     values, self.pending = self.pending, {}
@@ -116,6 +119,7 @@ class Hub:
             self.pending.update(what["values"])
         self.reload |= bool(what.get("reload"))
         self.reset |= bool(what.get("reset"))
+        self.opened |= bool(what.get("opened"))
         if self.wake is not None:
             self.wake.set()
 
@@ -222,9 +226,14 @@ def create_app(session: Session, token: str, port: int, *, watch: bool = True):
     @contextlib.asynccontextmanager
     async def lifespan(app):
         hub.wake = asyncio.Event()
-        await _in_thread(session.read)  # the watcher then knows the files the model names
+        # read once before the watcher starts, which then knows the files the model names;
+        # the first run (or the file's errors) goes to the pages as they connect
+        failed = await _in_thread(session.read)
         tasks = [asyncio.create_task(hub.worker())]
-        hub.request(reload=True)  # the first run, sent to the pages as they connect
+        if failed is not None:
+            hub.last = _tag(failed, "opened", None)
+        else:
+            hub.request(opened=True)
         stop = asyncio.Event()
         if watch:
             tasks.append(asyncio.create_task(_watch(session, hub, stop)))
@@ -268,14 +277,11 @@ def _handle(hub: Hub, text: str) -> bytes | None:
             values = hub.session.check_values(params)
         except ValueError as err:
             return _refuse(str(err), ident)
-        hub.last_id = ident
-        hub.request(values=values)
-    elif msg["type"] == "reset":
-        hub.last_id = ident
-        hub.request(reset=True)
+        what = {"values": values}
     else:
-        hub.last_id = ident
-        hub.request(reload=True)
+        what = {msg["type"]: True}  # reset, reload
+    hub.last_id = ident
+    hub.request(**what)
     return None
 
 

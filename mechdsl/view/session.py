@@ -141,16 +141,13 @@ class Session:
 
     def _all_errors(self, err: MechError) -> list[str]:
         """Every located error of the file, as ``mechdsl check`` prints them."""
-        if err.span is None or err.source is None or self.plugins:
-            return [format_error(err)]
-        from ..diagnostics import diagnose
-        from ..plugins.manager import build_registry
+        from ..diagnostics import every_error
 
-        text = err.source.text
-        if "plugin" in text:  # left to the path that loads the plugins it allows
-            return [format_error(err)]
-        found = diagnose(text, err.source.name, build_registry())
-        return [format_error(e) for e in found] or [format_error(err)]
+        source = err.source
+        found = every_error(err, source.text if source is not None else None,
+                            source.name if source is not None else self.path,
+                            bool(self.plugins))
+        return [format_error(e) for e in found]
 
 
 def _overrides(mech, values: Mapping[str, float]):
@@ -163,22 +160,21 @@ def _sliders(mech) -> list[payload.Slider]:
     """A slider for each param whose value reads no other param (``param l = 3.5``,
     ``param omega = 4*pi``), over the range the file gives it (``param l = 3.5 in 2 .. 6``)
     or else :func:`.payload.default_range` of its value. MechError where a range is wrong."""
-    from ..compiled.variants import Overrides, param_ranges, sweep_table, _params
+    from ..compiled.variants import Overrides, evaluate
     from ..grammar import expr as E
 
     model = mech.model
     try:
-        env = _params(model, Overrides(), sweep_table(model, Overrides()))
-        ranges = param_ranges(model, env)
+        var = evaluate(model, Overrides())
     except MechError as err:
         raise err.with_source(model.source) from None
     out = []
     for p in model.params:
         if E.free_names(p.value):
             continue  # follows other params: moved by theirs
-        value = float(env[p.name][0])
+        value = float(var.env[p.name][0])
         if not math.isfinite(value):
             continue
-        lo, hi = ranges.get(p.name) or payload.default_range(value)
+        lo, hi = var.ranges.get(p.name) or payload.default_range(value)
         out.append(payload.Slider(p.name, value, lo, hi))
     return out[:MAX_SLIDERS]
