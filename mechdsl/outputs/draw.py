@@ -80,7 +80,7 @@ def paths(results: Results, sketch: Sketch) -> dict[str, np.ndarray]:
 
 
 @dataclass(frozen=True)
-class _Frames:
+class Frames:
     """Every drawn point at every instant: outlines (V, K, P, 2) per body, pins (V, K, 2)."""
 
     outlines: list[np.ndarray]
@@ -94,7 +94,9 @@ class _Frames:
     links: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
 
 
-def _frames(results: Results, system: System) -> _Frames:
+def frames(results: Results, system: System) -> Frames:
+    """Every drawn point of ``system`` at every instant of ``results`` (with poses), in
+    world coordinates (:class:`Frames`): what snapshots, animations and the view draw."""
     sk = system.sketch
     nb = system.n_bodies
     drawn = outlines(sk)
@@ -104,7 +106,7 @@ def _frames(results: Results, system: System) -> _Frames:
     shapes = [world(results.poses, i, e) for i, e in enumerate(sk.shapes) if e is not None]
     links = [(world(results.poses, b1, xy1), world(results.poses, b2, xy2))
              for b1, xy1, b2, xy2 in sk.links]
-    return _Frames(bodies, pins, paths(results, sk), ground, shapes, links)
+    return Frames(bodies, pins, paths(results, sk), ground, shapes, links)
 
 
 def zigzag(p: np.ndarray, q: np.ndarray, turns: int = 8) -> np.ndarray:
@@ -126,7 +128,7 @@ def _need_poses(results: Results) -> None:
         raise ValueError("the run kept no poses: simulate(..., poses=True)")
 
 
-def _limits(fr: _Frames) -> tuple[float, float, float, float]:
+def _limits(fr: Frames) -> tuple[float, float, float, float]:
     pts = [a.reshape(-1, 2) for a in (*fr.outlines, *fr.pins, *fr.traces.values(), fr.ground,
                                       *fr.shapes)]
     allp = np.concatenate(pts)
@@ -161,14 +163,15 @@ def snapshot_instants(results: Results, at: list[float] | None = None,
     return _instants(results, count)
 
 
-def _variant_labels(results: Results) -> list[str]:
+def variant_labels(results: Results) -> list[str]:
+    """Each variant's name in a legend: its swept params' values ("" without a sweep)."""
     if not results.sweep:
         return [""]
     return [", ".join(f"{k} = {v[i]:g}" for k, v in results.sweep.items())
             for i in range(results.n_variants)]
 
 
-def _figure(fr: _Frames, title: str, colors: list):
+def _figure(fr: Frames, title: str, colors: list):
     from .plot import new_figure
 
     # a fixed layout: a layout engine would run again at every frame of an animation
@@ -215,7 +218,7 @@ def _legend(ax, results: Results, colors: list, traces, loc: str, alpha: float =
     handles = []
     if results.sweep:
         handles += [Line2D([], [], color=colors[v], lw=3, label=label)
-                    for v, label in enumerate(_variant_labels(results))]
+                    for v, label in enumerate(variant_labels(results))]
     for label in traces:
         handles.append(Line2D([], [], lw=1.2, color="0.3" if results.sweep else colors[0],
                               alpha=alpha, label=f"path of {label}"))
@@ -231,7 +234,7 @@ class _Artists:
     single points as square markers, the pins as circle markers and the shapes' outlines as
     a line collection."""
 
-    def __init__(self, ax, fr: _Frames, color, alpha: float) -> None:
+    def __init__(self, ax, fr: Frames, color, alpha: float) -> None:
         from matplotlib.collections import LineCollection, PolyCollection
 
         self.fr = fr
@@ -275,7 +278,7 @@ def snapshot(results: Results, system: System, path: str, at: list[float] | None
     coupler-curve figure of the mechanism textbooks. Every variant of a sweep is overlaid in
     its own colour, named in the legend by its parameter values."""
     _need_poses(results)
-    fr = _frames(results, system)
+    fr = frames(results, system)
     ks = snapshot_instants(results, at, count)
     colors = _colors(results.n_variants)
     fig, ax, _ = _figure(fr, f"{os.path.basename(results.source_name)}: "
@@ -306,7 +309,7 @@ def animate(results: Results, system: System, path: str, fps: int = FPS,
                         "not there; install ffmpeg or write a .gif")
     if ext not in (".gif", ".mp4"):
         raise MechError(f"cannot write {path}: an animation is a .gif or an .mp4")
-    fr = _frames(results, system)
+    fr = frames(results, system)
     ks = _instants(results, max_frames)
     colors = _colors(results.n_variants)
     fig, ax, _ = _figure(fr, os.path.basename(results.source_name), colors)

@@ -26,7 +26,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from ..compiled.system import System
-from ..outputs.draw import outlines, world
+from ..outputs.draw import frames, variant_labels
 from ..results import Results, summary
 
 MAGIC = b"MDV1"
@@ -91,13 +91,6 @@ def _finite(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-def _labels(results: Results) -> list[str]:
-    if not results.sweep:
-        return [""]
-    return [", ".join(f"{k} = {v[i]:g}" for k, v in results.sweep.items())
-            for i in range(results.n_variants)]
-
-
 def _point_rates(poses: np.ndarray, rates: np.ndarray, body: int, at: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
     """The velocity and acceleration (K, 2) of a point of ``body`` that is at ``at`` (K, 2),
@@ -120,36 +113,31 @@ def run_message(system: System, results: Results, sliders: Sequence[Slider], *,
     if results.poses is None:
         raise ValueError("the view needs the run's poses: simulate(..., poses=True)")
     pk = _Packer()
-    sk, nb = system.sketch, system.n_bodies
-    poses = results.poses
-    V, K = poses.shape[:2]
-    drawn = outlines(sk)
+    sk = system.sketch
+    fr = frames(results, system)  # the drawings' geometry, in world coordinates
+    V, K = results.poses.shape[:2]
     items: list[dict] = []
     for v in range(V):
-        one = poses[v:v + 1]
-        for i in range(nb):
-            local = drawn[i][v:v + 1]
-            items.append({"kind": "body", "name": system.body_names[i], "v": v,
-                          "p": int(local.shape[1]), "o": pk.add(world(one, i, local), True)})
-        for body, xy in sk.pins:
-            items.append({"kind": "pin", "v": v, "o": pk.add(world(one, body, xy[v:v + 1]), True)})
-        for i, edges in enumerate(sk.shapes):
-            if edges is not None:
-                e = edges[v:v + 1]
-                items.append({"kind": "shape", "v": v, "p": int(e.shape[1]),
-                              "o": pk.add(world(one, i, e), True)})
-        for b1, xy1, b2, xy2 in sk.links:
-            ends = np.stack((world(one, b1, xy1[v:v + 1]), world(one, b2, xy2[v:v + 1])), -2)
-            items.append({"kind": "spring", "v": v, "o": pk.add(ends, True)})
-        for label, body, xy in sk.traces:
-            at = world(one, body, xy[v:v + 1])
+        for name, xy in zip(system.body_names, fr.outlines):
+            items.append({"kind": "body", "name": name, "v": v, "p": int(xy.shape[2]),
+                          "o": pk.add(xy[v], True)})
+        for xy in fr.pins:
+            items.append({"kind": "pin", "v": v, "o": pk.add(xy[v], True)})
+        for edges in fr.shapes:
+            items.append({"kind": "shape", "v": v, "p": int(edges.shape[2]),
+                          "o": pk.add(edges[v], True)})
+        for a, b in fr.links:
+            items.append({"kind": "spring", "v": v,
+                          "o": pk.add(np.stack((a[v], b[v]), -2), True)})
+        for label, body, _ in sk.traces:
+            at = fr.traces[label][v]
             item = {"kind": "trace", "name": label, "v": v, "o": pk.add(at, True)}
             if results.rates is not None:
-                vel, acc = _point_rates(poses[v], results.rates[v], body, at[0])
+                vel, acc = _point_rates(results.poses[v], results.rates[v], body, at)
                 item["vo"], item["ao"] = pk.add(vel), pk.add(acc)
             items.append(item)
-        ground = drawn[nb][v:v + 1]  # fixed: its points once
-        items.append({"kind": "ground", "v": v, "p": int(ground.shape[1]),
+        ground = fr.ground[v, 0]  # fixed: its points once
+        items.append({"kind": "ground", "v": v, "p": int(ground.shape[0]),
                       "o": pk.add(ground, True)})
     # every drawn position ends in (x, y): the bounds of the finite points of them all
     pts = np.concatenate([p.reshape(-1, 2) for p in pk.points]) if pk.points else \
@@ -168,14 +156,12 @@ def run_message(system: System, results: Results, sliders: Sequence[Slider], *,
         "time_unit": results.time_unit, "solved": [int(n) for n in results.n_solved],
         "status": results.status, "messages": list(results.messages),
         "warnings": [*results.warnings, *warnings],
-        "summary": summary(results).replace(results.source_name, file, 1)
-        if results.source_name else summary(results),
-        "variants": _labels(results), "bodies": list(system.body_names),
+        "summary": _summary(results, file),
+        "variants": variant_labels(results), "bodies": list(system.body_names),
         "sweep": {k: [float(x) for x in np.asarray(a, dtype=float).ravel()]
                   for k, a in results.sweep.items()},
         "items": items, "series": series, "bounds": bounds,
-        "sliders": [{"name": s.name, "value": _finite(s.value), "lo": _finite(s.lo),
-                     "hi": _finite(s.hi)} for s in sliders],
+        "sliders": _sliders(sliders),
     }
     return encode(header, pk)
 
@@ -183,6 +169,15 @@ def run_message(system: System, results: Results, sliders: Sequence[Slider], *,
 def error_message(kind: str, texts: Sequence[str], sliders: Sequence[Slider] = ()) -> bytes:
     """A message without a run: ``kind`` "error" (the file's located errors, as ``mechdsl
     check`` prints them, or a failure of the solve) with the texts to show."""
-    return encode({"type": kind, "errors": list(texts),
-                   "sliders": [{"name": s.name, "value": _finite(s.value), "lo": _finite(s.lo),
-                                "hi": _finite(s.hi)} for s in sliders]})
+    return encode({"type": kind, "errors": list(texts), "sliders": _sliders(sliders)})
+
+
+def _sliders(sliders: Sequence[Slider]) -> list[dict]:
+    return [{"name": s.name, "value": _finite(s.value), "lo": _finite(s.lo),
+             "hi": _finite(s.hi)} for s in sliders]
+
+
+def _summary(results: Results, file: str) -> str:
+    """The run's summary, naming the file as the page does."""
+    text = summary(results)
+    return text.replace(results.source_name, file, 1) if results.source_name else text
