@@ -381,16 +381,10 @@
     for (const name of [...new Set(h.series.map((s) => s.name))]) {
       const lo = [], hi = [];
       for (const s of h.series.filter((s) => s.name === name)) {
-        let a = Infinity, b = -Infinity;
-        const arr = view.data.subarray(s.o, s.o + h.solved[s.v]);
-        for (const x of arr) if (Number.isFinite(x)) { if (x < a) a = x; if (x > b) b = x; }
-        lo[s.v] = a; hi[s.v] = b;
+        [lo[s.v], hi[s.v]] = solvedRange(s, Infinity, -Infinity);
       }
-      const div = document.createElement("div"); div.className = "plot";
-      const label = document.createElement("div"); label.className = "label";
+      const { label, canvas: cv } = plotBox(box);
       label.textContent = `${name}: least and largest over the run, against ${names[0]}`;
-      const cv = document.createElement("canvas"); cv.width = 560; cv.height = 140;
-      div.append(label, cv); box.append(div);
       const c = cv.getContext("2d"), W = cv.width, H = cv.height;
       const finite = [...lo, ...hi].filter(Number.isFinite);
       if (!finite.length) continue;
@@ -414,6 +408,24 @@
   }
 
   // -- plots ------------------------------------------------------------------------------
+  /** The least and largest finite values of a series over its solved instants, widening
+   * [lo, hi]. */
+  function solvedRange(s, lo, hi) {
+    for (const x of view.data.subarray(s.o, s.o + view.header.solved[s.v])) {
+      if (Number.isFinite(x)) { if (x < lo) lo = x; if (x > hi) hi = x; }
+    }
+    return [lo, hi];
+  }
+
+  /** A plot's title and canvas, appended to ``box``. */
+  function plotBox(box) {
+    const div = document.createElement("div"); div.className = "plot";
+    const label = document.createElement("div"); label.className = "label";
+    const canvas = document.createElement("canvas"); canvas.width = 560; canvas.height = 140;
+    div.append(label, canvas); box.append(div);
+    return { label, canvas };
+  }
+
   let plots = [];
   function setupPlots() {
     const h = view.header, box = $("plots");
@@ -421,21 +433,14 @@
     if (box.dataset.names !== names.join("\u0000")) {
       box.textContent = "";
       plots = names.map((name) => {
-        const div = document.createElement("div"); div.className = "plot";
-        const label = document.createElement("div"); label.className = "label";
-        const cv = document.createElement("canvas"); cv.width = 560; cv.height = 140;
-        div.append(label, cv); box.append(div);
-        return { name, label, canvas: cv };
+        return { name, ...plotBox(box) };
       });
       box.dataset.names = names.join("\u0000");
     }
     for (const p of plots) {
       p.series = h.series.filter((s) => s.name === p.name);
       let lo = Infinity, hi = -Infinity;
-      for (const s of p.series) {
-        const a = view.data.subarray(s.o, s.o + h.solved[s.v]);
-        for (const x of a) if (Number.isFinite(x)) { if (x < lo) lo = x; if (x > hi) hi = x; }
-      }
+      for (const s of p.series) [lo, hi] = solvedRange(s, lo, hi);
       if (!(hi >= lo)) { lo = -1; hi = 1; }
       if (hi === lo) { lo -= 1; hi += 1; }
       p.lo = lo; p.hi = hi;
