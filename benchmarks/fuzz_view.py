@@ -28,8 +28,6 @@ import json
 import os
 import random
 import re
-import signal
-import subprocess
 import sys
 import time
 import urllib.error
@@ -38,23 +36,14 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
 
+from browser import Viewer  # noqa: E402 - `mechdsl view` in a child process
 from mechdsl.view import payload  # noqa: E402
 from mechdsl.view.server import MAX_MESSAGE  # noqa: E402
 
 SEED = ROOT / "examples" / "slider_crank.mech"
 BOUND = 20.0  # seconds a probe may take
-
-
-def _start():
-    proc = subprocess.Popen([sys.executable, "-m", "mechdsl", "view", str(SEED), "--no-browser"],
-                            stderr=subprocess.PIPE, text=True)
-    line = proc.stderr.readline()
-    found = re.search(r"http://(127\.0\.0\.1:\d+)/([\w-]+)/", line)
-    if not found:
-        proc.kill()
-        raise RuntimeError(f"mechdsl view did not start: {line}")
-    return proc, found.group(1), found.group(2)
 
 
 def hostile(rng: random.Random) -> str | bytes:
@@ -123,14 +112,18 @@ def _probe(ws, ident: str) -> bool:
 def sequence(rng: random.Random, messages: int, counts: dict) -> None:
     from websockets.sync.client import connect
 
-    proc, host, token = _start()
+    viewer = Viewer(SEED)
+    host, token = re.match(r"http://([^/]+)/([\w-]+)/", viewer.url).groups()
     origin = f"http://{host}"
     url = f"ws://{host}/{token}/ws"
     stack = contextlib.ExitStack()
 
     def page():
-        return stack.enter_context(connect(url, origin=origin, open_timeout=BOUND,
-                                           max_size=2**26))
+        """A page connected, its first message read."""
+        ws = stack.enter_context(connect(url, origin=origin, open_timeout=BOUND,
+                                         max_size=2**26))
+        ws.recv(timeout=BOUND)
+        return ws
     try:
         # doors that must stay shut
         for path, headers in ((f"/{token[:-1]}/", {}), ("/", {}),
@@ -146,47 +139,35 @@ def sequence(rng: random.Random, messages: int, counts: dict) -> None:
             except Exception:  # noqa: BLE001 - refused, as it must be
                 pass
         ws, other = page(), page()
-        ws.recv(timeout=BOUND)
         for k in range(messages):
             msg = hostile(rng)
             try:
                 ws.send(msg)
             except Exception:  # noqa: BLE001 - the server closed this page (too large)
                 ws = page()
-                ws.recv(timeout=BOUND)
             if rng.random() < 0.05:  # a page that goes away in the middle
                 ws.close()
                 ws = page()
-                ws.recv(timeout=BOUND)
             try:
                 answered = _probe(ws, f"probe-{k}")
             except Exception:  # noqa: BLE001 - closed for an oversized frame: reconnect
                 ws = page()
-                ws.recv(timeout=BOUND)
                 answered = _probe(ws, f"probe-{k}")
             if not answered:
                 counts["unanswered"] += 1
-            if proc.poll() is not None:
+            if viewer.proc.poll() is not None:
                 counts["died"] += 1
                 return
         other.close()
         ws.close()
     finally:
         stack.close()
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                status = proc.wait(timeout=BOUND)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                status = -1
-            if status not in (0, 130):
-                counts["exit"] += 1
-        err = proc.stderr.read()
-        proc.stderr.close()
-        if "Traceback" in err:
+        alive = viewer.proc.poll() is None  # (a death is counted as such above)
+        if viewer.stop(BOUND) not in (0, 130) and alive:
+            counts["exit"] += 1
+        if "Traceback" in viewer.errors:
             counts["traceback"] += 1
-            print(err[-2000:], file=sys.stderr)
+            print(viewer.errors[-2000:], file=sys.stderr)
 
 
 def run(sequences: int, seed: int, messages: int = 40) -> dict:

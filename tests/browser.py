@@ -30,7 +30,8 @@ def chromium(width: int = 1400, height: int = 1000):
 
 
 class Viewer:
-    """`mechdsl view FILE --no-browser` in a child process, and its URL."""
+    """`mechdsl view FILE --no-browser` in a child process, and its URL (the browser tests,
+    the view's benchmark and its fuzzer)."""
 
     def __init__(self, path, *extra: str) -> None:
         self.proc = subprocess.Popen([sys.executable, "-m", "mechdsl", "view", str(path),
@@ -41,12 +42,19 @@ class Viewer:
         assert found, line + self.proc.stderr.read()
         self.url = found.group(1)
 
-    def stop(self) -> int:
-        """Ctrl-C, and the exit status."""
-        self.proc.send_signal(signal.SIGINT)
+    def stop(self, timeout: float = 20.0) -> int:
+        """Ctrl-C, and the exit status (-1: killed after ``timeout`` s); what the view
+        printed on its standard error is kept in :attr:`errors`."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
         try:
-            return self.proc.wait(timeout=20)
+            return self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            return -1
         finally:
+            self.errors = self.proc.stderr.read()
             self.proc.stderr.close()
 
 
