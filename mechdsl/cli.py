@@ -53,6 +53,9 @@ def _parser() -> argparse.ArgumentParser:
                         help="override a param (VALUE may be an expression of other params)")
         sp.add_argument("--sweep", metavar="NAME=V1,V2,...", action="append", default=[],
                         help="run once per value of a param (several: every combination)")
+        plugin_options(sp)
+
+    def plugin_options(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("--plugin", metavar="MODULE", action="append", default=[],
                         help="also load the plugin module MODULE")
         sp.add_argument("--allow-plugin", metavar="MODULE", action="append", default=[],
@@ -183,10 +186,7 @@ def _parser() -> argparse.ArgumentParser:
                       help="the local port (default: a free one)")
     view.add_argument("--no-browser", action="store_true",
                       help="print the page's address, do not open a browser")
-    view.add_argument("--plugin", metavar="MODULE", action="append", default=[],
-                      help="also load the plugin module MODULE")
-    view.add_argument("--allow-plugin", metavar="MODULE", action="append", default=[],
-                      help="let the model's 'plugin \"MODULE\"' line import MODULE")
+    plugin_options(view)
 
     fmt = sub.add_parser("fmt", help="write .mech files in the canonical layout")
     fmt.add_argument("files", metavar="FILE", nargs="+", help="the .mech files to format")

@@ -351,6 +351,7 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
     store = _store(args)
     client = _client(args)
     drawing = bool(args.snapshot or args.animate or args.html)
+    rates = bool(args.export or args.html)  # (the page's velocity and acceleration arrows)
     from .memory import outputs_bytes
 
     extra = outputs_bytes(system, figures=bool(args.plot), drawing=drawing,
@@ -362,11 +363,11 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
     placed: list[str] = []  # where the store went: beside -o if an interrupt kept the old one
     try:
         if store is None and client is None and total <= chunk:
-            results = simulate(system, options, poses=drawing, rates=bool(args.export or args.html),
+            results = simulate(system, options, poses=drawing, rates=rates,
                                progress=bar, extra_memory=extra)
         else:  # chunks of the sweep, here or on the cluster, merged or into the store
             results = solve_sweep(mech, ov, options, client=client, store=store,
-                                  poses=drawing, rates=bool(args.export or args.html), progress=bar,
+                                  poses=drawing, rates=rates, progress=bar,
                                   planned=planned, extra_memory=extra, placed=placed.append)
     finally:
         signals.hold()  # what was solved is written whole before any signal acts
