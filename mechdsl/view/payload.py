@@ -7,7 +7,7 @@ Layout of a message (little-endian)::
 
 The header says where each quantity lies in the array (``o``, its offset in values) and its
 shape; the page reads them as views (``new Float64Array(buffer, 8 + n + 8 o, size)``), with
-no parsing of numbers: the seed's 1001 instants travel as 0.3 MB and are ready as soon as
+no parsing of numbers: the seed's 1001 instants travel as 0.24 MB and are ready as soon as
 they arrive. Positions are the run's own, to the last bit (float64, the world coordinates
 r^P = r + A(phi) s'^P of every drawn point, Haug eq. 2.6.4, as :mod:`mechdsl.outputs.draw`
 computes them for ``--snapshot``).

@@ -368,7 +368,7 @@ def serve(session: Session, port: int = 0, *, open_browser: bool = True,
     url = f"http://127.0.0.1:{port}/{token}/"
     announce(f"mechdsl view: {url}  (Ctrl-C to stop)")
     opened = _open_browser(url) if open_browser else None
-    # no permessage-deflate: a run's float64 arrays hardly compress, and deflating a 0.3 MB
+    # no permessage-deflate: a run's float64 arrays hardly compress, and deflating a 0.24-0.31 MB
     # message on the loopback costs more than sending it
     config = uvicorn.Config(app, log_level="warning", lifespan="on", ws_max_size=MAX_MESSAGE,
                             ws="websockets-sansio" if _has_sansio() else "auto",
