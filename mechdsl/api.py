@@ -11,7 +11,7 @@ simulates.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
@@ -155,18 +155,19 @@ def _family_key(ov: Overrides | None, need_times: bool) -> tuple | None:
     return _overrides_key(replace(ov, params={}), need_times)
 
 
+#: the fields of :class:`Overrides`, in order (what a key of overrides is made of)
+_FIELDS = tuple(f.name for f in fields(Overrides))
+
+
 def _overrides_key(ov: Overrides | None, need_times: bool) -> tuple | None:
     """What identifies a compiled model of this mechanism: every field of the overrides,
     exactly; None where they cannot be compared (a table of variants, numpy arrays: an
     optimiser's population, compiled once each)."""
-    from dataclasses import fields
-
     ov = ov or Overrides()
     if ov.table is not None:
         return None
     try:
-        return (bool(need_times),
-                *((f.name, _exact(getattr(ov, f.name))) for f in fields(ov)))
+        return (bool(need_times), *((name, _exact(getattr(ov, name))) for name in _FIELDS))
     except TypeError:
         return None
 

@@ -135,7 +135,7 @@ def _override_files(ov: Overrides) -> list[str]:
     from .grammar import expr as E
 
     values = [*ov.params.values(), *(v for vs in ov.sweeps.values() for v in vs)]
-    return [n.path for v in values if isinstance(v, E.Expr.__args__)
+    return [n.path for v in values if isinstance(v, E.NODES)
             for n in E.walk(v) if isinstance(n, E.Table) and n.path]
 
 

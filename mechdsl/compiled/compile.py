@@ -9,7 +9,7 @@ of its constraints, all instants of a block and all variants.
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -145,6 +145,15 @@ def _fused(groups: list[Group], constraints: list[Constraint], n_bodies: int, so
             f"'{c.name}': {what}", c.span, source,
             notes=[f"the type comes from the plugin {type(ctype).__module__}; this is a "
                    "defect of the plugin, not of the .mech file"]) from None
+
+
+@dataclass(frozen=True)
+class _BindPlan:
+    """What the arguments of one joint, drive or force name (:meth:`_Compiler._bind_plan`):
+    (kind, argument, what) in the signature's order, and each given argument's span."""
+
+    args: tuple[tuple[str, str, object], ...]
+    spans: dict
 
 
 class _Compiler:
@@ -391,10 +400,8 @@ class _Compiler:
     def _scale(self, guess: np.ndarray) -> np.ndarray:
         """A length characteristic of the model, per variant: the largest point coordinate or
         guessed position (1 if all are zero). Convergence tests on lengths are relative to it."""
-        s = np.zeros(self.V)
-        for pts in self.points.values():
-            for xy in pts.values():
-                s = np.maximum(s, np.abs(xy).max(axis=-1))
+        xys = [xy for pts in self.points.values() for xy in pts.values()]  # each (V, 2)
+        s = np.abs(np.concatenate(xys, axis=1)).max(axis=1)
         g = guess.reshape(self.V, -1, 3)[..., :2]
         if g.size:
             s = np.maximum(s, np.abs(g).max(axis=(-1, -2)))
@@ -475,6 +482,51 @@ class _Compiler:
         return ctype
 
     def _bind(self, c: Joint | Drive | Force, ctype):
+        """The bodies (slots) and argument values of ``c`` (an instance of ``ctype``), for
+        every variant, checked by the type's ``validate``."""
+        # what the arguments name is the same for every value of the params: resolved once
+        # per model (the memo), only the values evaluated again
+        plan = remembered(self.memo, ("bind", id(ctype), self.evaluated), c,
+                          lambda: self._bind_plan(c, ctype))
+        slots: list[int] = []
+        params: dict[str, np.ndarray] = {}
+        for kind, name, what in plan.args:
+            if kind == "point":
+                slots.append(what[0])
+                params[name] = self.points[what[1]][what[2]]
+            elif kind == "body":
+                slots.append(what)
+            elif kind == "vector":
+                params[name] = self.var.vector(what, f"argument '{name}'")
+            elif kind == "number":
+                params[name] = self.var.values(what, f"argument '{name}'", what.span)
+            elif kind == "function":
+                params[name] = what
+            else:  # the default
+                params[name] = np.broadcast_to(what, (self.V,) + what.shape).copy()
+        spans = plan.spans
+        values = {k: self._function(ctype, k, [v]) if isinstance(v, E.NODES) else v
+                  for k, v in params.items()}
+        try:
+            with np.errstate(all="ignore"):
+                if self.evaluated:  # placeholder zeros are no values to judge
+                    ctype.validate(values)
+        except ArgError as err:
+            raise MechError(f"{ctype.name}: {err.message}{self._bad_variant(ctype, values)}",
+                            spans.get(err.arg, c.span)) from None
+        except PLUGIN_FAILURES as err:
+            provider = self.registry.provider(ctype.kind, ctype.name)
+            raise MechError(
+                f"the {ctype.kind} type '{ctype.name}' failed in validate() for {c.name}: "
+                f"{type(err).__name__}: {str(err)[:200]}", c.span,
+                notes=[f"the type comes from the plugin {provider.plugin if provider else '?'}"
+                       "; this is a defect of the plugin, not of the .mech file"]) from None
+        return slots, params
+
+    def _bind_plan(self, c: Joint | Drive | Force, ctype) -> "_BindPlan":
+        """What each argument of ``c`` names, in ``ctype``'s signature order: a point (body,
+        body name, point), a body, an expression or vector to evaluate, a function, or the
+        default; every mistake of names, kinds and order a located error."""
         sig = ctype.signature
         by_name = {a.name: a for a in sig}
         given: dict[str, object] = {}
@@ -496,8 +548,7 @@ class _Compiler:
             if target.name in given:
                 raise MechError(f"argument '{target.name}' is given twice", a.span)
             given[target.name] = a
-        slots: list[int] = []
-        params: dict[str, np.ndarray] = {}
+        args: list[tuple[str, str, object]] = []
         spans: dict[str, Span] = {}
         for arg in sig:
             a = given.get(arg.name)
@@ -505,26 +556,25 @@ class _Compiler:
                 if arg.default is REQUIRED:
                     raise MechError(f"{ctype.name}() needs argument '{arg.name}' ({arg.kind})",
                                     c.span, notes=[f"signature: {ctype.describe()}"])
-                params[arg.name] = np.broadcast_to(
-                    np.asarray(arg.default, dtype=float),
-                    (self.V,) + ((2,) if arg.kind == "vector" else ())).copy()
+                default = np.broadcast_to(np.asarray(arg.default, dtype=float),
+                                          (2,) if arg.kind == "vector" else ())
+                args.append(("default", arg.name, default))
                 continue
             spans[arg.name] = a.span
             v = a.value
             if arg.kind == "point":
                 if isinstance(v, E.Ref):
-                    body, xy = self._point_ref(v.parts, v.span)
+                    body, _ = self._point_ref(v.parts, v.span)
+                    args.append(("point", arg.name, (body, *v.parts)))
                 elif isinstance(v, E.Name) and v.id in self.body_index:
                     raise MechError(f"argument '{arg.name}' is a point: write {v.id}.origin or "
                                     f"{v.id}.POINT", a.span)
                 else:
                     raise MechError(f"argument '{arg.name}' must be a point such as body.P",
                                     a.span)
-                slots.append(body)
-                params[arg.name] = xy
             elif arg.kind == "body":
                 if isinstance(v, E.Name):
-                    slots.append(self._body_ref(v.id, v.span))
+                    args.append(("body", arg.name, self._body_ref(v.id, v.span)))
                 else:
                     raise MechError(f"argument '{arg.name}' must be a body name", a.span)
             elif arg.kind == "vector":
@@ -532,14 +582,14 @@ class _Compiler:
                     raise MechError(f"argument '{arg.name}' must be a vector (x, y)", a.span)
                 for item in v.items:
                     check_expr(item, set(self.param_names), f"argument '{arg.name}'")
-                params[arg.name] = self.var.vector(v, f"argument '{arg.name}'")
+                args.append(("vector", arg.name, v))
             elif arg.kind == "function":
                 if isinstance(v, (Vector, E.Ref)):
                     raise MechError(f"argument '{arg.name}' must be an expression of "
                                     f"'{arg.var}'", a.span)
                 check_expr(v, {*self.param_names, arg.var},
                            f"argument '{arg.name}' (a function of '{arg.var}')")
-                params[arg.name] = v
+                args.append(("function", arg.name, v))
             else:
                 if isinstance(v, Vector):
                     raise MechError(f"argument '{arg.name}' must be a number", a.span)
@@ -547,24 +597,8 @@ class _Compiler:
                     raise MechError(f"argument '{arg.name}' must be a number, not a reference",
                                     a.span)
                 check_expr(v, set(self.param_names), f"argument '{arg.name}'")
-                params[arg.name] = self.var.values(v, f"argument '{arg.name}'", a.span)
-        values = {k: self._function(ctype, k, [v]) if isinstance(v, E.Expr) else v
-                  for k, v in params.items()}
-        try:
-            with np.errstate(all="ignore"):
-                if self.evaluated:  # placeholder zeros are no values to judge
-                    ctype.validate(values)
-        except ArgError as err:
-            raise MechError(f"{ctype.name}: {err.message}{self._bad_variant(ctype, values)}",
-                            spans.get(err.arg, c.span)) from None
-        except PLUGIN_FAILURES as err:
-            provider = self.registry.provider(ctype.kind, ctype.name)
-            raise MechError(
-                f"the {ctype.kind} type '{ctype.name}' failed in validate() for {c.name}: "
-                f"{type(err).__name__}: {str(err)[:200]}", c.span,
-                notes=[f"the type comes from the plugin {provider.plugin if provider else '?'}"
-                       "; this is a defect of the plugin, not of the .mech file"]) from None
-        return slots, params
+                args.append(("number", arg.name, v))
+        return _BindPlan(tuple(args), spans)
 
     def _bad_variant(self, ctype: ConstraintType, values: dict) -> str:
         """' (for l = -1)': the first sweep variant whose values the type rejects."""
@@ -587,8 +621,11 @@ class _Compiler:
         rows = np.array([np.arange(*m[3]) for m in members], dtype=np.intp)
         params = {}
         for name, first in members[0][2].items():
-            if isinstance(first, E.Expr):
+            if isinstance(first, E.NODES):
                 params[name] = self._function(ctype, name, [m[2][name] for m in members])
+                continue
+            if len(members) == 1:  # (V, ...) -> (V, 1, 1, ...): a view, no copy
+                params[name] = _readonly(first.reshape(first.shape[:1] + (1, 1) + first.shape[1:]))
                 continue
             stacked = np.stack([m[2][name] for m in members], axis=1)  # (V, J, ...)
             params[name] = _readonly(stacked[:, None])

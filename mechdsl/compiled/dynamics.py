@@ -34,7 +34,7 @@ from ..plugins.derived import body_of
 from ..plugins.geometry import Body, Rate, Vec
 from ..symbolic import Graph, GraphError, Kernel, kernel
 from ..symbolic.codegen import LazyKernel
-from .fused import _args, _Params, replayed
+from .fused import ReplayGraph, _args, _Params, replayed
 
 
 class ForceError(ValueError):
@@ -184,7 +184,7 @@ def rebind(template: Dynamics, n_bodies: int, mass: np.ndarray, inertia: np.ndar
     """``template``'s code (traced by :func:`build` for force groups of the same structure)
     with these values; None where they do not fit it (as
     :func:`mechdsl.compiled.fused.rebind`)."""
-    graph = Graph()
+    graph = ReplayGraph()
     params = _Params(graph, replay=template.leaves)
     _inputs(graph, params, n_bodies, mass, inertia, centroid, gravity, force_groups)
     if not replayed(template.leaves, template.params, template.functions, params, graph):

@@ -60,7 +60,7 @@ class _Reader:
     def value(self, obj):
         """``obj`` (a model, any part of it, an expression) with its files read; the same
         object where it names none."""
-        if isinstance(obj, E.Expr.__args__):
+        if isinstance(obj, E.NODES):
             if not any(isinstance(n, E.Table) and n.unread for n in E.walk(obj)):
                 return obj
             return E.rewrite(obj, self._table)

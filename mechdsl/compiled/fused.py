@@ -22,7 +22,7 @@ does not grow with the number of constraints.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -125,7 +125,8 @@ class _Params:
             k = len(self.leaves)
             held = self.replay[k] if k < len(self.replay) else None
             fold = k < len(self.replay) and held is not None
-            if fold and not (values == held).all():
+            # (one value, as for a single mechanism: compared as a float, not by numpy)
+            if fold and not (first == held if values.size == 1 else (values == held).all()):
                 self.mismatch = True
         else:
             fold = self.fold and bool((values == first).all())
@@ -203,12 +204,32 @@ def replayed(template_leaves: tuple, template_params: tuple, template_functions:
             and len(graph.functions) == len(template_functions))
 
 
+class ReplayGraph:
+    """Stands for the :class:`Graph` while :func:`rebind` makes the leaves again: only their
+    values and the function arguments are kept, no node is made."""
+
+    zero = None
+
+    def __init__(self) -> None:
+        self.functions: list = []
+
+    def const(self, value: float) -> None:
+        return None
+
+    def var(self, *key) -> None:
+        return None
+
+    def function(self, f: Callable, d1: Callable, d2: Callable) -> int:
+        self.functions.append((f, d1, d2))
+        return len(self.functions) - 1
+
+
 def rebind(template: Fused, groups) -> Fused | None:
     """``template``'s code with the values of ``groups``: the arguments' leaves made again,
     in the order the trace made them, without tracing (``template`` traced on groups of the
     same structure: the caller's check). None where the values do not fit the code: a value
     that the code holds as a constant differs (the caller traces anew)."""
-    graph = Graph()
+    graph = ReplayGraph()
     params = _Params(graph, replay=template.leaves)
     for g in groups:
         if template.layout == "group":

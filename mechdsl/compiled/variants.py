@@ -121,11 +121,20 @@ def evaluate(model: Model, ov: Overrides, memo: dict | None = None) -> Variants:
     """Every param for every combination of the sweeps (after overrides); the params'
     ranges checked (:func:`param_ranges`). ``memo``: see :class:`Variants`."""
     sweep = sweep_table(model, ov)
-    env = _params(model, ov, sweep)
-    return Variants(sweep, env, memo, param_ranges(model, env))
+    env = _params(model, ov, sweep, memo)
+    return Variants(sweep, env, memo, param_ranges(model, env, memo))
 
 
-def param_ranges(model: Model, env: dict[str, np.ndarray]) -> dict[str, tuple[float, float]]:
+def _evaluate(e: E.Expr, env: dict, memo: dict | None) -> "float | np.ndarray":
+    """``e`` at ``env`` (as :func:`mechdsl.grammar.expr.evaluate`), its compiled form kept in
+    ``memo`` (:func:`remembered`)."""
+    run = remembered(memo, "expr", e, lambda: E.compile_expr(e))
+    with np.errstate(all="ignore"):
+        return run(env)
+
+
+def param_ranges(model: Model, env: dict[str, np.ndarray], memo: dict | None = None
+                 ) -> dict[str, tuple[float, float]]:
     """The range ``lo .. hi`` of each param that gives one (``param l = 3.5 in 2 .. 6``), in
     the first variant of ``env``; a bound that is not finite, or lo >= hi in some variant, is
     an error located at the range."""
@@ -134,7 +143,7 @@ def param_ranges(model: Model, env: dict[str, np.ndarray]) -> dict[str, tuple[fl
     for p in model.params:
         if p.range is None:
             continue
-        lo, hi = (np.broadcast_to(np.asarray(E.evaluate(b, env), dtype=float), (V,))
+        lo, hi = (np.broadcast_to(np.asarray(_evaluate(b, env, memo), dtype=float), (V,))
                   for b in p.range)
         span = p.range[0].span or p.span
         for what, v in (("lower", lo), ("upper", hi)):
@@ -265,12 +274,18 @@ def _scalar(e: E.Expr, env: dict[str, np.ndarray], what: str, span: Span | None)
     return float(v)
 
 
-def _params(model: Model, ov: Overrides, sweep: dict[str, np.ndarray]) -> dict:
+def _params(model: Model, ov: Overrides, sweep: dict[str, np.ndarray],
+            memo: dict | None = None) -> dict:
     V = len(next(iter(sweep.values()))) if sweep else 1
     env: dict[str, np.ndarray] = {}
     for p in model.params:
         if p.name in sweep:
             value = sweep[p.name]
+        elif p.name in ov.params and isinstance(ov.params[p.name], (int, float, np.number)):
+            value = float(ov.params[p.name])  # a number: nothing to evaluate
+            if not math.isfinite(value):
+                raise MechError(f"the value given for param '{p.name}' gives "
+                                f"{_first_bad(value)}")
         elif p.name in ov.params:
             e = as_expr(ov.params[p.name])
             where = f"the value given for param '{p.name}'"
@@ -282,7 +297,7 @@ def _params(model: Model, ov: Overrides, sweep: dict[str, np.ndarray]) -> dict:
             if not np.all(np.isfinite(value)):
                 raise MechError(f"{where} gives {_first_bad(value)}")
         else:
-            value = E.evaluate(p.value, env)
+            value = _evaluate(p.value, env, memo)
         value = np.broadcast_to(np.asarray(value, dtype=float), (V,)).copy()
         if not np.all(np.isfinite(value)):
             raise MechError(f"param '{p.name}' is {_first_bad(value)}"
@@ -327,8 +342,21 @@ def time_grid(model: Model, ov: Overrides, variants: Variants, outputs: int) -> 
             raise MechError(f"the {what} differs between sweep variants; the time grid "
                             "cannot depend on a swept param", span)
     per_instant = 8 * (1 + variants.count * max(outputs, 1))
-    return grid(float(t0[0]), float(t1[0]), float(h[0]), span, "simulated time", "instants",
-                max(2, ov.max_memory // per_instant), bytes_per_item=per_instant)
+    args = (float(t0[0]), float(t1[0]), float(h[0]), span, "simulated time", "instants",
+            max(2, ov.max_memory // per_instant))
+    memo = variants.memo
+    if memo is None:
+        return grid(*args, bytes_per_item=per_instant)
+    # a model solved again with new values of its params has, most often, the same grid
+    key = ("grid", *(float(x).hex() for x in args[:3]), args[-1], per_instant)
+    made = memo.get(key)
+    if made is None:
+        made = grid(*args, bytes_per_item=per_instant)
+        made.flags.writeable = False  # shared by the models compiled with it
+        if len(memo) >= MEMO_SIZE:
+            memo.clear()
+        memo[key] = made
+    return made
 
 
 def grid(a: float, b: float, h: float, span: Span | None, what: str, items: str,

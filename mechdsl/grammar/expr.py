@@ -126,8 +126,10 @@ class Table:
 
 
 Expr = Union[Num, Name, Ref, Unary, Binary, Compare, Logic, Call, Cond, Table]
-_NODES = (Num, Name, Ref, Unary, Binary, Compare, Logic, Call, Cond, Table)
-_COMPARED = {t: tuple(f.name for f in fields(t) if f.compare) for t in _NODES}
+#: the node classes of :data:`Expr`, for isinstance (a check against the Union itself goes
+#: through typing's slow path)
+NODES = (Num, Name, Ref, Unary, Binary, Compare, Logic, Call, Cond, Table)
+_COMPARED = {t: tuple(f.name for f in fields(t) if f.compare) for t in NODES}
 
 #: Function name -> (min args, max args or None for variadic). ``sign`` is the derivative of abs.
 FUNCTIONS: dict[str, tuple[int, int | None]] = {
@@ -227,7 +229,7 @@ def equal(a: Expr, b: Expr) -> bool:
         x, y = stack.pop()
         if x is y:
             continue
-        if isinstance(x, _NODES) or isinstance(y, _NODES):
+        if isinstance(x, NODES) or isinstance(y, NODES):
             if type(x) is not type(y):
                 return False
             if (id(x), id(y)) in seen:
