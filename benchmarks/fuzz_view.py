@@ -10,7 +10,8 @@ booleans, nulls, nested objects, NaN and infinities written as text, numbers of 
 digits), names that are not sliders (markup, very long, unicode), messages over the size
 bound, binary frames, deeply nested arrays, a burst of valid moves out of order with ids of
 every type, ``reset`` and ``reload`` in between, connections that close in the middle of a
-burst, and a second page connected at the same time. Plain HTTP requests go in too: without
+burst, and a second page connected at the same time that never reads its messages. Plain
+HTTP requests go in too: without
 the token, with another Host header, a WebSocket without the Origin or from another one.
 
 After every message a probe (a valid ``set`` with a fresh id) must be answered by a run
@@ -110,7 +111,13 @@ def _probe(ws, ident: str) -> bool:
 
 
 def sequence(rng: random.Random, messages: int, counts: dict) -> None:
+    import logging
+
     from websockets.sync.client import connect
+
+    # the client library logs, as errors, the connections the server closes on purpose (an
+    # oversized message) and the page that never reads, cut when the server stops
+    logging.getLogger("websockets").setLevel(logging.CRITICAL)
 
     viewer = Viewer(SEED)
     host, token = re.match(r"http://([^/]+)/([\w-]+)/", viewer.url).groups()
@@ -118,10 +125,12 @@ def sequence(rng: random.Random, messages: int, counts: dict) -> None:
     url = f"ws://{host}/{token}/ws"
     stack = contextlib.ExitStack()
 
-    def page():
-        """A page connected, its first message read."""
+    def page(reads: bool = True):
+        """A page connected, its first message read; one that does not read (``reads``
+        false) stops taking messages from the socket after the first (a frozen tab)."""
         ws = stack.enter_context(connect(url, origin=origin, open_timeout=BOUND,
-                                         max_size=2**26))
+                                         max_size=2**26, ping_interval=None,
+                                         max_queue=16 if reads else 1))
         ws.recv(timeout=BOUND)
         return ws
     try:
@@ -138,7 +147,7 @@ def sequence(rng: random.Random, messages: int, counts: dict) -> None:
                 counts["opened"] += 1
             except Exception:  # noqa: BLE001 - refused, as it must be
                 pass
-        ws, other = page(), page()
+        ws, other = page(), page(reads=False)
         for k in range(messages):
             msg = hostile(rng)
             try:

@@ -41,6 +41,16 @@ def _first_param(driver) -> tuple[str, float]:
     return s["name"], float(s["value"])
 
 
+def until(driver, condition: str, timeout: float = 60.0) -> None:
+    """Wait in the page until ``condition`` (a JavaScript expression) holds: one call that
+    the page answers, not a poll from here every few milliseconds, whose round trips through
+    chromedriver would take the CPU from the server being measured."""
+    driver.set_script_timeout(timeout)
+    driver.execute_async_script(
+        "const done = arguments[arguments.length - 1];"
+        f"(function wait() {{ if ({condition}) done(true); else setTimeout(wait, 2); }})();")
+
+
 def slider_latency(driver, path: Path, param: str | None, values, moves: int) -> dict:
     viewer = Viewer(path)
     try:
@@ -56,7 +66,7 @@ def slider_latency(driver, path: Path, param: str | None, values, moves: int) ->
                 "const i = document.querySelector(`#sliders input[data-param='${arguments[0]}']`);"
                 "i.value = String(arguments[1]); i.dispatchEvent(new Event('input'));",
                 param, value)
-            wait_for(driver, f"return window.mechdslView.latencies.length >= {k + 1}", 60)
+            until(driver, f"window.mechdslView.latencies.length >= {k + 1}")
         lat = driver.execute_script("return window.mechdslView.latencies")
         page = driver.execute_script("return window.mechdslView.handled.slice(1)")
         status = driver.execute_script("return window.mechdslView.header.status")
@@ -78,9 +88,9 @@ def save_latency(driver, path: Path, saves: int) -> dict:
             n = driver.execute_script("return window.mechdslView.events.length")
             written = time.time() * 1000
             path.write_text(text + f"\n# save {k}\n")
-            wait_for(driver, f"return window.mechdslView.events.length > {n} && "
-                             "window.mechdslView.events.some((e, i) => i >= "
-                             f"{n} && e.reason === 'saved')", 30)
+            until(driver, f"window.mechdslView.events.length > {n} && "
+                          "window.mechdslView.events.some((e, i) => i >= "
+                          f"{n} && e.reason === 'saved')")
             at = driver.execute_script(
                 f"return window.mechdslView.events.slice({n}).find((e) => "
                 "e.reason === 'saved').at")

@@ -339,3 +339,40 @@ def test_ctrl_c_stops_the_view_at_once_during_a_long_solve(tmp_path):
     start = time.monotonic()
     status = viewer.stop()
     assert status in (0, 130) and time.monotonic() - start < 5
+
+
+def test_a_page_that_does_not_read_holds_up_no_other_page(tmp_path):
+    """A page that stops reading (a frozen tab, a hostile client) gets only the latest run
+    when it reads again, and another page's moves are answered meanwhile: the server's send
+    to the first would otherwise block, after a few megabytes, every page's runs."""
+    import re
+
+    from websockets.sync.client import connect
+
+    from browser import Viewer
+
+    viewer = Viewer(EXAMPLES / "slider_crank.mech")
+    try:
+        host, token = re.match(r"http://([^/]+)/([\w-]+)/", viewer.url).groups()
+        url, origin = f"ws://{host}/{token}/ws", f"http://{host}"
+        # max_queue=1: the client stops reading from the socket after one message
+        with connect(url, origin=origin, max_size=2**26, max_queue=1, ping_interval=None,
+                     open_timeout=20) as frozen, \
+                connect(url, origin=origin, max_size=2**26, ping_interval=None,
+                        open_timeout=20) as page:
+            page.recv(timeout=20)
+            size = 0
+            # 45 runs of 0.24 MB: beyond the loopback's buffers (a server that sends to each
+            # page in turn was held up at the 28th)
+            for k in range(45):
+                page.send(json.dumps({"type": "set", "params": {"l": 3.4 + 0.002 * k},
+                                      "id": k}))
+                while True:
+                    message = page.recv(timeout=20)  # TimeoutError: held up
+                    header, _ = payload.decode(message)
+                    if header.get("id") == k:
+                        break
+                size += len(message)
+            assert size > 9e6
+    finally:
+        assert viewer.stop() in (0, 130)

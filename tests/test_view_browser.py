@@ -12,6 +12,7 @@ import csv
 import os
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -169,3 +170,27 @@ def test_a_saved_page_animates_every_variant_offline(browser, tmp_path):
     for v in (0, 1):
         assert browser.execute_script(f"return window.mechdslView.positions('rocker', {v})")
     assert "d = 4.2" in browser.find_element("id", "sliders").text
+
+
+def test_a_short_run_plays_in_slow_motion_over_two_seconds(browser):
+    """Andrews' mechanism moves in 0.03 s: at 1x the page plays it over two seconds (the pace
+    0.03 / 2 of real time, said beside the speed), not as a blur of two frames a loop."""
+    viewer = Viewer(EXAMPLES / "andrews.mech")
+    try:
+        browser.get(viewer.url)
+        wait_for(browser, READY, timeout=60)
+        assert browser.find_element("id", "pace").text == "(1x = 0.015 of real time)"
+        # simulated time advanced over a measured wall-clock interval, at 1x, from t = 0
+        # (0.5 s of play is 0.0075 s of the 0.03: no wrap to the start)
+        start = browser.execute_script("const v = window.mechdslView; v.simTime = 0; "
+                                       "return [v.simTime, performance.now()]")
+        time.sleep(0.5)
+        end = browser.execute_script("const v = window.mechdslView; "
+                                     "return [v.simTime, performance.now()]")
+        elapsed = (end[1] - start[1]) / 1000
+        rate = (end[0] - start[0]) / elapsed
+        # never faster than the pace, but for the frame under way at the start (at most two
+        # frames' time at 60 per second: the first step after the reset counts from it)
+        assert 0.015 * 0.5 <= rate <= 0.015 * (elapsed + 0.034) / elapsed, rate
+    finally:
+        viewer.stop()

@@ -48,6 +48,8 @@ PAGE_FILES = {"index.html": "text/html; charset=utf-8",
               "view.css": "text/css; charset=utf-8"}
 #: The largest message a page may send (bytes).
 MAX_MESSAGE = 16 * 1024
+#: Replies kept for a page that does not read them (the oldest dropped beyond)
+MAX_REPLIES = 64
 #: How long a save waits for more writes before the file is read again (ms): editors write
 #: a file in several steps
 SAVE_SETTLE_MS = 30
@@ -69,13 +71,49 @@ def _headers(port: int) -> dict[str, str]:
     }
 
 
+class Outbox:
+    """What goes to one page, sent by one task of its own (:meth:`pump`): the replies to its
+    requests in order, and of the runs only the latest not yet sent. A page that reads
+    slowly, or not at all, skips the runs it could not take and holds up no other page, and
+    what waits for it is bounded: one run and :data:`MAX_REPLIES` replies."""
+
+    def __init__(self, ws) -> None:
+        import collections
+
+        self.ws = ws
+        self.replies: collections.deque[bytes] = collections.deque(maxlen=MAX_REPLIES)
+        self.run: bytes | None = None
+        self.ready = asyncio.Event()
+
+    def put_run(self, message: bytes) -> None:
+        self.run = message  # a run not yet sent is stale: replaced
+        self.ready.set()
+
+    def put_reply(self, message: bytes) -> None:
+        self.replies.append(message)
+        self.ready.set()
+
+    async def pump(self) -> None:
+        """Send what is waiting, until the page goes away (its send fails)."""
+        while True:
+            await self.ready.wait()
+            self.ready.clear()
+            while self.replies or self.run is not None:
+                if self.replies:
+                    message = self.replies.popleft()
+                else:
+                    message, self.run = self.run, None
+                await self.ws.send_bytes(message)
+
+
 @dataclass
 class Hub:
-    """The pages connected, the last message (a page that connects gets it first) and the
-    requests waiting for the solver (merged: only the latest values and one reload)."""
+    """The pages connected (each with its :class:`Outbox`), the last message (a page that
+    connects gets it first) and the requests waiting for the solver (merged: only the latest
+    values and one reload)."""
 
     session: Session
-    sockets: set = field(default_factory=set)
+    sockets: dict = field(default_factory=dict)  # WebSocket -> Outbox
     last: bytes | None = None
     pending: dict = field(default_factory=dict)  # values not solved yet
     reload: bool = False
@@ -125,11 +163,8 @@ class Hub:
 
     async def broadcast(self, message: bytes) -> None:
         self.last = message
-        for ws in list(self.sockets):
-            try:
-                await ws.send_bytes(message)
-            except Exception:  # noqa: BLE001 - a page that went away
-                self.sockets.discard(ws)
+        for box in self.sockets.values():
+            box.put_run(message)
 
 
 async def _in_thread(job):
@@ -208,20 +243,24 @@ def create_app(session: Session, token: str, port: int, *, watch: bool = True):
             await ws.close(code=1008)  # before accept: the handshake is refused (403)
             return
         await ws.accept()
-        hub.sockets.add(ws)
+        box = hub.sockets[ws] = Outbox(ws)
+        if hub.last is not None:  # else the first run comes as soon as it is solved
+            box.put_run(hub.last)
+        sender = asyncio.create_task(box.pump())
         try:
-            if hub.last is not None:  # else the first run comes as soon as it is solved
-                await ws.send_bytes(hub.last)
             while True:
                 text = await ws.receive_text()
                 reply = _handle(hub, text)
                 if reply is not None:
-                    await ws.send_bytes(reply)
+                    box.put_reply(reply)
         except (WebSocketDisconnect, KeyError, RuntimeError):
             # KeyError/RuntimeError: a binary frame where text was expected, a closed socket
             pass
         finally:
-            hub.sockets.discard(ws)
+            hub.sockets.pop(ws, None)
+            sender.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await sender
 
     @contextlib.asynccontextmanager
     async def lifespan(app):

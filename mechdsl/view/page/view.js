@@ -7,12 +7,14 @@
   const $ = (id) => document.getElementById(id);
   const canvas = $("mechanism");
   const ctx = canvas.getContext("2d");
+  //: the shortest time (s) a run takes to play at 1x (a shorter run plays in slow motion)
+  const PLAY_SECONDS = 2;
   const PALETTE = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b",
                    "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"];
 
   // what the page holds, for the user and for the tests (window.mechdslView)
   const view = {
-    header: null, data: null, k: 0, playing: true, speed: 1, simTime: 0,
+    header: null, data: null, k: 0, playing: true, speed: 1, pace: 1, simTime: 0,
     latencies: [], handled: [], events: [], sliders: {}, nextId: 1, sent: {}, inFlight: null, queued: null,
   };
   window.mechdslView = view;
@@ -73,6 +75,11 @@
       $("scrub").max = String(solved - 1);
       if (view.k > solved - 1) view.k = 0;
       view.simTime = times()[view.k];
+      // a run shorter than PLAY_SECONDS plays in slow motion, over PLAY_SECONDS at 1x: a
+      // mechanism that moves in 0.03 s would otherwise be a blur, drawn in two frames a loop
+      const t = times(), span = header.K > 1 ? t[header.K - 1] - t[0] : 0;
+      view.pace = span > 0 ? Math.min(1, span / PLAY_SECONDS) : 1;
+      $("pace").textContent = view.pace < 1 ? `(1x = ${fmt(view.pace)} of real time)` : "";
       showErrors(header.status === "ok" ? [] : header.messages.concat(header.warnings || []));
       $("file").textContent = `mechdsl view: ${header.file}`;
       $("summary").textContent = header.summary;
@@ -422,8 +429,13 @@
     const div = document.createElement("div"); div.className = "plot";
     const label = document.createElement("div"); label.className = "label";
     const canvas = document.createElement("canvas"); canvas.width = 560; canvas.height = 140;
-    div.append(label, canvas); box.append(div);
-    return { label, canvas };
+    // the cursor is an element over the canvas: moving it redraws no pixel of the plot
+    // (copying the plot back at every frame took a core of a laptop's CPU while playing)
+    const area = document.createElement("div"); area.className = "area";
+    const cursor = document.createElement("div"); cursor.className = "cursor";
+    area.append(canvas, cursor);
+    div.append(label, area); box.append(div);
+    return { label, canvas, cursor };
   }
 
   let plots = [];
@@ -445,7 +457,8 @@
       if (hi === lo) { lo -= 1; hi += 1; }
       p.lo = lo; p.hi = hi;
       p.unit = p.series.length ? p.series[0].unit : "";
-      p.base = drawPlot(p);
+      drawPlot(p);
+      p.text = null;
     }
   }
 
@@ -465,20 +478,18 @@
       }
       c.stroke();
     }
-    return c.getImageData(0, 0, W, H);
   }
 
   function drawCursor() {
     const h = view.header, t = times(), t0 = t[0], t1 = t[h.K - 1] > t0 ? t[h.K - 1] : t0 + 1;
+    const at = `${(100 * (t[view.k] - t0) / (t1 - t0)).toFixed(3)}%`;
     for (const p of plots) {
-      if (!p.base) continue;
-      const c = p.canvas.getContext("2d"), W = p.canvas.width, H = p.canvas.height;
-      c.putImageData(p.base, 0, 0);
-      const x = (t[view.k] - t0) / (t1 - t0) * W;
-      c.strokeStyle = "#000"; c.lineWidth = 1; c.beginPath(); c.moveTo(x, 0); c.lineTo(x, H); c.stroke();
+      if (!p.series) continue;
+      p.cursor.style.left = at;
       const values = p.series.map((s) => fmt(view.data[s.o + view.k]));
-      p.label.textContent = `${p.name}${p.unit ? " [" + p.unit + "]" : ""} = ${values.join(", ")}` +
+      const text = `${p.name}${p.unit ? " [" + p.unit + "]" : ""} = ${values.join(", ")}` +
         `   (${fmt(p.lo)} .. ${fmt(p.hi)})`;
+      if (text !== p.text) { p.label.textContent = text; p.text = text; }
     }
   }
 
@@ -488,7 +499,7 @@
     if (view.header && view.playing) {
       const h = view.header, t = times(), solved = Math.max(...h.solved, 1);
       const dt = last === null ? 0 : (now - last) / 1000;
-      view.simTime += dt * view.speed;
+      view.simTime += dt * view.speed * view.pace;
       const tEnd = t[solved - 1];
       if (view.simTime > tEnd || view.simTime < t[0]) view.simTime = t[0];
       // the instants are evenly spaced: the index from the time
