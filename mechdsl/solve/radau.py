@@ -83,7 +83,7 @@ from typing import Callable, ClassVar
 
 import numpy as np
 
-from .radau_stages import CoupledStages, triplets
+from .radau_stages import DENSE_MAX, CoupledStages, DenseLU, triplets
 from .stepper import Equations, Stepper
 from .triplets import Triplets
 
@@ -271,8 +271,13 @@ class RadauStepper(Stepper):
         for mu in (_K["mu_real"], _K["mu_complex"])[:2 if pair else 1]:
             c = mu / h
             data = c * dM - dC - dK / c - self._delta(c) * dI
-            K = sp.csc_matrix((data, indices, indptr), shape=(size, size))
-            lus.append(splu(K, permc_spec="COLAMD"))
+            if size <= DENSE_MAX:  # a few bodies: LAPACK, no sparse bookkeeping
+                K = np.zeros((size, size), dtype=data.dtype)
+                K[indices, self._pattern_cols] = data
+                lus.append(DenseLU(K))
+            else:
+                K = sp.csc_matrix((data, indices, indptr), shape=(size, size))
+                lus.append(splu(K, permc_spec="COLAMD"))
             self.nlu += 1
         self._lu, self._lu_h = tuple(lus), h
 
@@ -298,6 +303,7 @@ class RadauStepper(Stepper):
         indices = (uniq % size).astype(np.int32)
         indptr = np.searchsorted(uniq // size, np.arange(size + 1)).astype(np.int32)
         self._pattern = (*values, indices, indptr, size)
+        self._pattern_cols = np.repeat(np.arange(size), np.diff(indptr))
         self._norms = (_amax(M), _amax(Cv), _amax(Kq), _amax(G) if m else 0.0)
         # M's diagonal, for the residual's test (:meth:`_residual_norm`)
         mr, mc, mv = triplets(M)

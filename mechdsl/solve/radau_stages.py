@@ -23,6 +23,37 @@ import numpy as np
 
 from .triplets import Triplets
 
+#: The largest system factorised dense (LAPACK's LU with partial pivoting) rather than by
+#: SuperLU: for a few bodies the sparse machinery (a CSC matrix built and checked, COLAMD)
+#: costs several times the arithmetic; the stiff pendulum's coupled system has 30 unknowns
+DENSE_MAX = 120
+
+
+class DenseLU:
+    """A dense matrix's LU factors, with SuperLU's ``solve(b)``."""
+
+    __slots__ = ("factors",)
+
+    def __init__(self, a: np.ndarray) -> None:
+        from scipy.linalg import lu_factor  # (lazily: the registry's import stays cheap)
+        self.factors = lu_factor(a, check_finite=False)
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        from scipy.linalg import lu_solve
+        return lu_solve(self.factors, b, check_finite=False)
+
+
+def dense(a: object, shape: tuple[int, int]) -> np.ndarray:
+    """``a`` (Triplets, a scipy.sparse matrix or an array) as a dense array of ``shape``
+    (repeated triplets add, as in the COO format)."""
+    if isinstance(a, Triplets):
+        flat = np.bincount(a.rows * shape[1] + a.cols, weights=a.data,
+                           minlength=shape[0] * shape[1])
+        return flat.reshape(shape)
+    if isinstance(a, np.ndarray):
+        return a.reshape(shape)
+    return a.toarray()
+
 
 def triplets(a: object, r0: int = 0, c0: int = 0, f: float = 1.0, transpose: bool = False
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -49,9 +80,12 @@ class CoupledStages:
 
     def __init__(self, jacs: list[tuple], h: float, A: np.ndarray, Ainv: np.ndarray,
                  n: int, m: int, delta: float) -> None:
+        self.jacs, self.h, self.A, self.n, self.m = jacs, h, A, n, m
+        if 3 * (n + m) <= DENSE_MAX:
+            self._dense(Ainv, delta)
+            return
         import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
         from scipy.sparse.linalg import splu
-        self.jacs, self.h, self.A, self.n, self.m = jacs, h, A, n, m
         parts = []
         for j, (M, Kq, Cv, G) in enumerate(jacs):
             for k in range(3):
@@ -68,6 +102,26 @@ class CoupledStages:
         size = 3 * (n + m)
         K = sp.csc_matrix((vals, (rows, cols)), shape=(size, size))
         self.lu = splu(K, permc_spec="COLAMD")
+
+    def _dense(self, Ainv: np.ndarray, delta: float) -> None:
+        """The same matrix dense, block by block, and its LU (:class:`DenseLU`); the stage
+        Jacobians kept dense for the products of :meth:`solve`."""
+        n, m, h, A = self.n, self.m, self.h, self.A
+        jacs = [(dense(M, (n, n)), dense(Kq, (n, n)), dense(Cv, (n, n)), dense(G, (m, n)))
+                for M, Kq, Cv, G in self.jacs]
+        K = np.zeros((3 * (n + m), 3 * (n + m)))
+        for j, (M, Kq, Cv, G) in enumerate(jacs):
+            rows = slice(j * n, (j + 1) * n)
+            lam = slice(3 * n + j * m, 3 * n + (j + 1) * m)
+            for k in range(3):
+                cols = slice(k * n, (k + 1) * n)
+                K[rows, cols] = (Ainv[j, k] / h) * M - (h * A[j, k]) * Kq
+                K[lam, cols] = A[j, k] * G
+            K[rows, rows] -= Cv
+            K[rows, lam] = G.T
+        d = np.arange(3 * n, 3 * (n + m))
+        K[d, d] = -delta
+        self.jacs, self.lu = jacs, DenseLU(K)
 
     def solve(self, r: np.ndarray) -> np.ndarray:
         """dZ (3, 2n + m) from the stage residuals r (3, 2n + m)."""
