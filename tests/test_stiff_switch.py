@@ -105,6 +105,49 @@ def test_a_stiff_spring_switches_to_the_implicit_method_and_stays_accurate():
     assert abs(res["s"][-1] - ref[1]) < 1e-5
 
 
+def test_a_stiffness_the_pair_resolves_is_found_by_a_trial_of_the_implicit_method():
+    """k = 1e7: vern9's steps follow the spring's oscillation to the tolerance (h rho about
+    0.7, far below its stability boundary 2.6, so Hairer's test never fires) and their
+    number grows like sqrt(k): 3168 steps where radau takes about a hundred. The trial of
+    radau (module mechdsl.solve.driver) finds steps 10 times longer and the run goes on
+    with it, as accurate as the Done-when of issue 28 asks (1e-5 against the minimal ODE)."""
+    from mechdsl.solve.driver import TRIAL_RATIO
+
+    k = 1e7
+    res = mechdsl.loads(dm.stiff_pendulum_text(k)).simulate()
+    assert res.ok, res.messages
+    assert "radau from t = " in res.method and "over a trial of" in res.method, res.method
+    ratio = float(res.method.split("radau's steps ")[1].split(" times")[0])
+    assert ratio >= TRIAL_RATIO
+    ref = dm.stiff_pendulum_oracle(k)
+    assert abs(res["theta"][-1] - ref[0]) < 1e-5
+    assert abs(res["s"][-1] - ref[1]) < 1e-5
+
+
+def test_a_moderate_spring_keeps_its_pair():
+    """Where the rest of the run takes fewer than TRIAL_MIN_STEPS explicit steps (k = 1e5:
+    about 400) nothing is tried, and where radau's steps are not TRIAL_RATIO times the
+    pair's (k = 1e6: 1100 steps of vern9 left) the pair goes on."""
+    import mechdsl.solve.driver as driver
+
+    tried = []
+    original = driver._trial
+
+    def watch(*args):
+        tried.append(original(*args))
+        return tried[-1]
+
+    driver._trial = watch
+    try:
+        for k in (1e5, 1e6):
+            tried.clear()
+            res = mechdsl.loads(dm.stiff_pendulum_text(k)).simulate()
+            assert res.ok and "radau" not in res.method, res.method
+            assert tried == [None]  # asked once, after TRIAL_AFTER steps, and declined
+    finally:
+        driver._trial = original
+
+
 def test_a_soft_spring_keeps_the_explicit_pair():
     res = mechdsl.loads(dm.stiff_pendulum_text(1e2)).simulate()
     assert res.ok, res.messages

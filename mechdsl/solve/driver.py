@@ -21,7 +21,15 @@ and owns
   integration goes on from the state it reached with the implicit stepper on the equations
   the factory builds (the index-3 terms: :class:`~mechdsl.solve.motion.Motion`); the
   outputs, the budget and the counters run on across the switch, and the solution says
-  where it happened (``switched``);
+  where it happened and why (``switched``). A stiffness the pair resolves rather than
+  suffers (a stiff spring's oscillation followed to the tolerance: h rho well below the
+  stability boundary, the step ~ 1 / rho all the same, so that its cost grows like sqrt(k))
+  is found by a **trial**: after :data:`TRIAL_AFTER` accepted steps, where the rest of the
+  span would take more than :data:`TRIAL_MIN_STEPS` steps of the current size, the implicit
+  stepper takes up to :data:`TRIAL_STEPS` steps from the same state, apart (nothing of it
+  is kept); where its last accepted step is :data:`TRIAL_RATIO` times the explicit step or
+  longer, the run goes on with the implicit stepper from there, as after :data:`STIFF`.
+  The decision reads step sizes only, never a clock: the same run decides the same way;
 * **progress**: ``on_output(k, t, y)`` with each output as soon as it is known, and
   ``on_step(t, attempts)`` after every accepted step (one output interval may take
   millions of steps: a display fed by the outputs alone would stand still). It costs a
@@ -36,6 +44,14 @@ from typing import Callable
 import numpy as np
 
 from .stepper import OUT_OF_BUDGET, STIFF, Equations, Stepper
+
+
+#: The trial of the implicit stepper (module docstring): after this many accepted explicit
+#: steps, where the rest would take more than TRIAL_MIN_STEPS, up to TRIAL_STEPS implicit
+#: steps, and the switch where the implicit step is TRIAL_RATIO times the explicit one (an
+#: implicit step costs 3 to 10 explicit ones: one factorisation or two and Newton's
+#: iterations, against a pair's 7 to 16 evaluations)
+TRIAL_AFTER, TRIAL_MIN_STEPS, TRIAL_STEPS, TRIAL_RATIO = 50, 1000, 8, 10.0
 
 
 @dataclass(frozen=True)
@@ -58,7 +74,7 @@ class Solution:
     reason: str = ""
     njev: int = 0
     nlu: int = 0
-    #: (the implicit stepper's name, the time, h rho there) where the run switched to it
+    #: (the implicit stepper's name, the time, why) where the run switched to it
     switched: tuple | None = None
 
 
@@ -126,6 +142,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             s.max_step = max_step
         if stiff is not None and not stepper.implicit:
             s.detect_stiffness = True
+        trial = stiff is not None and not stepper.implicit  # one trial at most
         while k_next < n_out:
             # checked here too for steppers that take no more than one attempt per call
             if s.attempts + int(before[:2].sum()) >= max_steps:
@@ -162,9 +179,17 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                 emit(k_next, t_new, y_new.copy())
                 k_next += 1
             t = t_new
+            why = None
             if message == STIFF:
+                why = (f"{s.name}'s step held by stability: h rho = "
+                       f"{getattr(s, 'h_rho', float('nan')):.3g} at "
+                       f"{getattr(s, 'stiff_steps', 0)} steps in a row")
+            elif trial and s.naccepted >= TRIAL_AFTER:
+                trial = False
+                why = _trial(stiff, t, y_new, t_end, s.h, s.name, rtol, atol, scale)
+            if why is not None:
+                trial = False
                 implicit, factory = stiff  # type: ignore[misc]
-                h_rho = getattr(s, "h_rho", float("nan"))
                 before += (s.naccepted, s.nrejected, s.nfev, s.njev, s.nlu)
                 equations = factory()
                 project = getattr(equations, "project", None)
@@ -176,7 +201,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                 s.max_attempts = max_steps - int(before[:2].sum())
                 if max_step < np.inf:
                     s.max_step = max_step
-                switched = (implicit.name, t, h_rho)
+                switched = (implicit.name, t, why)
             if on_step is not None:
                 on_step(t, s.attempts + int(before[:2].sum()))
     except KeyboardInterrupt:
@@ -185,3 +210,27 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         return done("failed", f"the equations of motion are singular near t = {t:.10g} "
                               f"({err})")
     return done("ok")
+
+
+def _trial(stiff: tuple, t: float, y: np.ndarray, t_end: float, h: float, name: str,
+           rtol: float, atol, scale) -> str | None:
+    """The implicit stepper tried from (t, y) apart (module docstring): why the run should
+    go on with it, or None. Nothing of the trial is kept (its equations are its own)."""
+    if not h > 0 or (t_end - t) / h <= TRIAL_MIN_STEPS:
+        return None
+    implicit, factory = stiff
+    try:
+        s = implicit(factory(), t, y.copy(), t_end, rtol=rtol, atol=atol, scale=scale)
+        s.max_attempts = 4 * TRIAL_STEPS
+        last = 0.0
+        while s.naccepted < TRIAL_STEPS and s.t < t_end:
+            t_before = s.t
+            if s.step() is not None:
+                return None  # the implicit stepper struggles here: the pair goes on
+            last = s.t - t_before
+    except (np.linalg.LinAlgError, ArithmeticError, ValueError):
+        return None
+    if s.t < t_end and last < TRIAL_RATIO * h:
+        return None
+    return (f"{implicit.name}'s steps {last / h:.3g} times {name}'s over a trial of "
+            f"{s.naccepted} steps")

@@ -303,7 +303,6 @@ class DynamicRun(Run):
 
     def _variant(self, v: int, q0: np.ndarray) -> str:
         from .driver import integrate
-        from .explicit import STIFF_STEPS
         from .integrators import INTEGRATORS, stiff_method
 
         #: the system as variant v sees it: its params, its functions
@@ -356,11 +355,10 @@ class DynamicRun(Run):
                             rtol=self.rtol, atol=self.atol, scale=scale, on_output=record,
                             on_step=on_step, max_steps=budget, stiff=stiff)
             if sol.switched is not None:
-                name, at, h_rho = sol.switched
+                name, at, why = sol.switched
                 self.switches.append(
                     f"{name} from t = {at:.6g}{variant_label(sysm, v)}, where the model "
-                    f"proved stiff ({self.method}'s step held by stability: h rho = "
-                    f"{h_rho:.3g} at {STIFF_STEPS} steps in a row)")
+                    f"proved stiff ({why})")
             if sol.status == "failed" and sol.reason != "budget" and equations is not self.ev:
                 # the dense index-1 solve needs Phi_q of full rank: a singular position
                 # met on the way (a parallelogram's collinear one) stops it. The variant is

@@ -206,6 +206,11 @@ class RungeKutta(Stepper):
             return STIFF
         return None
 
+    @property
+    def stiff_steps(self) -> int:
+        """The accepted steps in a row with h rho above the stability boundary."""
+        return self._stiff_steps
+
     def _stiff(self, h: float, y: np.ndarray, y_new: np.ndarray, f_new: np.ndarray) -> bool:
         """Hairer's stiffness detection (DOPRI5, Solving ODEs II, sec. IV.2): with the
         stage s at c_s = 1, rho = |f(y_new) - K_s| / |y_new - Y_s| estimates the dominant

@@ -83,7 +83,11 @@ def choose(method: str, rtol: float, *, dopri5_from: float, stiff: bool = False,
         why = (f"{best.name}: rtol {rtol:g} < {dopri5_from:g}, where the explicit pair of "
                "highest order takes the fewest evaluations")
     if needs:
-        why += f" (the model {' and '.join(needs)}, and no implicit method is registered)"
+        later = stiff_method()
+        why += (f" (the model {' and '.join(needs)}; "
+                + (f"{later.name} takes over where the run proves stiff: from the start it "
+                   "is not chosen, being slower on such models)" if later is not None else
+                   "no implicit method is registered)"))
     return best.name, why
 
 
