@@ -186,7 +186,8 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                        f"{getattr(s, 'stiff_steps', 0)} steps in a row")
             elif trial and s.naccepted >= TRIAL_AFTER:
                 trial = False
-                why = _trial(stiff, t, y_new, t_end, s.h, s.name, rtol, atol, scale)
+                why, spent = _trial(stiff, t, y_new, t_end, s.h, s.name, rtol, atol, scale)
+                before += spent  # the trial's work counts, kept or not
             if why is not None:
                 trial = False
                 implicit, factory = stiff  # type: ignore[misc]
@@ -213,24 +214,30 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
 
 
 def _trial(stiff: tuple, t: float, y: np.ndarray, t_end: float, h: float, name: str,
-           rtol: float, atol, scale) -> str | None:
+           rtol: float, atol, scale) -> tuple[str | None, np.ndarray]:
     """The implicit stepper tried from (t, y) apart (module docstring): why the run should
-    go on with it, or None. Nothing of the trial is kept (its equations are its own)."""
+    go on with it (None: it should not), and the trial's counters (accepted, rejected,
+    evaluations, Jacobians, factorisations). Nothing else of the trial is kept (its
+    equations are its own); a trial that fails in any way only says no."""
+    spent = np.zeros(5, dtype=int)
     if not h > 0 or (t_end - t) / h <= TRIAL_MIN_STEPS:
-        return None
+        return None, spent
     implicit, factory = stiff
+    s, last, why = None, 0.0, None
     try:
         s = implicit(factory(), t, y.copy(), t_end, rtol=rtol, atol=atol, scale=scale)
         s.max_attempts = 4 * TRIAL_STEPS
-        last = 0.0
         while s.naccepted < TRIAL_STEPS and s.t < t_end:
             t_before = s.t
             if s.step() is not None:
-                return None  # the implicit stepper struggles here: the pair goes on
+                break  # the implicit stepper struggles here: the pair goes on
             last = s.t - t_before
-    except (np.linalg.LinAlgError, ArithmeticError, ValueError):
-        return None
-    if s.t < t_end and last < TRIAL_RATIO * h:
-        return None
-    return (f"{implicit.name}'s steps {last / h:.3g} times {name}'s over a trial of "
-            f"{s.naccepted} steps")
+        else:
+            if s.t >= t_end or last >= TRIAL_RATIO * h:
+                why = (f"{implicit.name}'s steps {last / h:.3g} times {name}'s over a trial "
+                       f"of {s.naccepted} steps")
+    except (np.linalg.LinAlgError, ArithmeticError, ValueError, RuntimeError):
+        why = None  # (SuperLU says a singular matrix by RuntimeError)
+    if s is not None:
+        spent[:] = (s.naccepted, s.nrejected, s.nfev, s.njev, s.nlu)
+    return why, spent
