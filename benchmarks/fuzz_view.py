@@ -11,8 +11,8 @@ digits), names that are not sliders (markup, very long, unicode), messages over 
 bound, binary frames, deeply nested arrays, a burst of valid moves out of order with ids of
 every type, ``reset`` and ``reload`` in between, connections that close in the middle of a
 burst, and a second page connected at the same time that never reads its messages. Plain
-HTTP requests go in too: without
-the token, with another Host header, a WebSocket without the Origin or from another one.
+HTTP requests go in too: without the token, with another Host header, a WebSocket without
+the Origin or from another one.
 
 After every message a probe (a valid ``set`` with a fresh id) must be answered by a run
 within the time bound. It counts ``died`` (the process ended), ``traceback`` (a Python
@@ -28,7 +28,6 @@ import contextlib
 import json
 import os
 import random
-import re
 import sys
 import time
 import urllib.error
@@ -120,9 +119,7 @@ def sequence(rng: random.Random, messages: int, counts: dict) -> None:
     logging.getLogger("websockets").setLevel(logging.CRITICAL)
 
     viewer = Viewer(SEED)
-    host, token = re.match(r"http://([^/]+)/([\w-]+)/", viewer.url).groups()
-    origin = f"http://{host}"
-    url = f"ws://{host}/{token}/ws"
+    host, token, origin, url = viewer.host, viewer.token, viewer.origin, viewer.socket_url
     stack = contextlib.ExitStack()
 
     def page(reads: bool = True):

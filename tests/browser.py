@@ -31,16 +31,19 @@ def chromium(width: int = 1400, height: int = 1000):
 
 class Viewer:
     """`mechdsl view FILE --no-browser` in a child process, and its URL (the browser tests,
-    the view's benchmark and its fuzzer)."""
+    the view's benchmark and its fuzzer): ``url``, its ``host`` (127.0.0.1:PORT) and
+    ``token``, the page's ``origin`` and the WebSocket's ``socket_url``."""
 
     def __init__(self, path, *extra: str) -> None:
         self.proc = subprocess.Popen([sys.executable, "-m", "mechdsl", "view", str(path),
                                       "--no-browser", *extra], stderr=subprocess.PIPE,
                                      text=True)
         line = self.proc.stderr.readline()
-        found = re.search(r"(http://127\.0\.0\.1:\d+/[\w-]+/)", line)
+        found = re.search(r"(http://(127\.0\.0\.1:\d+)/([\w-]+)/)", line)
         assert found, line + self.proc.stderr.read()
-        self.url = found.group(1)
+        self.url, self.host, self.token = found.groups()
+        self.origin = f"http://{self.host}"
+        self.socket_url = f"ws://{self.host}/{self.token}/ws"
 
     def stop(self, timeout: float = 20.0) -> int:
         """Ctrl-C, and the exit status (-1: killed after ``timeout`` s); what the view

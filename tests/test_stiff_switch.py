@@ -124,7 +124,7 @@ def test_a_stiffness_the_pair_resolves_is_found_by_a_trial_of_the_implicit_metho
     assert abs(res["s"][-1] - ref[1]) < 1e-5
 
 
-def test_a_moderate_spring_keeps_its_pair():
+def test_a_moderate_spring_keeps_its_pair(monkeypatch):
     """Where the rest of the run takes fewer than TRIAL_MIN_STEPS explicit steps (k = 1e5:
     about 400) nothing is tried, and where radau's steps are not TRIAL_RATIO times the
     pair's (k = 1e6: 1100 steps of vern9 left) the pair goes on."""
@@ -137,17 +137,14 @@ def test_a_moderate_spring_keeps_its_pair():
         tried.append(original(*args))
         return tried[-1]
 
-    driver._trial = watch
-    try:
-        for k, ran in ((1e5, False), (1e6, True)):
-            tried.clear()
-            res = mechdsl.loads(dm.stiff_pendulum_text(k)).simulate()
-            assert res.ok and "radau" not in res.method, res.method
-            assert len(tried) == 1 and tried[0][0] is None  # asked once, and declined
-            accepted = tried[0][1][0]  # the trial's own steps (counted in the run's)
-            assert (accepted > 0) == ran, (k, tried)
-    finally:
-        driver._trial = original
+    monkeypatch.setattr(driver, "_trial", watch)
+    for k, ran in ((1e5, False), (1e6, True)):
+        tried.clear()
+        res = mechdsl.loads(dm.stiff_pendulum_text(k)).simulate()
+        assert res.ok and "radau" not in res.method, res.method
+        assert len(tried) == 1 and tried[0][0] is None  # asked once, and declined
+        accepted = tried[0][1][0]  # the trial's own steps (counted in the run's)
+        assert (accepted > 0) == ran, (k, tried)
 
 
 def test_a_soft_spring_keeps_the_explicit_pair():

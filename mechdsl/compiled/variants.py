@@ -69,11 +69,17 @@ def remembered(memo: dict | None, tag: str, obj: object, make):
     held = memo.get((tag, id(obj)))
     if held is not None and held[0] is obj:
         return held[1]
+    made = make()
+    _keep(memo, (tag, id(obj)), (obj, made))
+    return made
+
+
+def _keep(memo: dict, key: tuple, value: object) -> None:
+    """``memo[key] = value``, the memo emptied first when it holds :data:`MEMO_SIZE`
+    entries."""
     if len(memo) >= MEMO_SIZE:
         memo.clear()
-    made = make()
-    memo[(tag, id(obj))] = (obj, made)
-    return made
+    memo[key] = value
 
 
 @dataclass(frozen=True)
@@ -105,9 +111,7 @@ class Variants:
         return value
 
     def _run(self, e: E.Expr):
-        run = remembered(self.memo, "expr", e, lambda: E.compile_expr(e))
-        with np.errstate(all="ignore"):  # (as E.evaluate: the caller checks finiteness)
-            return run(self.env)
+        return _evaluate(e, self.env, self.memo)  # (the caller checks finiteness)
 
     def vector(self, v: Vector, what: str) -> np.ndarray:
         """A vector of expressions: shape (V, len)."""
@@ -281,19 +285,17 @@ def _params(model: Model, ov: Overrides, sweep: dict[str, np.ndarray],
     for p in model.params:
         if p.name in sweep:
             value = sweep[p.name]
-        elif p.name in ov.params and isinstance(ov.params[p.name], (int, float, np.number)):
-            value = float(ov.params[p.name])  # a number: nothing to evaluate
-            if not math.isfinite(value):
-                raise MechError(f"the value given for param '{p.name}' gives "
-                                f"{_first_bad(value)}")
         elif p.name in ov.params:
-            e = as_expr(ov.params[p.name])
+            given = ov.params[p.name]
             where = f"the value given for param '{p.name}'"
-            late = E.free_names(e) - env.keys()
-            if late:
-                raise MechError(f"{where}: '{sorted(late)[0]}' is not a param defined before "
-                                f"'{p.name}'")
-            value = E.evaluate(e, env)
+            if isinstance(given, (int, float, np.number)):
+                value = float(given)  # a number: nothing to evaluate
+            else:
+                late = E.free_names(given) - env.keys()
+                if late:
+                    raise MechError(f"{where}: '{sorted(late)[0]}' is not a param defined "
+                                    f"before '{p.name}'")
+                value = E.evaluate(given, env)
             if not np.all(np.isfinite(value)):
                 raise MechError(f"{where} gives {_first_bad(value)}")
         else:
@@ -353,9 +355,7 @@ def time_grid(model: Model, ov: Overrides, variants: Variants, outputs: int) -> 
     if made is None:
         made = grid(*args, bytes_per_item=per_instant)
         made.flags.writeable = False  # shared by the models compiled with it
-        if len(memo) >= MEMO_SIZE:
-            memo.clear()
-        memo[key] = made
+        _keep(memo, key, made)
     return made
 
 

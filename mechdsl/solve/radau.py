@@ -76,8 +76,8 @@ predictive (Gustafsson) controller, h_new = h fac min(1, (h / h_prev) (err_prev 
 err^-1/4 with the safety factor fac = 0.9 (2 k_max + 1) / (2 k_max + k_newton), limited to
 [``min_factor``, ``max_factor``]; a step size that would grow by less than ``keep_ratio`` is
 kept (the factorisation with it), except with the stages' own Jacobians (radau_stages),
-factorised at every step anyway (the stiff pendulum at k = 1e8: 20 % faster). Dense output: the collocation polynomial of the step
-(order 3 uniformly, exact at the stages).
+factorised at every step anyway (the stiff pendulum at k = 1e8: 20 % faster). Dense
+output: the collocation polynomial of the step (order 3 uniformly, exact at the stages).
 """
 
 from __future__ import annotations

@@ -44,15 +44,8 @@ class DenseLU:
 
 
 def dense(a: object, shape: tuple[int, int]) -> np.ndarray:
-    """``a`` (Triplets, a scipy.sparse matrix or an array) as a dense array of ``shape``
-    (repeated triplets add, as in the COO format)."""
-    if isinstance(a, Triplets):
-        flat = np.bincount(a.rows * shape[1] + a.cols, weights=a.data,
-                           minlength=shape[0] * shape[1])
-        return flat.reshape(shape)
-    if isinstance(a, np.ndarray):
-        return a.reshape(shape)
-    return a.toarray()
+    """``a`` (Triplets, a scipy.sparse matrix or an array) as a dense array of ``shape``."""
+    return a.reshape(shape) if isinstance(a, np.ndarray) else a.toarray()
 
 
 def triplets(a: object, r0: int = 0, c0: int = 0, f: float = 1.0, transpose: bool = False

@@ -48,10 +48,11 @@ class Triplets:
         return out
 
     def toarray(self) -> np.ndarray:
-        """The dense matrix."""
-        out = np.zeros(self.shape)
-        np.add.at(out, (self.rows, self.cols), self.data)
-        return out
+        """The dense matrix (repeated entries add)."""
+        rows, cols = self.shape
+        flat = np.bincount(self.rows * cols + self.cols, weights=self.data,
+                           minlength=rows * cols)
+        return flat.reshape(self.shape)
 
     def tocoo(self):
         """The scipy COO matrix (for the code that factorises)."""

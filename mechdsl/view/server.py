@@ -29,6 +29,7 @@ Ctrl-C stops the server and its watcher.
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import hmac
 import json
@@ -78,8 +79,6 @@ class Outbox:
     what waits for it is bounded: one run and :data:`MAX_REPLIES` replies."""
 
     def __init__(self, ws) -> None:
-        import collections
-
         self.ws = ws
         self.replies: collections.deque[bytes] = collections.deque(maxlen=MAX_REPLIES)
         self.run: bytes | None = None
@@ -150,7 +149,7 @@ class Hub:
                     # server goes on (the command line reports the same as an internal error)
                     message = payload.error_message(
                         "failed", [f"mechdsl: internal error: {type(err).__name__}: {err}"])
-                await self.broadcast(message)
+                self.broadcast(message)
 
     def request(self, **what) -> None:
         if what.get("values"):
@@ -161,7 +160,7 @@ class Hub:
         if self.wake is not None:
             self.wake.set()
 
-    async def broadcast(self, message: bytes) -> None:
+    def broadcast(self, message: bytes) -> None:
         self.last = message
         for box in self.sockets.values():
             box.put_run(message)

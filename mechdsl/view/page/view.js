@@ -484,7 +484,6 @@
     const h = view.header, t = times(), t0 = t[0], t1 = t[h.K - 1] > t0 ? t[h.K - 1] : t0 + 1;
     const at = `${(100 * (t[view.k] - t0) / (t1 - t0)).toFixed(3)}%`;
     for (const p of plots) {
-      if (!p.series) continue;
       p.cursor.style.left = at;
       const values = p.series.map((s) => fmt(view.data[s.o + view.k]));
       const text = `${p.name}${p.unit ? " [" + p.unit + "]" : ""} = ${values.join(", ")}` +
