@@ -20,7 +20,7 @@ from .compiled import equations as eq
 from .compiled.compile import check_structure, compile_model
 from .compiled.files import read_files, read_tables
 from .compiled.system import System
-from .compiled.variants import Overrides
+from .compiled.variants import Overrides, known_param
 from .errors import MechError, NumericalError, Source, Span
 from .grammar import Model, normalise, parse, parse_expr, parse_expr_list, parse_reductions
 from .grammar.expr import to_text
@@ -538,6 +538,12 @@ class Mechanism:
         def value(v, what: str):
             return parse_value(v, what, names) if isinstance(v, str) else v
 
+        for what, given in (("cannot sweep", sweep or {}), ("cannot set", values)):
+            for k in given:
+                if k not in names and k in {f.name for f in fields(SolverOptions)}:
+                    raise MechError(f"{what} '{k}': there is no param of that name ('{k}' is "
+                                    f"a solver option: options=SolverOptions({k}=...))")
+                known_param(k, names, what)
         sweeps = {k: [value(x, k) for x in ([vs] if isinstance(vs, str) else vs)]
                   for k, vs in (sweep or {}).items()}
         t0, t1 = span if span is not None else (None, None)

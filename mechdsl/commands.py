@@ -13,7 +13,7 @@ import numpy as np
 
 from .api import Mechanism, load, parse_value
 from .compiled.system import System
-from .compiled.variants import MAX_MEMORY, Overrides
+from .compiled.variants import MAX_MEMORY, Overrides, known_param
 from .errors import MechError, NumericalError, Source, format_error, suggest
 from .outputs import FORMATS
 from .results import summary
@@ -23,12 +23,14 @@ from .writing import Interrupted, Output, SignalGuard, check_distinct, emit
 def _overrides(mech: Mechanism, args) -> Overrides:
     names = [p.name for p in mech.model.params]
     ov = Overrides()
-    for opt, target, many in (("--set", ov.params, False), ("--sweep", ov.sweeps, True)):
+    for opt, target, many, what in (("--set", ov.params, False, "cannot set"),
+                                    ("--sweep", ov.sweeps, True, "cannot sweep")):
         for item in getattr(args, opt.lstrip("-")):
             name, eq_sign, value = item.partition("=")
             name = name.strip()
             if not eq_sign or not name.isidentifier():
                 raise MechError(f"{opt} takes NAME=VALUE, not '{item}'")
+            known_param(name, names, f"{opt}: {what}")
             target[name] = parse_value(value, f"{opt} {name}", names, many)
     for attr in ("t0", "t1", "step"):
         value = getattr(args, attr, None)

@@ -38,6 +38,17 @@ def test_an_expression_error_is_located_like_the_command_lines(loads, capsys):
     assert cli.startswith("--set l:1:3: error: unknown name 'q' in --set l")
 
 
+def test_a_name_that_is_no_param_is_the_error_not_its_value(loads):
+    """The name is checked before the value's text is parsed; a solver option passed as a
+    param says where it belongs."""
+    mech = loads(SLIDER)
+    with pytest.raises(mechdsl.MechError, match=r"^cannot set 'method': there is no param of "
+                       r"that name \('method' is a solver option: options=SolverOptions"):
+        mech.simulate(method="radau")
+    with pytest.raises(mechdsl.MechError, match="^cannot sweep 'L': .*did you mean 'l'"):
+        mech.simulate(sweep={"L": ["r"]})
+
+
 def test_an_unknown_joint_type_is_an_error_of_loads_located_as_on_the_command_line(
         tmp_path, capsys):
     text = SLIDER.replace("joint B: revolute", "joint B: revolut")

@@ -89,6 +89,11 @@ def test_user_errors_exit_1_with_location_caret_and_no_traceback(tmp_path):
     (["run", "missing.mech"], "cannot read missing.mech"),
     (["run", SLIDER_CRANK, "--set", "L=2"], "cannot set 'L': there is no param of that name; did you mean 'l'?"),
     (["run", SLIDER_CRANK, "--set", "l=2*"], "--set l:1:3: error: unexpected end of file"),
+    # the name is checked before its value: the value's text is not the mistake
+    (["run", SLIDER_CRANK, "--set", "method=radau"],
+     "--set: cannot set 'method': there is no param of that name"),
+    (["run", SLIDER_CRANK, "--sweep", "L=r,2*r"],
+     "--sweep: cannot sweep 'L': there is no param of that name; did you mean 'l'?"),
     (["run", SLIDER_CRANK, "--set", "l"], "--set takes NAME=VALUE"),
     (["run", SLIDER_CRANK, "--step", "0"], "the simulated time step must be positive"),
     (["run", SLIDER_CRANK, "--bogus"], "unrecognized arguments: --bogus"),

@@ -165,9 +165,9 @@ def param_ranges(model: Model, env: dict[str, np.ndarray], memo: dict | None = N
 def _check_overrides(model: Model, ov: Overrides) -> None:
     names = [p.name for p in model.params]
     for name in ov.params:
-        _known(name, names, "cannot set")
+        known_param(name, names, "cannot set")
     for name in ov.sweeps:
-        _known(name, names, "cannot sweep")
+        known_param(name, names, "cannot sweep")
         if name in ov.params:
             raise MechError(f"param '{name}' is given both a value and a sweep; give one")
         if len(ov.sweeps[name]) == 0:
@@ -180,7 +180,7 @@ def _given_table(model: Model, ov: Overrides) -> dict[str, np.ndarray]:
     names = [p.name for p in model.params]
     columns = {k: np.asarray(v, dtype=float).ravel() for k, v in ov.table.items()}
     for name, values in columns.items():
-        _known(name, names, "cannot vary")
+        known_param(name, names, "cannot vary")
         if name in ov.params or name in ov.sweeps:
             raise MechError(f"param '{name}' is given both a value and a table of values")
         if not np.all(np.isfinite(values)):
@@ -202,7 +202,10 @@ def sweep_table(model: Model, ov: Overrides) -> dict[str, np.ndarray]:
     return _given_table(model, ov) if ov.table is not None else _sweep_table(model, ov)
 
 
-def _known(name: str, names: list[str], what: str) -> None:
+def known_param(name: str, names: list[str], what: str) -> None:
+    """A MechError "WHAT 'NAME': there is no param of that name" (with the nearest names)
+    unless ``name`` is one of ``names``: checked before a value's text is parsed, so that
+    ``--set method=radau`` names the param, not the value."""
     if name not in names:
         raise MechError(f"{what} '{name}': there is no param of that name"
                         + suggest(name, names))
