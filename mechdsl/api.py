@@ -309,6 +309,7 @@ class Mechanism:
         t0 = float(system.times[0]) if system.times is not None else 0.0
 
         def done(**found) -> CheckReport:
+            found["warnings"] = (*system.warnings, *found.get("warnings", ()))
             return CheckReport(source=system.source.name, bodies=len(system.body_names),
                                coordinates=system.n, joints=len(system.constraints) - drives,
                                equations=system.m - drives, drives=drives, t0=t0,

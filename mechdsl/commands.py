@@ -14,7 +14,7 @@ import numpy as np
 from .api import Mechanism, load, parse_value
 from .compiled.system import System
 from .compiled.variants import MAX_MEMORY, Overrides, known_param
-from .errors import MechError, NumericalError, Source, format_error, suggest
+from .errors import MechError, NumericalError, Source, format_error, format_warning, suggest
 from .outputs import FORMATS
 from .results import summary
 from .writing import Interrupted, Output, SignalGuard, check_distinct, emit
@@ -620,7 +620,7 @@ def _report(args, results, written: list[str], stop: KeyboardInterrupt | None,
     in_file = args.output in written and args.output != "-"
     if not args.quiet:
         for w in results.warnings:
-            print(f"{args.file}: warning: {w}", file=sys.stderr)
+            print(format_warning(w, args.file), file=sys.stderr)
     if results.status == "failed":
         source = Source(args.file, "")
         for message in results.messages:
@@ -747,7 +747,7 @@ def check_command(args) -> int:
         raise _all_errors(args, err) from None
     emit("\n".join(report.lines))
     for warning in report.warnings:
-        print(f"{report.source}: warning: {warning}", file=sys.stderr)
+        print(format_warning(warning, report.source), file=sys.stderr)
     if report.error is not None:
         raise report.error
     emit(report.verdict)

@@ -92,6 +92,36 @@ class MechError(Exception):
         return self
 
 
+class MechWarning(str):
+    """A warning located in the model's text: the text "line L, column C: MESSAGE" (how it
+    reads in the API, stores and pages) that also keeps its ``message``, ``span`` and
+    ``source``, so that the command line shows it as it shows an error
+    (:func:`format_warning`)."""
+
+    span: Span | None
+    source: Source | None
+    message: str
+
+    def __new__(cls, message: str, span: Span | None = None,
+                source: Source | None = None) -> "MechWarning":
+        where = f"line {span.line}, column {span.column}: " if span is not None else ""
+        self = super().__new__(cls, where + message)
+        self.message, self.span, self.source = message, span, source
+        return self
+
+    def __reduce__(self):  # pickled (a Dask worker's results) as what it was built from
+        return MechWarning, (self.message, self.span, self.source)
+
+
+def format_warning(warning: str, name: str) -> str:
+    """``FILE:LINE:COL: warning: MESSAGE`` with the source line and a caret for a
+    :class:`MechWarning`, ``NAME: warning: TEXT`` for another warning of file ``name``."""
+    if isinstance(warning, MechWarning) and warning.source is not None:
+        return format_error(MechError(warning.message, warning.span, warning.source),
+                            "warning")
+    return f"{name}: warning: {_printable(cut(str(warning), MAX_MESSAGE_CHARS))}"
+
+
 class NumericalError(MechError):
     """The mechanism is well described but cannot be solved (assembly, singularity, divergence)."""
 

@@ -381,7 +381,7 @@ def hover_text(text: str, path: str, line: int, character: int, registry) -> str
     (from its plugin, found through the entry points), a param's definition and value, a
     body's points, a point's body coordinates, a quantity's meaning and unit, a constraint's
     statement."""
-    from .compiled.compile import unit_of
+    from .compiled.units import QUANTITY_DIMS, Units
 
     table, sym = _symbol_at(text, line, character)
     if sym is None:
@@ -425,12 +425,10 @@ def hover_text(text: str, path: str, line: int, character: int, registry) -> str
             return out + f" at ({coords}) in body coordinates"
         return out + (f": `{written}` in body coordinates" if written else "")
     if sym.kind == "quantity":
-        units = dict(model.units) if model else {}
         what = _QUANTITY_TEXT.get(sym.name, sym.name)
         unit = ""
-        if sym.name in _QUANTITY_TEXT and sym.name in ("x", "y", "phi", "vx", "vy", "omega",
-                                                       "ax", "ay", "alpha"):
-            unit = unit_of(sym.name, units.get("length", ""), units.get("time", ""))
+        if sym.name in QUANTITY_DIMS:
+            unit = Units.of(model.units if model else ()).quantity(sym.name)
         name = f"{sym.owner}.{sym.name}" if sym.owner else sym.name
         return f"output **{name}**: {what}" + (f", in {unit}" if unit else "")
     if sym.kind in ("joint", "drive", "force", "output") and written:

@@ -44,6 +44,9 @@ class Results:
     #: asked for them keeps no histories (``data`` is empty); NaN for a variant that did not
     #: solve every instant
     reduced: Mapping[str, np.ndarray] = field(default_factory=dict)
+    #: the reductions whose extremes were found between the samples
+    #: (:mod:`mechdsl.solve.extrema`); the others are of the samples
+    refined: tuple[str, ...] = ()
     #: forward dynamics: the integrator taken and why (the automatic choice's reason, and
     #: where it switched to the implicit method); empty for the kinematics
     method: str = ""
@@ -98,24 +101,36 @@ class Results:
 
 
 def summary(results: Results) -> str:
-    """A few lines for the terminal: instants, time, residual, range of each output."""
+    """A few lines for the terminal: instants, time, residual, range of each output with
+    its unit."""
     k = int(results.n_solved.max(initial=0))
     t = results.times
+    tu = f" {results.time_unit}" if results.time_unit else ""
     lines = [
-        f"{results.source_name}: {k} of {len(t)} instants (t = {t[0]:g} .. {t[-1]:g})"
+        f"{results.source_name}: {k} of {len(t)} instants (t = {t[0]:g} .. {t[-1]:g}{tu})"
         + (f" x {results.n_variants} variants" if results.sweep else "")
         + f", solved in {results.solve_time * 1e3:.1f} ms",
         f"largest constraint residual: {results.residual:.3g}",
     ]
     if results.method:
         lines.append(f"integrator: {results.method}")
+    if results.reduced:
+        sampled = [k for k in results.reduced if k not in results.refined]
+        if results.refined:
+            lines.append("extremes found between the samples: " + ", ".join(results.refined))
+        if sampled:
+            lines.append("of the samples: " + ", ".join(sampled))
     columns = results.reduced or results.data
     if columns:
         width = max(len(label) for label in columns)
         over = " over the variants" if results.reduced and results.sweep else ""
-        lines.append(f"{'quantity':<{width}}  {'min':>14}  {'max':>14}{over}")
+        units = results.units
+        lines.append(f"{'quantity':<{width}}  {'min':>14}  {'max':>14}"
+                     + ("  unit" if any(units.get(k) for k in columns) else "") + over)
         for label, a in columns.items():
             finite = a[np.isfinite(a)]
             lo, hi = (finite.min(), finite.max()) if finite.size else (np.nan, np.nan)
-            lines.append(f"{label:<{width}}  {lo:>14.6g}  {hi:>14.6g}")
+            unit = units.get(label, "")
+            lines.append(f"{label:<{width}}  {lo:>14.6g}  {hi:>14.6g}"
+                         + (f"  {unit}" if unit else ""))
     return "\n".join(lines)

@@ -201,30 +201,15 @@ def test_plot_redraws_a_sweep_csv_without_solving(tmp_path):
 
 
 def test_units_label_every_quantity(loads):
-    from mechdsl.compiled.compile import unit_of
     from mechdsl.solve import simulate
 
-    assert [unit_of(q, "mm", "s") for q in ("x", "vy", "ax", "phi", "omega", "alpha")] == \
-        ["mm", "mm/s", "mm/s^2", "rad", "rad/s", "rad/s^2"]
-    assert unit_of("vx", "mm", "") == "" and unit_of("phi", "", "") == "rad"
-    text = (EXAMPLES / "fourbar.mech").read_text() + '\nunits length = "mm", time = "ms"\n'
+    text = (EXAMPLES / "fourbar.mech").read_text().replace(
+        'units length = "m", time = "s"', 'units length = "mm", time = "ms"')
     res = simulate(loads(text).compile(__import__("mechdsl").compiled.variants.Overrides(step=0.5)))
     assert res.units == {"rocker.phi": "rad", "rocker.omega": "rad/ms", "rocker.alpha":
                          "rad/ms^2", "coupler.phi": "rad", "coupler.P.x": "mm",
                          "coupler.P.y": "mm"}
     assert res.time_unit == "ms"
-
-
-@pytest.mark.parametrize("line, message", [
-    ('units mass = "kg"', "units are given for 'length' and 'time'"),
-    ('units length = "m", length = "mm"', "the unit of length is given twice"),
-])
-def test_bad_units_are_located_errors(loads, line, message):
-    from mechdsl.errors import MechError
-
-    with pytest.raises(MechError) as err:
-        loads((EXAMPLES / "fourbar.mech").read_text() + "\n" + line + "\n")
-    assert message in str(err.value) and err.value.span is not None
 
 
 def test_the_summary_lists_every_output_written(tmp_path):

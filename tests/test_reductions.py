@@ -39,6 +39,20 @@ trapezoid = getattr(np, "trapezoid", None) or np.trapz
 
 # --- the closed form (independent truth) --------------------------------------------------
 
+def continuous_max(f, t):
+    """The maximum of f over [t_0, t_-1], not only at the samples t: a bounded search of
+    the closed form between the neighbours of its largest sample (max, min and range are
+    found between the samples: mechdsl.solve.extrema)."""
+    from scipy.optimize import minimize_scalar
+
+    y = f(t)
+    k = int(np.argmax(y))
+    best = minimize_scalar(lambda s: -f(np.array([s]))[0], method="bounded",
+                           bounds=(t[max(k - 1, 0)], t[min(k + 1, len(t) - 1)]),
+                           options={"xatol": 1e-13})
+    return max(-best.fun, y[k])
+
+
 def theta_of(t):
     return np.pi / 4 + OMEGA * np.asarray(t, dtype=float)
 
@@ -254,9 +268,10 @@ def test_max_with_two_arguments_stays_elementwise_inside_a_reduction(load_exampl
         span=(0, REV), step=STEP, reduce="m = max(max(slider.x, slider.vx)), "
                                          "n = min(min(slider.x, slider.vx))")
     t = grid(0, REV)
-    x, v = x_of(theta_of(t)), vx_of(t)
-    assert res.reduced["m"][0] == pytest.approx(np.maximum(x, v).max(), rel=1e-12)
-    assert res.reduced["n"][0] == pytest.approx(np.minimum(x, v).min(), rel=1e-12)
+    assert res.reduced["m"][0] == pytest.approx(
+        continuous_max(lambda s: np.maximum(x_of(theta_of(s)), vx_of(s)), t), rel=1e-12)
+    assert res.reduced["n"][0] == pytest.approx(
+        -continuous_max(lambda s: -np.minimum(x_of(theta_of(s)), vx_of(s)), t), rel=1e-12)
 
 
 def test_a_two_argument_max_in_a_file_is_a_history(loads):
@@ -321,14 +336,15 @@ PER_VARIANT = "# one row per variant; swept params: "
 
 def read_reduced_csv(text):
     """Header, units line (or None), rows of a CSV of reductions, read by the csv module; the
-    first line says the rows are variants and names the swept params, which lead the header."""
-    first, rest = text.split("\n", 1)
-    assert first.startswith(PER_VARIANT)
-    lines = list(csv.reader(io.StringIO(rest)))
+    header comes first (numpy's names=True reads it), and a comment before the rows says
+    they are variants and names the swept params, which lead the header."""
+    lines = list(csv.reader(io.StringIO(text)))
     header = lines[0]
-    assert header[:len(first[len(PER_VARIANT):].split(", "))] == \
-        [s for s in first[len(PER_VARIANT):].split(", ") if s] or not first[len(PER_VARIANT):]
-    units = [ln for ln in rest.splitlines() if ln.startswith("#")]
+    comments = [ln for ln in text.splitlines() if ln.startswith("#")]
+    first = next(c for c in comments if c.startswith(PER_VARIANT))
+    swept = [s for s in first[len(PER_VARIANT):].split(", ") if s]
+    assert header[:len(swept)] == swept
+    units = [c for c in comments if c.startswith("# units")]
     rows = [r for r in lines[1:] if not r[0].startswith("#")]
     return header, units, np.array(rows, dtype=float)
 
@@ -343,16 +359,22 @@ def test_the_cli_writes_one_row_per_variant(tmp_path):
     r = mechdsl("run", mech, "-o", out, "-q")
     assert r.returncode == 0, r.stderr
     text = out.read_text()
-    assert len(text.splitlines()) == 7  # per-variant line, header, units, 4 rows
+    assert len(text.splitlines()) == 7  # header, units, per-variant line, 4 rows
     header, units, rows = read_reduced_csv(text)
     assert header == ["l", "max(abs(slider.ax))", "stroke", "ta"]
-    assert units == ["# units: l, max(abs(slider.ax)), stroke [m], ta [s]"]
-    assert text.splitlines()[2] == units[0]
+    assert units == ["# units: l, max(abs(slider.ax)) [m/s^2], stroke [m], ta [s]"]
+    assert text.splitlines()[1] == units[0]
+    assert text.splitlines()[2] == PER_VARIANT + "l"
+    # the README's recipes read it as written
+    np.testing.assert_array_equal(np.loadtxt(out, delimiter=",", skiprows=1), rows)
+    table = np.genfromtxt(out, delimiter=",", names=True)
+    assert table.dtype.names == ("l", "maxabssliderax", "stroke", "ta")
+    np.testing.assert_array_equal(table["stroke"], rows[:, 2])
     # and it reads back as a table of reductions (mechdsl plot draws it)
     back = read_csv(str(out))
     np.testing.assert_array_equal(back.sweep["l"], rows[:, 0])
     np.testing.assert_array_equal(back.reduced["stroke"], rows[:, 2])
-    assert back.units == {"stroke": "m", "ta": "s"}
+    assert back.units == {"max(abs(slider.ax))": "m/s^2", "stroke": "m", "ta": "s"}
     assert rows.shape == (4, 4)
     np.testing.assert_array_equal(rows[:, 0], LS)
     for l, peak, stroke, ta in rows:
@@ -369,7 +391,8 @@ def test_the_cli_reduce_option_replaces_the_outputs():
     assert r.returncode == 0, r.stderr
     header, units, rows = read_reduced_csv(r.stdout)
     assert header == ["l", "max(abs(slider.ax))", "stroke", "ta", "mean(slider.x)"]
-    assert units == ["# units: l, max(abs(slider.ax)), stroke [m], ta [s], mean(slider.x) [m]"]
+    assert units == ["# units: l, max(abs(slider.ax)) [m/s^2], stroke [m], ta [s], "
+                     "mean(slider.x) [m]"]
     assert rows.shape == (4, 5)
     for l, peak, stroke, ta, mean in rows:
         check_sweep_row(l, peak, stroke, ta, mean)
@@ -392,7 +415,8 @@ def test_an_unnamed_reduction_with_a_comma_must_be_named():
     assert header == ["l", "top", "stroke"]
     t = grid(0, 0.5)
     for l, top, stroke in rows:
-        expected = np.max(np.maximum(x_of(theta_of(t), l=l), vx_of(t, l=l)))
+        expected = continuous_max(lambda s: np.maximum(x_of(theta_of(s), l=l), vx_of(s, l=l)),
+                                  t)
         assert top == pytest.approx(expected, rel=1e-12)
         assert stroke == pytest.approx(2 * R, rel=1e-12)
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import MechError, Span, cut, suggest
+from ..errors import MechError, MechWarning, Span, cut, suggest
 from ..functions import ExprFunction
 from ..grammar import expr as E
 from ..grammar.checks import TIME, check_expr
@@ -36,6 +36,10 @@ from .system import (
     Constraint, DriveFunction, EnergyOutput, ExprOutput, Group, OutputSpec, ReactionOutput,
     ReductionOutput, Sketch, Start, System,
 )
+from .units import QUANTITY_DIMS, Units, expr_dim
+from .units import TIME as TIME_DIM
+from .units import div as dim_div
+from .units import power as dim_power
 from .variants import Overrides, evaluate, remembered, time_grid
 
 __all__ = ["compile_model", "Overrides", "System"]
@@ -162,7 +166,8 @@ class _Compiler:
         self.model, self.registry, self.ov = model, registry, ov
         self.fold, self.reuse, self.memo = fold, reuse, memo
         self.evaluated = True  # False while only names are resolved (structure())
-        self._units: dict[str, str] = {}
+        self.units = Units.of(model.units)
+        self.unit_warnings: dict[tuple, MechWarning] = {}  # each mismatch once
         self.param_names = [p.name for p in model.params]
 
     def structure(self) -> None:
@@ -226,10 +231,11 @@ class _Compiler:
             fused=fused,
             sketch=self._sketch(groups),
             mass=tuple(mass_properties(b, self.var) for b in self.bodies),
-            time_unit=dict(self.model.units).get("time", ""),
+            time_unit=self.units.time,
             dynamics=self._dynamics(force_groups, elements, outputs),
             tolerances=self._tolerances(),
             reductions=tuple(self.reductions),
+            warnings=tuple(self.unit_warnings.values()),
         )
         return self._with_start(system)
 
@@ -323,7 +329,10 @@ class _Compiler:
         wanted = (model.forces or model.gravity is not None
                   or any(b.mass is not None or b.density is not None or b.v0 is not None
                          for b in self.bodies)
-                  or any(isinstance(o, (ReactionOutput, EnergyOutput)) for o in outputs))
+                  or any(isinstance(o, (ReactionOutput, EnergyOutput))
+                         or any(isinstance(i, (ReactionOutput, EnergyOutput))
+                                for _, i in getattr(o, "inputs", ()))
+                         for o in outputs))
         if not wanted:
             return None
         V, nb = self.V, len(self.bodies)
@@ -699,7 +708,29 @@ class _Compiler:
                     raise MechError(f"output '{s.label}' is requested twice", r.span)
                 seen.add(s.label)
             out.extend(specs)
-        return out
+        return [self._reported(s) for s in out]
+
+    def _reported(self, spec):
+        """``spec`` as a reported column: scaled to the unit it is reported in (degrees);
+        the columns other outputs read keep the computed value (radians)."""
+        factor = self.units.scale(self._dim(spec))
+        return spec if factor == 1.0 else replace(spec, scale=factor)
+
+    def _dim(self, spec):
+        """The dimension of an output column (:mod:`mechdsl.compiled.units`)."""
+        if isinstance(spec, ExprOutput):
+            return spec.dim
+        return QUANTITY_DIMS[spec.label if isinstance(spec, EnergyOutput) else spec.quantity]
+
+    def _dim_of(self, e: E.Expr, dims, owner: str):
+        """The dimension of expression ``e`` of output ``owner``, its names' dimensions from
+        ``dims``; each unit mismatch a located warning."""
+        def warn(w) -> None:
+            key = (w.message, w.span)
+            if key not in self.unit_warnings:
+                self.unit_warnings[key] = MechWarning(f"output '{cut(owner)}': {w.message}",
+                                                      w.span, self.model.source)
+        return expr_dim(e, dims, warn, self.units)
 
     def _reduced(self, refs, reduced: list[ReducedOutput]) -> list[OutputSpec | ExprOutput]:
         """The columns the reductions read (a quantity, or an expression named by its text
@@ -728,23 +759,32 @@ class _Compiler:
                     spec = columns.get(text) or self._expr_column(text, e, red.span, r.name)
                 columns.setdefault(spec.label, spec)
                 parts.append((f"@{k}", red.func, spec.label))
-            unit = ""
-            if isinstance(r.expr, E.Name) and len(parts) == 1:
-                func, label = parts[0][1:]
-                unit = (dict(self.model.units).get("time", "") if func.startswith("arg")
-                        else columns[label].unit)
+            part_dims = {name: TIME_DIM if func.startswith("arg") else self._dim(columns[label])
+                         for name, func, label in parts}
+            d = self._dim_of(r.expr, part_dims.get, r.name)
             self.reductions.append(ReductionOutput(r.name, E.compile_expr(r.expr), tuple(parts),
-                                                   r.expr, unit))
+                                                   r.expr, self.units.label(d),
+                                                   self.units.scale(d)))
         return list(columns.values())
 
-    def _expr_column(self, label: str, e: E.Expr, span: Span, owner: str) -> ExprOutput:
-        """A column computed by the expression ``e`` of params, ``t`` and quantities."""
+    def _expr_column(self, label: str, e: E.Expr, span: Span, owner: str,
+                     rate_of: tuple | None = None) -> ExprOutput:
+        """A column computed by the expression ``e`` of params, ``t`` and quantities; its
+        dimension that of ``e``, or for the k-th time derivative of a column of dimension
+        d (``rate_of`` = (d, k)) d / time^k."""
         names = {n.id: n.span for n in E.walk(e) if isinstance(n, E.Name) and "." in n.id}
         # resolved in reading order: the first wrong quantity is the one reported
         specs = {n: self._quantity(n, at or span, owner) for n, at in names.items()}
         inputs = tuple((n, specs[n]) for n in sorted(specs))
+        if rate_of is None:
+            d = self._dim_of(e, lambda n: self._dim(specs[n]) if n in specs else None, owner)
+        else:
+            d = dim_div(rate_of[0], dim_power(TIME_DIM, rate_of[1]))
+        # (an expression of energies is an energy, J; another of that dimension a torque, N*m)
+        energy = any(isinstance(spec, EnergyOutput) for spec in specs.values())
+        unit = self.units.label(d, "energy" if energy else "")
         return ExprOutput(label, E.compile_expr(e), inputs,
-                          max((s.order for _, s in inputs), default=0), e)
+                          max((s.order for _, s in inputs), default=0), e, unit, dim=d)
 
     def _named(self, out: NamedOutput) -> list[ExprOutput]:
         """The columns of ``output NAME = EXPR``: NAME, and its exact time derivatives
@@ -752,12 +792,13 @@ class _Compiler:
         ax, phi -> omega -> alpha), as far as the quantities read have derivatives."""
         columns = []
         e = out.expr
-        for suffix in ("", ".vel", ".acc"):
-            column = self._expr_column(out.name + suffix, e, out.span, out.name)
+        for k, suffix in enumerate(("", ".vel", ".acc")):
+            column = self._expr_column(out.name + suffix, e, out.span, out.name,
+                                       (columns[0].dim, k) if columns else None)
             columns.append(column)
             specs = dict(column.inputs)
             rates = {n: n[: n.rfind(".") + 1] + RATE[s.quantity] for n, s in specs.items()
-                     if s.quantity in RATE}
+                     if isinstance(s, OutputSpec) and s.quantity in RATE}
             e = total_derivative(e, set(specs), rates)
             if e is None:
                 break
@@ -766,21 +807,18 @@ class _Compiler:
     def _quantity(self, name: str, span: Span, output: str) -> OutputSpec:
         """The column spec of one quantity read by a named output (``rod.phi``)."""
         parts = tuple(name.split("."))
-        if parts[-1] not in (*BODY_QUANTITIES, *POINT_QUANTITIES):
+        if parts[-1] not in (*BODY_QUANTITIES, *POINT_QUANTITIES, *JOINT_QUANTITIES,
+                             *DRIVE_QUANTITIES):
             raise MechError(f"'{cut(name)}' in output '{cut(output)}' is not a quantity: write "
-                            "body.x, body.phi, body.P.x, ... (or distance(P, Q) for points)",
-                            span)
+                            "body.x, body.phi, body.P.x, joint.fx, drive.torque, ... (or "
+                            "distance(P, Q) for points)", span)
         found = self._output(parts, span)
         if len(found) != 1:  # pragma: no cover - a quantity name gives one column
             raise MechError(f"'{cut(name)}' is not one quantity", span)
         return found[0]
 
     def _unit(self, quantity: str) -> str:
-        if quantity not in self._units:
-            units = dict(self.model.units)
-            self._units[quantity] = unit_of(quantity, units.get("length", ""),
-                                            units.get("time", ""))
-        return self._units[quantity]
+        return self.units.quantity(quantity)
 
     def _body_quantities(self, body: str, quantities) -> list[OutputSpec]:
         i = self.body_index[body]
@@ -796,7 +834,8 @@ class _Compiler:
     def _output(self, parts: tuple[str, ...], span: Span) -> list[OutputSpec]:
         body = parts[0]
         if body not in self.body_index and parts in ((q,) for q in ENERGY_QUANTITIES):
-            return [EnergyOutput(body, 1 if body == "kinetic_energy" else 0)]
+            return [EnergyOutput(body, 1 if body == "kinetic_energy" else 0,
+                                 self._unit(body))]
         if body not in self.body_index:
             for k, c in enumerate(self.constraints):
                 if c.name == body:
@@ -847,22 +886,13 @@ class _Compiler:
             if refs[slot].kind == "point":
                 j = group.members.index(k)
                 point = _readonly(group.params[refs[slot].name][:, 0, j][:, None])
-        return [ReactionOutput(f"{c.name}.{q}", k, q, body, point) for q in quantities]
+        return [ReactionOutput(f"{c.name}.{q}", k, q, body, point, unit=self._unit(q))
+                for q in quantities]
 
     # -- time ----------------------------------------------------------------------------------
 
 #: The time derivative of each output quantity (an acceleration has none computed).
 RATE = {"x": "vx", "y": "vy", "phi": "omega", "vx": "ax", "vy": "ay", "omega": "alpha"}
-
-
-def unit_of(quantity: str, length: str, time: str) -> str:
-    """The unit of an output quantity from the units of length and time ("" if one it needs
-    is not given): x -> m, vx -> m/s, ax -> m/s^2, phi -> rad, omega -> rad/s, alpha -> rad/s^2."""
-    order = _order(quantity)
-    base = "rad" if quantity in ("phi", "omega", "alpha") else length
-    if not base or (order and not time):
-        return ""
-    return base + ("", f"/{time}", f"/{time}^2")[order]
 
 
 def _order(quantity: str) -> int:

@@ -207,8 +207,16 @@ def output_values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
     A point P with body coordinates s' (Haug eqs. 2.6.4 and their derivatives):
     r^P = r + A s', rd^P = rd + B s' phid, rdd^P = rdd + B s' phidd - A s' phid^2.
     A named output (:class:`~mechdsl.compiled.system.ExprOutput`) is its expression evaluated on the
-    params, t and the quantities it reads.
+    params, t and the quantities it reads. The value is reported in the column's unit (times
+    ``spec.scale``: degrees for an angle where the model asks for them).
     """
+    values = _values(system, spec, q, qd, qdd, t, cache)
+    return values * spec.scale if spec.scale != 1.0 else values
+
+
+def _values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
+            qdd: np.ndarray | None, t: np.ndarray | None, cache: dict | None) -> np.ndarray:
+    """output_values in the computed unit (radians)."""
     if isinstance(spec, EnergyOutput):
         d = system.dynamics
         with np.errstate(all="ignore"):
@@ -221,8 +229,10 @@ def output_values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
     if isinstance(spec, ExprOutput):
         env = dict(system.env)
         env["t"] = np.zeros(q.shape[:-1]) if t is None else t
-        for name, read in spec.inputs:
-            env[name] = output_values(system, read, q, qd, qdd)
+        for name, read in spec.inputs:  # (a reaction read shares the multipliers)
+            if isinstance(read, ReactionOutput) and cache is None:
+                cache = {}
+            env[name] = output_values(system, read, q, qd, qdd, t, cache)
         with np.errstate(all="ignore"):
             return np.broadcast_to(np.asarray(spec.function(env), dtype=float),
                                    q.shape[:-1]).copy()

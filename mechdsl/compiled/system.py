@@ -67,6 +67,9 @@ class OutputSpec:
     order: int
     #: its unit, from the model's ``units`` statement ("" where none is given)
     unit: str = ""
+    #: the factor from the computed value to the reported one (180/pi for an angle reported
+    #: in degrees; 1 for a column only read by others)
+    scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -82,6 +85,9 @@ class ExprOutput:
     order: int
     expr: E.Expr
     unit: str = ""
+    scale: float = 1.0
+    #: its dimension (:data:`mechdsl.compiled.units.Dim`; None where it is not known)
+    dim: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -96,6 +102,7 @@ class ReductionOutput:
     parts: tuple[tuple[str, str, str], ...]
     expr: E.Expr
     unit: str = ""
+    scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -112,6 +119,7 @@ class ReactionOutput:
     point: np.ndarray | None = None
     order: int = 2
     unit: str = ""
+    scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -122,6 +130,7 @@ class EnergyOutput:
     label: str
     order: int
     unit: str = ""
+    scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -197,6 +206,9 @@ class System:
     #: where a forward-dynamics run starts: guesses given, ``initial`` statements (None
     #: for a model without masses)
     start: Start | None = None
+    #: warnings about the model's text (a unit mismatch in an output), located
+    #: (:class:`mechdsl.errors.MechWarning`)
+    warnings: tuple[str, ...] = ()
     #: the model whose traced code this one runs with other values (compile_model's
     #: ``reuse``): its plans (the LU, the code on floats) serve this one too
     template: "System | None" = field(default=None, repr=False, compare=False)

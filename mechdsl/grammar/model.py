@@ -26,6 +26,11 @@ DRIVE_QUANTITIES = ("torque", "force", "power")
 ENERGY_QUANTITIES = ("kinetic_energy", "potential_energy")
 #: The options of the simulate statement: the forward dynamics' tolerances
 SIMULATE_OPTIONS = ("rtol", "atol")
+#: What a ``units`` statement names (the units of the others follow from these:
+#: :mod:`mechdsl.compiled.units`), and the units angles may be reported in (they are written
+#: and computed in radians)
+UNIT_NAMES = ("length", "time", "mass", "angle", "force")
+ANGLE_UNITS = ("rad", "deg")
 
 
 @dataclass(frozen=True)
@@ -273,8 +278,8 @@ class Model:
     plugins: tuple[tuple[str, Span], ...] = ()
     #: ``trace body.P`` statements: points whose paths snapshots and animations draw.
     traces: tuple[OutputRef, ...] = ()
-    #: ``units length = "m", time = "s"``: the names of the units, for labels only, as
-    #: (dimension, name) pairs.
+    #: ``units length = "m", time = "s", mass = "kg"``: the names of the units (labels, and
+    #: the angle outputs' unit), as (dimension, name) pairs.
     units: tuple[tuple[str, str], ...] = ()
     #: The files the model reads (tables, meshes), as ``os.path.realpath`` gives them, each
     #: once, in the order of the text: outputs must never overwrite them.

@@ -31,7 +31,7 @@ from ..errors import MechError, Source, Span, cut
 from . import expr as E
 from .cache import cached_tables
 from .checks import TIME, build_model, check_expr
-from .model import SIMULATE_OPTIONS
+from .model import ANGLE_UNITS, SIMULATE_OPTIONS, UNIT_NAMES
 from .model import (
     Arg, Drive, Force, Initial, Joint, MeshFile, Model, NamedOutput, OutputRef, Param, Point, Polygon,
     ReducedOutput, Simulate, Sweep, Vector,
@@ -375,10 +375,14 @@ class _ToModel(Transformer_NonRecursive):
 
     def unit(self, meta, items):
         name, text = items
-        if str(name) not in ("length", "time"):
-            raise MechError(f"units are given for 'length' and 'time', not '{cut(name)}' (angles "
-                            "are in radians)", _tspan(name))
-        return str(name), str(text)[1:-1], _tspan(name)
+        if str(name) not in UNIT_NAMES:
+            raise MechError(f"units are given for {', '.join(map(repr, UNIT_NAMES))}, not "
+                            f"'{cut(name)}' (the others follow from them)", _tspan(name))
+        value = str(text)[1:-1]
+        if str(name) == "angle" and value not in ANGLE_UNITS:
+            raise MechError(f"angles are reported in 'rad' or 'deg', not '{cut(value)}' (and "
+                            "written in radians)", _tspan(text))
+        return str(name), value, _tspan(name)
 
     def opt_range(self, meta, items):
         name, lo, hi = items

@@ -84,16 +84,17 @@ def write_rows(results: Results, f: IO[str]) -> None:
     """The CSV of :func:`table` written into ``f`` a chunk of rows at a time.
 
     The header names the columns; when the results know a unit, a comment line
-    (:func:`units_line`) follows it. Every number is the shortest text that reads back to
+    (:func:`units_line`) follows it, and in a table of reductions a comment saying the rows
+    are variants (``# one row per variant; swept params: l``). Every number is the shortest text that reads back to
     the same double, as Python's ``repr`` writes it (``0.1``, ``0.30000000000000004``,
     ``2.0``, ``1e-05``, ``nan``, ``inf``, ``-inf``)."""
     header = results.header
-    if results.reduced:  # before the header: the reader knows at once there is no 't'
-        f.write(f"# one row per variant; swept params: {', '.join(results.sweep)}\n")
-    f.write(",".join(header) + "\n")
+    f.write(",".join(header) + "\n")  # first: readers take the first line for the names
     units = units_line(results)
     if units is not None:
         f.write(units + "\n")
+    if results.reduced:  # (a comment: numpy and pandas skip it; there is no 't')
+        f.write(f"# one row per variant; swept params: {', '.join(results.sweep)}\n")
     # '%r' of a Python float is its repr: the shortest round-tripping digits
     row_format = ",".join(["%r"] * len(header)) + "\n"
     for block in row_blocks(results, max(1, CHUNK_VALUES // max(len(header), 1))):
@@ -174,9 +175,11 @@ class _CsvReader:
         chunk: list[str] = []
         numbers: list[int] = []
         chunk_rows = 1
+        self.checked, self.header_line = False, 0
         for first, piece in _pieces(text):
             lines = piece.split("\n")
             if self.header and "#" not in piece:  # most often nothing but rows: at once
+                self._check_header()
                 rows = list(map(str.strip, lines))
                 if all(rows) and set(map(str.count, rows, repeat(","))) == {len(self.header) - 1}:
                     for i in range(0, len(rows), chunk_rows):
@@ -189,7 +192,7 @@ class _CsvReader:
                     continue
                 if stripped.startswith("#"):
                     per_variant = _PER_VARIANT.match(stripped)
-                    if per_variant and not self.header:
+                    if per_variant and not numbers and not blocks:  # before the rows
                         self.swept = [n.strip() for n in per_variant.group(1).split(",")
                                       if n.strip()]
                     if _UNITS.match(stripped):
@@ -202,6 +205,7 @@ class _CsvReader:
                     self._read_header(line, number)
                     chunk_rows = max(1, CHUNK_VALUES // len(self.header))
                     continue
+                self._check_header()
                 if line.count(",") != len(self.header) - 1:
                     raise self._ragged(line, number)
                 chunk.append(line)
@@ -217,6 +221,7 @@ class _CsvReader:
                 "nothing but blank lines and comments"
             raise self.error(f"no header: {what} (a CSV written by mechdsl run starts with a "
                              "line naming its columns, 't' among them)")
+        self._check_header()
         if units_at is not None:
             self._read_units(*units_at)
         self.rows = np.concatenate(blocks) if blocks else np.empty((0, len(self.header)))
@@ -260,6 +265,17 @@ class _CsvReader:
                                  f"column {names.index(name) + 1} is", number, at, len(name))
             names.append(name)
             column += len(field) + 1
+        self.header, self.header_line = names, number
+
+    def _check_header(self) -> None:
+        """The header against what the comments under it say (the rows are variants, and the
+        swept params lead), once, before the first row."""
+        if self.checked:
+            return
+        from ..reading import excerpt
+
+        self.checked = True
+        names, number = self.header, self.header_line
         if self.swept is not None:
             missing = [s for s in self.swept if s not in names[:len(self.swept)]]
             if missing:
@@ -268,7 +284,6 @@ class _CsvReader:
         elif "t" not in names:
             raise self.error("the header names no column 't' (a CSV written by mechdsl run "
                              "names the swept params, then 't', then the outputs)", number)
-        self.header = names
 
     def _ragged(self, line: str, number: int):
         fields = line.split(",")

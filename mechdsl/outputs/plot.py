@@ -13,10 +13,7 @@ import os
 import numpy as np
 
 from ..results import Results
-
-def _variant_label(results: Results, v: int) -> str:
-    return ", ".join(f"{k} = {a[v]:g}" for k, a in results.sweep.items())
-
+from .styles import decorate, variant_styles
 
 def _constant_range(ax, values) -> None:
     """A quantity constant up to round-off is drawn flat, not as magnified noise."""
@@ -34,7 +31,9 @@ def _constant_range(ax, values) -> None:
 
 def plot_results(results: Results, path: str | os.PathLike, title: str | None = None,
                  labels: list[str] | None = None) -> None:
-    """One panel per output quantity against time, sweep variants overlaid with a legend.
+    """One panel per output quantity against time, sweep variants overlaid, told apart as
+    :mod:`mechdsl.outputs.styles` says (a legend outside the data, a colour bar where a
+    colour stands for a swept number).
 
     The format follows the file name's extension (png, pdf, svg); the file is written under a
     temporary name and renamed when complete.
@@ -53,11 +52,12 @@ def plot_results(results: Results, path: str | os.PathLike, title: str | None = 
     FigureCanvasAgg(fig)
     axes = fig.subplots(nrows, ncols, sharex=True, squeeze=False).ravel()
     t = results.times
+    styles = variant_styles(results)
     for ax, label in zip(axes, labels):
         for v in range(results.n_variants):
             k = int(results.n_solved[v])
-            ax.plot(t[:k], results.data[label][v, :k], lw=1.4,
-                    label=_variant_label(results, v) if results.sweep else None)
+            ax.plot(t[:k], results.data[label][v, :k], lw=1.4, color=styles.colors[v],
+                    ls=styles.linestyles[v])
         unit = results.units.get(label)
         ax.set_ylabel(f"{label} [{unit}]" if unit else label, parse_math=False)
         ax.grid(True, alpha=0.3)
@@ -73,8 +73,7 @@ def plot_results(results: Results, path: str | os.PathLike, title: str | None = 
             bottom.set_xlabel(f"t [{results.time_unit}]" if results.time_unit else "t",
                               parse_math=False)
             bottom.xaxis.set_tick_params(labelbottom=True)
-    if results.sweep:
-        literal(axes[0].legend(fontsize="small", loc="best"))
+    decorate(fig, [ax for ax in axes[:len(labels)]], styles)
     fig.suptitle(title or os.path.basename(results.source_name), parse_math=False)
     save_figure(fig, path)
 

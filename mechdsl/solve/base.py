@@ -82,6 +82,7 @@ class Run:
             times=self.times, data=self.data, sweep=dict(system.sweep), n_solved=self.n_solved,
             status=status, messages=tuple(self.failures), solve_time=solve_time,
             residual=residual, source_name=system.source.name,
-            warnings=tuple(self.warnings), condition=condition, poses=poses, rates=rates,
+            warnings=(*system.warnings, *self.warnings), condition=condition, poses=poses,
+            rates=rates,
             units={o.label: o.unit for o in system.outputs if o.unit},
             time_unit=system.time_unit, method=method)

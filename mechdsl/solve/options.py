@@ -38,6 +38,10 @@ class SolverOptions:
     #: iteration, for the careful march. (A row of 1001 bodies stalls between 1e-14 and
     #: 3e-13.)
     noise_floor: float = 1e-12
+    #: The reductions max, min, argmax, argmin and range of a kinematic run refine each
+    #: extremum between the samples, by kinematic solves at the instants it needs
+    #: (:mod:`mechdsl.solve.extrema`); False: the extremes of the samples.
+    refine_extrema: bool = True
     #: Forward dynamics: the integrator's relative and absolute error tolerances per step (the
     #: absolute one scaled as newton_tol: lengths by L, velocities by L per unit time). None:
     #: the ``simulate`` statement's ``rtol = ..., atol = ...``, else 1e-8 and 1e-10; a value

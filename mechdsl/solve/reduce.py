@@ -9,7 +9,7 @@ mean(y) = 1/(t_K-1 - t_0) sum_k (t_k+1 - t_k) (y_k + y_k+1)/2, rms(y) = sqrt(mea
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Callable
+from typing import Callable, Mapping
 
 import numpy as np
 
@@ -38,25 +38,54 @@ REDUCERS: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {
 }
 
 
-def reduce_results(results: Results, system: System) -> Results:
+def reduce_results(results: Results, system: System,
+                   extremes: Mapping[tuple[str, int], tuple[np.ndarray, np.ndarray]]
+                   | None = None) -> Results:
     """``results`` with the system's reductions computed from its histories, which are
     dropped (``Results.reduced`` replaces ``Results.data``). A variant that did not solve every
-    instant reduces to NaN: a peak over part of the run is not the peak of the run."""
+    instant reduces to NaN: a peak over part of the run is not the peak of the run.
+
+    ``extremes`` maps (column, sense) to each variant's extreme value (times sense: a
+    maximum) and its time, found between the samples (:mod:`mechdsl.solve.extrema`):
+    ``max``, ``min``, ``argmax``, ``argmin`` and ``range`` read them where given; the
+    reductions that did are named in ``Results.refined``."""
     if not system.reductions:
         return results
+    extremes = extremes or {}
     t = results.times
     V, K = results.n_variants, len(t)
     complete = results.n_solved == K
-    reduced, units = {}, {}
+    reduced, units, refined = {}, {}, []
     for r in system.reductions:
         env = {name: np.broadcast_to(v, (V, 1))[:, 0] for name, v in system.env.items()}
+        used = False
         for name, func, label in r.parts:
             y = results.data[label]
-            env[name] = REDUCERS[func](y, t) if K else np.full(V, np.nan)
+            found = _refined(func, label, extremes)
+            if found is not None:
+                env[name], used = found, True
+            else:
+                env[name] = REDUCERS[func](y, t) if K else np.full(V, np.nan)
         with np.errstate(all="ignore"):
             value = np.array(np.broadcast_to(np.asarray(r.function(env), dtype=float), (V,)))
         value[~complete] = np.nan
+        if r.scale != 1.0:  # (the columns are read in radians, the value reported in degrees)
+            value *= r.scale
         reduced[r.label] = value
+        if used:
+            refined.append(r.label)
         if r.unit:
             units[r.label] = r.unit
-    return replace(results, data={}, reduced=reduced, units=units)
+    return replace(results, data={}, reduced=reduced, units=units, refined=tuple(refined))
+
+
+def _refined(func: str, label: str, extremes) -> np.ndarray | None:
+    """A reduction's value from the refined extremes, where they have it."""
+    if func == "range":
+        top, bottom = extremes.get((label, 1)), extremes.get((label, -1))
+        return None if top is None or bottom is None else top[0] - bottom[0]
+    sense = {"max": 1, "argmax": 1, "min": -1, "argmin": -1}.get(func)
+    found = extremes.get((label, sense)) if sense is not None else None
+    if found is None:
+        return None
+    return found[1].copy() if func.startswith("arg") else found[0].copy()

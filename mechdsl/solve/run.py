@@ -29,7 +29,7 @@ Refused states are bisected towards, then reported with the instant and the join
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -48,7 +48,7 @@ from .diagnose import (
     constraint_names, failure, jacobian_defects, nonfinite_message, passages_warning,
     too_coarse_message, undefined_drive_message, variant_label,
 )
-from . import batch, large
+from . import batch, extrema, large
 from .hermite import quintic_hermite
 from .levels import coarse_march, polish
 from .linalg import Factor, factor
@@ -96,19 +96,35 @@ class KinematicRun(Run):
         count_check(system)  # before anything the size of the model is allocated
         sparse = use_sparse(system, opts, np.arange(system.m))
         compiled = _wants_native(system, opts)
-        try:
-            budget = plan(system, opts.max_memory, opts.max_batch_elements, sparse=sparse,
-                          poses=poses or rates, rates=rates, extra=extra_memory,
-                          compiled=compiled)
-        except MechError:
-            if not compiled or opts.backend != "auto":
-                raise
-            compiled = False  # "auto": the numpy path fits where numba would not
-            budget = plan(system, opts.max_memory, opts.max_batch_elements, sparse=sparse,
-                          poses=poses or rates, rates=rates, extra=extra_memory)
+        #: the reductions' extremes refined between the samples (:mod:`.extrema`): the
+        #: states of every instant are kept for it, where the memory allows
+        self.to_refine = extrema.wanted(system) if opts.refine_extrema else set()
+        budget = None
+        if self.to_refine and not rates:
+            try:
+                budget = plan(system, opts.max_memory, opts.max_batch_elements,
+                              sparse=sparse, poses=True, rates=True, extra=extra_memory,
+                              compiled=compiled)
+                poses_kept, rates_kept = True, True
+            except MechError:
+                self.to_refine = set()  # (the results say so: the samples' extremes)
+        if budget is None:
+            poses_kept, rates_kept = poses or rates, rates
+            try:
+                budget = plan(system, opts.max_memory, opts.max_batch_elements,
+                              sparse=sparse, poses=poses_kept, rates=rates_kept,
+                              extra=extra_memory, compiled=compiled)
+            except MechError:
+                if not compiled or opts.backend != "auto":
+                    raise
+                compiled = False  # "auto": the numpy path fits where numba would not
+                budget = plan(system, opts.max_memory, opts.max_batch_elements,
+                              sparse=sparse, poses=poses_kept, rates=rates_kept,
+                              extra=extra_memory)
         self.opts = opts.derived(max_batch_elements=budget.batch_elements,
                                  backend=opts.backend if compiled else "numpy")
-        self.keep_poses, self.keep_rates = poses or rates, rates
+        self.keep_poses, self.keep_rates = poses_kept, rates_kept
+        self.extrema: dict = {}
         #: sqrt(newton_tol): the smallest motion the branch check measures corrections by
         self.floor = np.sqrt(self.opts.newton_tol)
 
@@ -144,6 +160,11 @@ class KinematicRun(Run):
         elapsed = time.perf_counter() - start
         if status == "ok" and self.failures:
             status = "failed"
+        if self.to_refine and status == "ok":
+            try:
+                self.extrema = extrema.refine(self, self.to_refine)
+            except KeyboardInterrupt:
+                status = "interrupted"  # (the samples' extremes stand)
         if self.passages:
             self.warnings.append(passages_warning(self.passages, times))
         for v in np.flatnonzero(self.min_rcond < opts.warn_rcond):
@@ -873,7 +894,10 @@ def simulate(system: System, options: SolverOptions | None = None, *,
     """
     run = METHODS[method_for(system)](system, options, poses=poses, rates=rates,
                                       progress=progress, extra_memory=extra_memory)
-    return reduce_results(run.run(), system)
+    results = run.run()
+    if not rates and results.rates is not None:  # kept for the extremes only
+        results = replace(results, rates=None, poses=results.poses if poses else None)
+    return reduce_results(results, system, getattr(run, "extrema", None))
 
 
 def method_for(system: System) -> str:
