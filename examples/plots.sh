@@ -16,7 +16,10 @@ done
 "$M" run examples/plugins/curve_slot/curve_slot.mech -q -o /dev/null --plot "$out/curve_slot.png"
 # the pictures of the mechanism itself: an animation, a coupler-curve figure and a sweep
 "$M" run examples/slider_crank.mech -q -o /dev/null --trace crank.B --animate "$out/slider_crank.gif" \
-    --frames 50 --t1 0.5
+    --frames 50 --t1 0.5 --labels
+# the seed paper's study (section VII): three run-up times by four rods, twelve variants
+"$M" run examples/rod_sweep.mech -q -o /dev/null --sweep l=3.5,2.5,2.2,2.1 --sweep t1=0.5,1,1.5 \
+    --step 0.002 --plot "$out/rod_ramp_sweep.png"
 "$M" run examples/fourbar.mech -q -o /dev/null --snapshot "$out/fourbar_coupler_curve.png" --at 0,0.2,0.4,0.6,0.8
 # a sweep: each variant in its colour, named in the legend, with its own supports
 "$M" run examples/fourbar.mech -q -o /dev/null --sweep d=3.8,4.2 --snapshot "$out/fourbar_sweep.png" \

@@ -80,6 +80,8 @@ def _parser() -> argparse.ArgumentParser:
                               "offline, without a server (every variant of a sweep)")
         run.add_argument("--frames", type=int, default=100, metavar="N",
                          help="frames of the animation at most, at least 2 (default 100)")
+        run.add_argument("--labels", action="store_true",
+                         help="name the bodies and joints in --snapshot and --animate")
         run.add_argument("--trace", metavar="BODY.POINT", action="append", default=[],
                          help="draw the path of this point (repeatable; adds to 'trace' lines)")
         run.add_argument("--t0", type=float, help="start time (overrides the file)")

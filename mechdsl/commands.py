@@ -575,8 +575,9 @@ def _write_outputs(args, system: System, results, at: list[float] | None,
     title = os.path.basename(args.file)
     if args.set:
         title += " (" + ", ".join(s.replace("=", " = ", 1) for s in args.set) + ")"
-    options = {"plot": {"title": title}, "snapshot": {"at": at},
-               "animation": {"max_frames": args.frames}}
+    labels = getattr(args, "labels", False)
+    options = {"plot": {"title": title}, "snapshot": {"at": at, "labels": labels},
+               "animation": {"max_frames": args.frames, "labels": labels}}
     try:
         csv = FORMATS["csv"]
         if args.output:

@@ -75,11 +75,22 @@ def solve(loads, text: str, **sweeps):
 
 
 def segments(ax) -> list[np.ndarray]:
-    """Every straight segment of the line collections (the bars) drawn in ``ax``."""
+    """Every straight segment of the bars (the line collections three points wide) drawn in
+    ``ax``."""
     from matplotlib.collections import LineCollection
 
     return [np.asarray(s) for c in ax.collections if isinstance(c, LineCollection)
+            and len(c.get_linewidths()) and c.get_linewidths()[0] == 3
             for s in c.get_segments()]
+
+
+def rails(ax) -> list[np.ndarray]:
+    """The sides of the guides' rails: segments of the thin grey line collections."""
+    from matplotlib.collections import LineCollection
+
+    return [np.asarray(s) for c in ax.collections if isinstance(c, LineCollection)
+            and len(c.get_linewidths()) and c.get_linewidths()[0] == 1.0
+            and np.allclose(c.get_edgecolor()[0][:3], 0.35) for s in c.get_segments()]
 
 
 def plates(ax) -> list[np.ndarray]:
@@ -92,11 +103,11 @@ def plates(ax) -> list[np.ndarray]:
 
 
 def supports(ax) -> list[tuple[np.ndarray, tuple]]:
-    """(apex, edge colour) of every hatched patch: the ground's supports."""
+    """(apex, edge colour) of every hatched triangle: the ground's pivots."""
     from matplotlib.patches import Polygon
 
     return [(np.asarray(p.get_xy())[0], p.get_edgecolor()) for p in ax.patches
-            if isinstance(p, Polygon) and p.get_hatch()]
+            if isinstance(p, Polygon) and p.get_hatch() and len(p.get_xy()) == 4]
 
 
 def has(shapes: list[np.ndarray], expected: np.ndarray, atol: float = 1e-12) -> bool:
@@ -256,7 +267,8 @@ def legend_texts(ax) -> list[str]:
 
 def test_a_sweep_snapshot_names_its_variants_and_draws_their_supports(load_example, figures,
                                                                       tmp_path):
-    from mechdsl.outputs.draw import _colors, snapshot
+    from mechdsl.outputs.draw import snapshot
+    from mechdsl.outputs.styles import variant_styles
     from mechdsl.solve import simulate
     from mechdsl.compiled.variants import Overrides
 
@@ -268,7 +280,7 @@ def test_a_sweep_snapshot_names_its_variants_and_draws_their_supports(load_examp
     (fig,) = figures
     ax = fig.axes[0]
     assert legend_texts(ax) == ["d = 3.8", "d = 4.2", "path of coupler.P"]
-    colors = _colors(2)
+    colors = variant_styles(res).colors
     handles = ax.get_legend().legend_handles
     assert [h.get_color() for h in handles[:2]] == colors
     # O2 = (0, 0) is the same in both variants: one support; O4 = (d, 0) one per variant,
@@ -354,3 +366,87 @@ def test_an_animation_draws_its_fixed_parts_once_and_keeps_palette_frames(
     assert last.shape == whole.shape
     off = np.abs(last - whole).max(axis=-1)
     assert (off > 40).mean() < 1e-3 and off.mean() < 0.5
+
+
+# -- drawings that look like the mechanism (issue 30) -----------------------------------------
+
+def test_a_guide_is_a_rail_over_the_sliders_travel_and_its_reference_no_pivot(loads, figures,
+                                                                               tmp_path):
+    """The slider's guide is drawn as a rail (two lines either side of y = 0) from before
+    its least to beyond its largest x over the run; a ground point that is only a guide's
+    reference (G) gets no pivot's support; the axes carry the unit of length."""
+    from mechdsl.outputs.draw import snapshot
+
+    text = PINNED.replace("ground { point Q = (6, 0) }",
+                          "ground { point Q = (6, 0)  point G = (1, 0) }")
+    text = text.replace("prismatic(ground.origin,", "prismatic(ground.G,")
+    text += 'units length = "m", time = "s"\n'
+    system, res = solve(loads, text)
+    snapshot(res, system, str(tmp_path / "s.png"), at=[0.3])
+    ax = figures[0].axes[0]
+    sides = rails(ax)
+    assert len(sides) == 2
+    x = res.poses[0, :, 2, 0]  # the slider's x over the run
+    for side in sides:
+        assert side[0, 0] < x.min() and side[1, 0] > x.max()
+        assert abs(side[0, 1]) == pytest.approx(abs(side[1, 1])) and side[0, 1] != 0
+    assert {round(float(side[0, 1]), 12) for side in sides} == \
+        {round(float(sides[0][0, 1]), 12), -round(float(sides[0][0, 1]), 12)}
+    apexes = [a for a, _ in supports(ax)]
+    assert len(apexes) == 2 and has(apexes, np.zeros(2)) and has(apexes, Q)  # not G
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("x [m]", "y [m]")
+
+
+def test_a_snapshots_instants_are_told_apart_by_a_colour_bar_of_time(loads, figures, tmp_path):
+    from mechdsl.outputs.draw import snapshot
+
+    system, res = solve(loads, PINNED + 'units length = "m", time = "s"\n')
+    snapshot(res, system, str(tmp_path / "s.png"), at=[0, 0.5, 1])
+    fig = figures[0]
+    ax, bar = fig.axes
+    assert bar.get_ylabel() == "t [s]"
+    from matplotlib.collections import LineCollection
+    colours = {tuple(np.round(c.get_edgecolor()[0], 6)) for c in ax.collections
+               if isinstance(c, LineCollection) and c.get_linewidths()[0] == 3}
+    assert len(colours) == 3  # one per instant
+
+
+def test_labels_name_the_bodies_and_the_joints(loads, figures, tmp_path):
+    from mechdsl.outputs.draw import animate, snapshot
+
+    system, res = solve(loads, PINNED)
+    snapshot(res, system, str(tmp_path / "s.png"), at=[0.3], labels=True)
+    animate(res, system, str(tmp_path / "a.gif"), max_frames=3, labels=True)
+    for fig, t in zip(figures, (0.3, 1.0)):
+        texts = {a.get_text(): np.asarray(a.xy) for a in fig.axes[0].texts
+                 if hasattr(a, "xy")}
+        assert {"crank", "rod", "slider", "lever", "A", "B", "C", "E"} <= set(texts)
+        exact = pose(t)
+        np.testing.assert_allclose(texts["rod"], exact["rod"].mean(axis=0), atol=1e-9)
+        np.testing.assert_allclose(texts["B"], exact["rod"][0], atol=1e-9)
+    # a joint's two pins at one place are named once
+    assert [a.get_text() for a in figures[0].axes[0].texts].count("B") == 1
+
+
+def test_twelve_variants_of_two_params_are_each_their_own_style():
+    """The seed paper's study, three ramps times four rods: the rod length's colour and the
+    ramp's line style tell every variant apart; one param of twelve values is a colour map
+    with its bar."""
+    from mechdsl.outputs.styles import variant_styles
+    from mechdsl.results import Results
+
+    ls, t1 = np.repeat([3.5, 2.5, 2.2, 2.1], 3), np.tile([0.5, 1.0, 1.5], 4)
+
+    def results(sweep):
+        V = len(next(iter(sweep.values())))
+        return Results(times=np.zeros(1), data={}, sweep=sweep, n_solved=np.ones(V, int),
+                       status="ok", messages=(), solve_time=0.0, residual=0.0,
+                       source_name="m.mech")
+    styles = variant_styles(results({"l": ls, "t1": t1}))
+    pairs = {(tuple(c), s) for c, s in zip(styles.colors, styles.linestyles)}
+    assert len(pairs) == 12 and styles.colorbar is None
+    assert [e[0] for e in styles.legend] == ["l = 3.5", "l = 2.5", "l = 2.2", "l = 2.1",
+                                            "t1 = 0.5", "t1 = 1", "t1 = 1.5"]
+    one = variant_styles(results({"l": np.linspace(2, 4, 12)}))
+    assert one.colorbar[0] == "l" and one.colorbar[2:] == (2.0, 4.0)
+    assert len({tuple(c) for c in one.colors}) == 12 and one.legend == []

@@ -108,6 +108,10 @@ class BadDeclaration(SameX):
     signature = (Arg("p1", "point"), Arg("if", "point"))
 
 
+class GuideOfNoVector(SameX):
+    guide = ("p1", "p2", "gap")  # gap is a scalar: a guide's line needs a vector
+
+
 class Branches(SameX):
     def equations(self, bodies, args):
         (phi,) = super().equations(bodies, args)
@@ -146,6 +150,7 @@ class JacobianOffByOnePartInABillion(SameX):
     (SharesOneGap(), r"declared wrongly: method phi\(\) is overridden"),
     (RejectsValidValues(), r"validate\(\) rejects the test's values \(ValueError: gap too small\)"),
     (BadDeclaration(), r"declared wrongly: n_eq must be a positive int.*'if' is a reserved word"),
+    (GuideOfNoVector(), r"declared wrongly: guide must be \(P1, P2, AXIS\)"),
     (Branches(), r"its equations cannot be traced: an equation may not branch on or compare the value"),
     (UsesMaximum(), r"its equations cannot be traced: numpy's maximum"),
     (GammaOffByOnePartInABillion(), r"gamma supplied by gamma_terms\(\) is wrong \(against the "

@@ -663,15 +663,23 @@ class _Compiler:
             pts = [xy for name, xy in self.points[b.name].items() if name != ORIGIN]
             pts = pts or [self.points[b.name][ORIGIN]]
             outlines.append(_readonly(np.stack(pts, axis=1)))
-        pins = []
+        pins, pin_names, guides = [], [], []
         for g in groups:
+            guide = getattr(g.ctype, "guide", None)
             k = 0
             for arg in g.ctype.signature:
-                if arg.kind == "point":
+                if arg.kind == "point" and not (guide and arg.name == guide[0]):
                     for j in range(g.slots.shape[0]):
                         pins.append((int(g.slots[j, k]), _readonly(g.params[arg.name][:, 0, j])))
+                        pin_names.append(self.constraints[g.members[j]].name)
                 if arg.kind in ("point", "body"):
                     k += 1
+            if guide:  # the line a point slides on: a rail, not a pivot
+                p1, p2, axis = guide
+                for j in range(g.slots.shape[0]):
+                    guides.append((int(g.slots[j, 0]), _readonly(g.params[p1][:, 0, j]),
+                                   _readonly(g.params[axis][:, 0, j]), int(g.slots[j, 1]),
+                                   _readonly(g.params[p2][:, 0, j])))
         traces = []
         for r in self.model.traces:
             body = r.parts[0]
@@ -686,7 +694,9 @@ class _Compiler:
             traces.append(('.'.join(r.parts), i, _readonly(self.points[body][point])))
         shapes = tuple(shape_edges(b, self.var) for b in [*self.bodies, self.model.ground])
         return Sketch(tuple(outlines), tuple(pins), tuple(traces), shapes,
-                      tuple(getattr(self, "links", ())))
+                      tuple(getattr(self, "links", ())), tuple(guides),
+                      tuple(b.name for b in self.bodies), tuple(pin_names),
+                      self.units.length)
 
     def _outputs(self) -> list[OutputSpec | ExprOutput]:
         refs = self.model.outputs

@@ -149,6 +149,15 @@ class Sketch:
     #: force elements between two points (springs), drawn as zigzags: (body, (V, 2), body,
     #: (V, 2))
     links: tuple = ()
+    #: lines that a point slides on (a type's ``guide``: a slider's rail, a slot), drawn over
+    #: the point's travel: (body of the line, a point of it (V, 2), its direction (V, 2),
+    #: body of the sliding point, that point (V, 2)), in the bodies' frames
+    guides: tuple = ()
+    #: the moving bodies' names, in order, and the name of each pin's joint (labels)
+    names: tuple[str, ...] = ()
+    pin_names: tuple[str, ...] = ()
+    #: the unit of length (axes), "" where the model names none
+    length_unit: str = ""
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ from ..compiled.system import Sketch, System
 from ..errors import MechError
 from ..results import Results
 from .plot import literal, save_figure
+from .styles import variant_styles
 
 #: Frames of an animation at most (instants are sampled evenly when there are more).
 MAX_FRAMES = 100
@@ -92,6 +93,15 @@ class Frames:
     shapes: list[np.ndarray]
     #: per spring-like force element: its two ends (V, K, 2) each
     links: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    #: per guide (a slider's rail, a slot): the ends (V, K, 2) of its line over the sliding
+    #: point's travel, and whether the line is the ground's (fixed)
+    guides: list[tuple[np.ndarray, np.ndarray, bool]] = field(default_factory=list)
+    #: each moving body's name and where it is labelled (V, K, 2): its points' mean
+    names: list[tuple[str, np.ndarray]] = field(default_factory=list)
+    #: each joint's name and its pin (V, K, 2), once per place
+    pin_names: list[tuple[str, np.ndarray]] = field(default_factory=list)
+    #: the unit of length ("" where the model names none)
+    unit: str = ""
 
 
 def frames(results: Results, system: System) -> Frames:
@@ -99,14 +109,43 @@ def frames(results: Results, system: System) -> Frames:
     world coordinates (:class:`Frames`): what snapshots, animations and the view draw."""
     sk = system.sketch
     nb = system.n_bodies
+    poses = results.poses
     drawn = outlines(sk)
-    bodies = [world(results.poses, i, drawn[i]) for i in range(nb)]
-    ground = world(results.poses, nb, drawn[nb])
-    pins = [world(results.poses, body, xy) for body, xy in sk.pins]
-    shapes = [world(results.poses, i, e) for i, e in enumerate(sk.shapes) if e is not None]
-    links = [(world(results.poses, b1, xy1), world(results.poses, b2, xy2))
-             for b1, xy1, b2, xy2 in sk.links]
-    return Frames(bodies, pins, paths(results, sk), ground, shapes, links)
+    bodies = [world(poses, i, drawn[i]) for i in range(nb)]
+    pins = [world(poses, body, xy) for body, xy in sk.pins]
+    # a support under each pivot of the ground (not under a guide's reference point)
+    pivots = [p for (body, _), p in zip(sk.pins, pins) if body >= nb]
+    V, K = poses.shape[:2]
+    ground = np.stack(pivots, axis=2) if pivots else np.zeros((V, K, 0, 2))
+    shapes = [world(poses, i, e) for i, e in enumerate(sk.shapes) if e is not None]
+    links = [(world(poses, b1, xy1), world(poses, b2, xy2)) for b1, xy1, b2, xy2 in sk.links]
+    guides = [_rail(poses, *g, fixed=g[0] >= nb) for g in sk.guides]
+    names = [(name, bodies[i].mean(axis=2)) for i, name in enumerate(sk.names)]
+    seen: list[np.ndarray] = []
+    pin_names = []
+    for name, p in zip(sk.pin_names, pins):
+        if not any(np.allclose(p, q, equal_nan=True) for q in seen):
+            seen.append(p)
+            pin_names.append((name, p))
+    return Frames(bodies, pins, paths(results, sk), ground, shapes, links, guides, names,
+                  pin_names, sk.length_unit)
+
+
+def _rail(poses: np.ndarray, body: int, p1: np.ndarray, axis: np.ndarray, slider: int,
+          p2: np.ndarray, fixed: bool) -> tuple[np.ndarray, np.ndarray, bool]:
+    """The ends (V, K, 2) of a guide's line through P1 along the axis (both in the frame of
+    ``body``), over the travel of P2 (on ``slider``) in the run, a tenth longer on each
+    side (the line's own frame: a slot in a moving body moves with it)."""
+    origin = world(poses, body, p1)
+    u = world(poses, body, p1 + axis) - origin
+    with np.errstate(all="ignore"):
+        u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+        s = ((world(poses, slider, p2) - origin) * u).sum(-1)  # (V, K)
+        lo, hi = np.nanmin(s, axis=1, keepdims=True), np.nanmax(s, axis=1, keepdims=True)
+    travel = np.where(np.isfinite(hi - lo), hi - lo, 0.0)
+    margin = 0.1 * travel + 0.05 * np.where(travel > 0, travel, 1.0)
+    lo, hi = np.nan_to_num(lo) - margin, np.nan_to_num(hi) + margin
+    return origin + lo[..., None] * u, origin + hi[..., None] * u, fixed
 
 
 def zigzag(p: np.ndarray, q: np.ndarray, turns: int = 8) -> np.ndarray:
@@ -130,7 +169,7 @@ def _need_poses(results: Results) -> None:
 
 def _limits(fr: Frames) -> tuple[float, float, float, float]:
     pts = [a.reshape(-1, 2) for a in (*fr.outlines, *fr.pins, *fr.traces.values(), fr.ground,
-                                      *fr.shapes)]
+                                      *fr.shapes, *(e for a, b, _ in fr.guides for e in (a, b)))]
     allp = np.concatenate(pts)
     allp = allp[np.isfinite(allp).all(axis=1)]
     lo, hi = allp.min(axis=0), allp.max(axis=0)
@@ -171,28 +210,38 @@ def variant_labels(results: Results) -> list[str]:
             for i in range(results.n_variants)]
 
 
-def _figure(fr: Frames, title: str, colors: list):
+#: where the axes end on the right: alone, beside a colour bar, beside a legend (and a bar)
+RIGHT = {None: 0.97, "bar": 0.86, "legend": 0.72}
+
+
+def _figure(fr: Frames, title: str, colors: list, side: str | None = None):
+    """The figure, its axes (equal, fixed, labelled with the unit of length) and the size of
+    a support; ``side``: room on the right for a colour bar ("bar") or a legend and maybe a
+    bar ("legend"), outside the data."""
     from .plot import new_figure
 
     # a fixed layout: a layout engine would run again at every frame of an animation
-    fig = new_figure(figsize=(7, 5.5))
-    fig.subplots_adjust(left=0.1, right=0.97, bottom=0.09, top=0.93)
+    fig = new_figure(figsize=(8.8, 5.5) if side == "legend" else (7.6, 5.5) if side
+                     else (7, 5.5))
+    fig.subplots_adjust(left=0.09, right=RIGHT[side], bottom=0.09, top=0.93)
     ax = fig.subplots()
     x0, x1, y0, y1 = _limits(fr)
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
     ax.set_aspect("equal", adjustable="box")
-    ax.set_xlabel("x")
-    ax.set_ylabel("y")
+    unit = f" [{fr.unit}]" if fr.unit else ""
+    ax.set_xlabel("x" + unit, parse_math=False)
+    ax.set_ylabel("y" + unit, parse_math=False)
     ax.set_title(title, fontsize=10, parse_math=False)  # a file name is no mathtext
     ax.grid(True, lw=0.3, alpha=0.5)
     size = 0.03 * max(x1 - x0, y1 - y0)
     _supports(ax, fr.ground, colors, size)
+    _ground_rails(ax, fr, colors, size)
     return fig, ax, size
 
 
 def _supports(ax, ground: np.ndarray, colors: list, size: float) -> None:
-    """A hatched triangle under every point of the ground (V, K, G, 2), fixed over time: one
+    """A hatched triangle under every pivot of the ground (V, K, G, 2), fixed over time: one
     in grey where the point is the same in every variant of a sweep, else one per variant in
     its colour."""
     from matplotlib.patches import Polygon
@@ -207,43 +256,68 @@ def _supports(ax, ground: np.ndarray, colors: list, size: float) -> None:
                                  color=SUPPORT_COLOR if shared else colors[v], zorder=1))
 
 
-def _legend(ax, results: Results, colors: list, traces, loc: str, alpha: float = 1.0):
-    """The legend, if there is anything to name: each variant of a sweep by its parameter
-    values (a thick line in its colour), each traced path (a thin line: in the variant's
-    colour without a sweep, in grey with one, whose colours name the variants; ``alpha`` as
-    the paths are drawn). None
-    without a sweep or a trace: an empty legend would only be a box (and a warning)."""
-    from matplotlib.lines import Line2D
+def _rail_lines(a: np.ndarray, b: np.ndarray, w: float) -> list[np.ndarray]:
+    """The two sides of a rail from a to b, ``w`` either side of its line."""
+    d = b - a
+    length = float(np.hypot(*d))
+    if not length > 0:
+        return []
+    n = np.array([-d[1], d[0]]) / length * w
+    return [np.array([a + n, b + n]), np.array([a - n, b - n])]
 
-    handles = []
-    if results.sweep:
-        handles += [Line2D([], [], color=colors[v], lw=3, label=label)
-                    for v, label in enumerate(variant_labels(results))]
-    for label in traces:
-        handles.append(Line2D([], [], lw=1.2, color="0.3" if results.sweep else colors[0],
-                              alpha=alpha, label=f"path of {label}"))
-    if not handles:
-        return None
-    return literal(ax.legend(handles=handles, fontsize=7, loc=loc))
+
+def _ground_rails(ax, fr: Frames, colors: list, size: float) -> None:
+    """Each guide of the ground, fixed: a rail (two lines) over the slider's travel with
+    the ground hatched under it; one per variant where the variants' rails differ."""
+    from matplotlib.collections import LineCollection
+    from matplotlib.patches import Polygon
+
+    w = 0.45 * size
+    for a, b, fixed in fr.guides:
+        if not fixed:
+            continue
+        ends = np.stack((a[:, 0], b[:, 0]), axis=1)  # (V, 2, 2)
+        d = ends[:, 1] - ends[:, 0]
+        with np.errstate(all="ignore"):
+            u = d / np.linalg.norm(d, axis=-1, keepdims=True)
+            # the variants' rails on one line (their travels differ): one rail over all
+            cross = (ends[:, 0] - ends[0, 0]) @ np.array([-u[0, 1], u[0, 0]])
+        shared = bool(np.allclose(u, u[0]) and np.allclose(cross, 0.0))
+        if shared:
+            s = (ends - ends[0, 0]) @ u[0]
+            ends = (ends[0, 0] + np.array([s.min(), s.max()])[:, None] * u[0])[None]
+        for v in [0] if shared else range(len(ends)):
+            sides = _rail_lines(ends[v, 0], ends[v, 1], w)
+            if not sides:
+                continue
+            color = SUPPORT_COLOR if shared else colors[v]
+            ax.add_collection(LineCollection(sides, colors=[color], linewidths=1.0, zorder=1))
+            lower = sides[1]
+            off = lower[0] - sides[0][0]  # two w across, away from the rail
+            ax.add_patch(Polygon([lower[0], lower[1], lower[1] + off, lower[0] + off],
+                                 closed=True, fill=False, hatch="////", lw=0, color=color,
+                                 zorder=1))
 
 
 class _Artists:
-    """One variant's drawing, as five artists whatever the number of bodies (so that a frame
-    of an animation costs a few updates, not one artist per body): the bars (two-point
+    """One variant's drawing, as a few artists whatever the number of bodies (so that a
+    frame of an animation costs a few updates, not one artist per body): the bars (two-point
     bodies) as a line collection, the plates (three points or more) as a polygon collection,
-    single points as square markers, the pins as circle markers and the shapes' outlines as
-    a line collection."""
+    single points as square markers, the pins as circle markers, the shapes' outlines, the
+    springs and the moving guides as line collections; with ``labels``, the bodies' and the
+    joints' names."""
 
-    def __init__(self, ax, fr: Frames, color, alpha: float) -> None:
+    def __init__(self, ax, fr: Frames, color, alpha: float, size: float = 0.0,
+                 labels: bool = False, linestyle: str = "-") -> None:
         from matplotlib.collections import LineCollection, PolyCollection
 
-        self.fr = fr
+        self.fr, self.w = fr, 0.45 * size
         self.bars = [i for i, o in enumerate(fr.outlines) if o.shape[2] == 2]
         self.plates = [i for i, o in enumerate(fr.outlines) if o.shape[2] >= 3]
         self.dots = [i for i, o in enumerate(fr.outlines) if o.shape[2] == 1]
         self.bar_art = ax.add_collection(LineCollection([], colors=[color], linewidths=3,
                                                         alpha=alpha, capstyle="round",
-                                                        zorder=2))
+                                                        linestyles=linestyle, zorder=2))
         self.plate_art = ax.add_collection(PolyCollection([], facecolors=[color],
                                                           edgecolors=[color], alpha=0.3 * alpha,
                                                           linewidths=1.5, zorder=2))
@@ -254,8 +328,26 @@ class _Artists:
                                                           alpha=alpha, zorder=2))
         self.link_art = ax.add_collection(LineCollection([], colors=["0.35"], linewidths=1.0,
                                                          alpha=alpha, zorder=1))
+        self.rail_art = ax.add_collection(LineCollection([], colors=[SUPPORT_COLOR],
+                                                         linewidths=1.0, alpha=alpha, zorder=1))
         self.artists = [self.bar_art, self.plate_art, self.dot_art, self.pin_art,
-                        self.shape_art, self.link_art]
+                        self.shape_art, self.link_art, self.rail_art]
+        self.texts = []
+        if labels:  # dark on a white halo, a few points off the spot they name
+            from matplotlib import patheffects
+
+            halo = [patheffects.withStroke(linewidth=2.5, foreground="white")]
+            style = dict(textcoords="offset points", zorder=4, annotation_clip=True,
+                         path_effects=halo)
+            self.texts = [(ax.annotate(name, (0, 0), xytext=(0, 6), fontsize=8, ha="center",
+                                       fontweight="bold", color="0.1", **style), at)
+                          for name, at in fr.names]
+            self.texts += [(ax.annotate(name, (0, 0), xytext=(5, -5), fontsize=7, ha="left",
+                                        va="top", color="0.35", **style), at)
+                           for name, at in fr.pin_names]
+            for text, _ in self.texts:
+                text.set_parse_math(False)  # a name is no mathtext
+            self.artists += [t for t, _ in self.texts]
 
     def update(self, v: int, k: int) -> list:
         fr = self.fr
@@ -268,38 +360,118 @@ class _Artists:
         edges = [e for shape in fr.shapes for e in shape[v, k]]
         self.shape_art.set_segments(edges)
         self.link_art.set_segments([zigzag(a[v, k], b[v, k]) for a, b in fr.links])
+        self.rail_art.set_segments([side for a, b, fixed in fr.guides if not fixed
+                                    for side in _rail_lines(a[v, k], b[v, k], self.w)])
+        for text, at in self.texts:
+            x, y = at[v, k]
+            text.xy = (x, y)
+            text.set_visible(bool(np.isfinite([x, y]).all()))
         return self.artists
 
 
+def _side(fig, ax, legend: list, colorbar: tuple | None, fontsize: int = 7):
+    """The legend (entries (label, colour, line style, line width)) and the colour bar
+    (label, colour map, low, high) beside the axes, outside the data; the legend."""
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+    from matplotlib.lines import Line2D
+
+    if colorbar is not None:
+        label, cmap, lo, hi = colorbar
+        cax = fig.add_axes([0.9 if legend else 0.885, 0.14, 0.018, 0.72])
+        bar = fig.colorbar(ScalarMappable(Normalize(lo, hi if hi > lo else lo + 1), cmap),
+                           cax=cax)
+        bar.set_label(label, parse_math=False)
+    if not legend:
+        return None
+    handles = [Line2D([], [], color=c, ls=ls, lw=lw, label=text)
+               for text, c, ls, lw in legend]
+    return literal(ax.legend(handles=handles, fontsize=fontsize, loc="upper left",
+                             bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0))
+
+
+def _sweep_legend(styles, traces) -> list:
+    """The legend's entries: the variants (their styles' entries, thick), then each traced
+    path (thin, in grey: the colours name the variants, or the instants)."""
+    entries = [(text, c, ls, 3) for text, c, ls in styles.legend]
+    return entries + [(f"path of {label}", "0.3", "-", 1.2) for label in traces]
+
+
+#: the colour map of the instants of a snapshot (its light end left out: bars on white)
+TIME_CMAP = "viridis"
+TIME_CMAP_RANGE = (0.0, 0.8)
+
+
+def _time_cmap():
+    import matplotlib
+    from matplotlib.colors import ListedColormap
+
+    base = matplotlib.colormaps[TIME_CMAP]
+    return ListedColormap(base(np.linspace(*TIME_CMAP_RANGE, 256)))
+
+
 def snapshot(results: Results, system: System, path: str, at: list[float] | None = None,
-             count: int = 6) -> None:
+             count: int = 6, labels: bool = False) -> None:
     """Draw the mechanism at the instants ``at`` (or ``count`` instants evenly spread over
-    the run), the later ones darker, over the full paths of the traced points: the
-    coupler-curve figure of the mechanism textbooks. Every variant of a sweep is overlaid in
-    its own colour, named in the legend by its parameter values."""
+    the run) over the full paths of the traced points: the coupler-curve figure of the
+    mechanism textbooks. A single run's instants are told apart by colour, with a colour bar
+    of the time; the variants of a sweep each in its own colour (their instants the later
+    darker), told apart as :mod:`mechdsl.outputs.styles` says. With ``labels``, the bodies
+    and joints are named (at the last instant drawn)."""
     _need_poses(results)
     fr = frames(results, system)
     ks = snapshot_instants(results, at, count)
-    colors = _colors(results.n_variants)
-    fig, ax, _ = _figure(fr, f"{os.path.basename(results.source_name)}: "
-                         f"t = {', '.join(f'{results.times[k]:g}' for k in ks)}", colors)
+    styles = variant_styles(results)
+    timed = not results.sweep and len(ks) > 1
+    tu = f" [{results.time_unit}]" if results.time_unit else ""
+    colorbar = (("t" + tu, _time_cmap(), float(results.times[ks[0]]),
+                 float(results.times[ks[-1]])) if timed else styles.colorbar)
+    legend = _sweep_legend(styles, fr.traces if results.sweep or timed else ())
+    side = "legend" if legend else "bar" if colorbar is not None else None
+    fig, ax, size = _figure(fr, f"{os.path.basename(results.source_name)}: "
+                            f"t = {', '.join(f'{results.times[k]:g}' for k in ks)}",
+                            styles.colors, side)
+    cmap = _time_cmap() if timed else None
     for v in range(results.n_variants):
+        path_color = "0.3" if timed else styles.colors[v]
         for p in fr.traces.values():
-            ax.plot(p[v, :, 0], p[v, :, 1], "-", lw=1.2, color=colors[v], alpha=0.9)
-        for i, k in enumerate(ks):
-            if k < results.n_solved[v]:
-                _Artists(ax, fr, colors[v], 0.25 + 0.75 * (i + 1) / len(ks)).update(v, k)
-    _legend(ax, results, colors, fr.traces, "best", alpha=0.9)
+            ax.plot(p[v, :, 0], p[v, :, 1], ls=styles.linestyles[v], lw=1.2,
+                    color=path_color, alpha=0.9)
+        drawn = [k for k in ks if k < results.n_solved[v]]
+        for i, k in enumerate(drawn):
+            last = i == len(drawn) - 1
+            if timed:
+                color, alpha = cmap((results.times[k] - results.times[ks[0]])
+                                    / max(results.times[ks[-1]] - results.times[ks[0]],
+                                          1e-300)), 1.0
+            else:
+                color, alpha = styles.colors[v], 0.25 + 0.75 * (i + 1) / len(ks)
+            _Artists(ax, fr, color, alpha, size, labels and last and v == 0,
+                     styles.linestyles[v]).update(v, k)
+    if not side:
+        _legend_inside(ax, results, styles.colors, fr.traces)
+    _side(fig, ax, legend, colorbar)
     _save(fig, path)
 
 
+def _legend_inside(ax, results: Results, colors: list, traces) -> None:
+    """The paths of a single run's traced points drawn at one instant, named inside."""
+    from matplotlib.lines import Line2D
+
+    if traces:
+        handles = [Line2D([], [], lw=1.2, color=colors[0], label=f"path of {label}")
+                   for label in traces]
+        literal(ax.legend(handles=handles, fontsize=7, loc="best"))
+
+
 def animate(results: Results, system: System, path: str, fps: int = FPS,
-            max_frames: int = MAX_FRAMES) -> int:
+            max_frames: int = MAX_FRAMES, labels: bool = False) -> int:
     """Write an animation (.gif with Pillow; .mp4 with ffmpeg): the mechanism moving, traced
     paths growing, the time shown; axes equal and fixed over the whole motion; the variants
-    of a sweep overlaid, each in its own colour, named in a legend. The file is written
-    atomically (:func:`mechdsl.writing.atomic_path`): an error or an interrupt leaves no part
-    of it. Returns the number of frames written (:func:`frame_count`)."""
+    of a sweep overlaid, told apart as :mod:`mechdsl.outputs.styles` says, the legend and
+    colour bar beside the data; with ``labels``, the bodies and joints named. The file is
+    written atomically (:func:`mechdsl.writing.atomic_path`): an error or an interrupt
+    leaves no part of it. Returns the number of frames written (:func:`frame_count`)."""
     from matplotlib import animation
 
     _need_poses(results)
@@ -311,15 +483,22 @@ def animate(results: Results, system: System, path: str, fps: int = FPS,
         raise MechError(f"cannot write {path}: an animation is a .gif or an .mp4")
     fr = frames(results, system)
     ks = _instants(results, max_frames)
-    colors = _colors(results.n_variants)
-    fig, ax, _ = _figure(fr, os.path.basename(results.source_name), colors)
+    styles = variant_styles(results)
+    colors = styles.colors
+    legend_entries = _sweep_legend(styles, fr.traces if results.sweep else ())
+    side = "legend" if legend_entries else "bar" if styles.colorbar is not None else None
+    fig, ax, size = _figure(fr, os.path.basename(results.source_name), colors, side)
     clock = ax.text(0.02, 0.96, "", transform=ax.transAxes, fontsize=9, va="top")
-    lines = {(v, label): ax.plot([], [], "-", lw=1.2, color=colors[v])[0]
+    lines = {(v, label): ax.plot([], [], ls=styles.linestyles[v], lw=1.2, color=colors[v])[0]
              for v in range(results.n_variants) for label in fr.traces}
-    arts = [_Artists(ax, fr, colors[v], 1.0) for v in range(results.n_variants)]
-    legend = _legend(ax, results, colors, fr.traces, "upper right")
+    arts = [_Artists(ax, fr, colors[v], 1.0, size, labels and v == 0, styles.linestyles[v])
+            for v in range(results.n_variants)]
+    if side:
+        legend = _side(fig, ax, legend_entries, styles.colorbar)
+    else:
+        legend = _legend(ax, results, colors, fr.traces, "upper right")
     moving = [clock, *lines.values(), *(a for art in arts for a in art.artists)]
-    if legend is not None:  # drawn over the moving parts, as in a figure drawn whole
+    if legend is not None and not side:  # drawn over the moving parts, as in a figure
         moving.append(legend)
 
     def frame(k: int) -> None:
@@ -330,13 +509,26 @@ def animate(results: Results, system: System, path: str, fps: int = FPS,
             arts[v].update(v, kv)
             for label, p in fr.traces.items():
                 lines[v, label].set_data(p[v, : kv + 1, 0], p[v, : kv + 1, 1])
-        clock.set_text(f"t = {results.times[k]:.4g}")
+        tu = f" {results.time_unit}" if results.time_unit else ""
+        clock.set_text(f"t = {results.times[k]:.4g}{tu}")
 
     if ext == ".gif":
         _write_gif(fig, moving, frame, ks, path, fps)
     else:
         _write_frames(fig, animation.FFMpegWriter(fps=fps), frame, ks, path)
     return len(ks)
+
+
+def _legend(ax, results: Results, colors: list, traces, loc: str, alpha: float = 1.0):
+    """The legend inside the axes of a single run's traced paths (a thin line in its
+    colour); None without a trace: an empty legend would only be a box (and a warning)."""
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], lw=1.2, color=colors[0], alpha=alpha, label=f"path of {label}")
+               for label in traces]
+    if not handles:
+        return None
+    return literal(ax.legend(handles=handles, fontsize=7, loc=loc))
 
 
 class _Blit:
@@ -511,12 +703,6 @@ def _write_frames(fig, writer, frame, ks, path: str) -> None:
                 pass
             raise
         writer.finish()
-
-
-def _colors(n: int) -> list:
-    import matplotlib
-    cmap = matplotlib.colormaps["tab10"]
-    return [cmap(i % 10) for i in range(n)]
 
 
 def _save(fig, path: str) -> None:

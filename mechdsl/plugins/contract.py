@@ -152,6 +152,12 @@ class ConstraintType:
     #: (true of joints, which constrain relative positions; false of drives such as x()).
     #: The conformance kit checks it where it is claimed.
     invariant: ClassVar[bool] = True
+    #: For drawings: ``(P1, P2, AXIS)``, the names of a point argument on the first body, a
+    #: point argument on the second and a vector argument, where the joint holds P2 on the
+    #: line through P1 along AXIS (in the first body's frame): a slider's guide or a slot.
+    #: Drawings show the line as a rail over P2's travel, and P1 as no pivot. None: the
+    #: points are pins.
+    guide: ClassVar[tuple[str, str, str] | None] = None
 
     @property
     def slots(self) -> tuple[Arg, ...]:
@@ -238,6 +244,22 @@ def signature_problems(sig: object) -> list[str]:
     return problems
 
 
+def guide_problems(ctype: object) -> list[str]:
+    """What is wrong with a type's ``guide`` (None is right)."""
+    guide = getattr(ctype, "guide", None)
+    if guide is None:
+        return []
+    sig = getattr(ctype, "signature", ())
+    kinds = {a.name: a.kind for a in sig if isinstance(a, Arg)}
+    refs = [a.name for a in sig if isinstance(a, Arg) and a.is_reference]
+    if (not isinstance(guide, tuple) or len(guide) != 3
+            or [kinds.get(n) for n in guide] != ["point", "point", "vector"]
+            or refs[:2] != list(guide[:2])):
+        return ["guide must be (P1, P2, AXIS): the point arguments on the first and the "
+                "second body and a vector argument"]
+    return []
+
+
 def contract_problems(ctype: object) -> list[str]:
     """What is wrong with the *declaration* of ``ctype`` (empty list when it is well formed)."""
     problems = []
@@ -252,6 +274,7 @@ def contract_problems(ctype: object) -> list[str]:
     elif getattr(ctype, "kind", None) == "drive" and n_eq != 1:
         problems.append("a drive type has exactly one equation (n_eq = 1)")
     problems += signature_problems(getattr(ctype, "signature", None))
+    problems += guide_problems(ctype)
     if isinstance(ctype, ConstraintType):
         if not ctype.supplies_equations():
             problems.append("method equations() is missing: a type writes its equations")

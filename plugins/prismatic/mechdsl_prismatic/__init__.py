@@ -48,6 +48,7 @@ class PinSlot(ConstraintType):
     )
     n_eq = 1
     doc = "pin in a straight slot: P2 stays on the line through P1 along axis"
+    guide = ("p1", "p2", "axis")
 
     def validate(self, p):
         _check_axis(p)
@@ -67,6 +68,7 @@ class Prismatic(ConstraintType):
     )
     n_eq = 2
     doc = "slider: P2 moves along a line through P1 without relative rotation"
+    guide = ("p1", "p2", "axis")
 
     def validate(self, p):
         _check_axis(p)
