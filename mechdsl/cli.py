@@ -69,7 +69,8 @@ def _parser() -> argparse.ArgumentParser:
         run.add_argument("--snapshot", metavar="OUT.png",
                          help="draw the mechanism at a few instants over the traced paths")
         run.add_argument("--at", metavar="T1,T2,...",
-                         help="the instants of --snapshot (default: six, evenly spread)")
+                         help="the instants of --snapshot and --export (default: six, evenly "
+                              "spread, for a drawing)")
         run.add_argument("--animate", metavar="OUT.gif",
                          help="write an animation of the motion (.gif; .mp4 with ffmpeg)")
         run.add_argument("--export", metavar="OUT.xdmf",
@@ -78,8 +79,10 @@ def _parser() -> argparse.ArgumentParser:
         run.add_argument("--html", metavar="OUT.html",
                          help="write one page that animates the run and plots its outputs, "
                               "offline, without a server (every variant of a sweep)")
-        run.add_argument("--frames", type=int, default=100, metavar="N",
-                         help="frames of the animation at most, at least 2 (default 100)")
+        run.add_argument("--frames", type=int, default=None, metavar="N",
+                         help="frames of --animate and instants of --export at most, at least "
+                              "2 (default 100; a .dxf or .svg export: the six of a snapshot, "
+                              "or --at)")
         run.add_argument("--labels", action="store_true",
                          help="name the bodies and joints in --snapshot and --animate")
         run.add_argument("--trace", metavar="BODY.POINT", action="append", default=[],

@@ -118,10 +118,11 @@ def _check_targets(args) -> None:
         if not animation.writers.is_available("ffmpeg"):
             raise MechError(f"--animate {args.animate}: an .mp4 needs ffmpeg on the PATH, "
                             "which is not there; install ffmpeg or write a .gif")
-    if args.frames < 2:
+    if args.frames is not None and args.frames < 2:
         raise MechError(f"--frames {args.frames}: an animation needs at least 2 frames")
-    if args.at is not None and not args.snapshot:
-        raise MechError("--at chooses the instants of --snapshot, which is not given")
+    if args.at is not None and not (args.snapshot or args.export):
+        raise MechError("--at chooses the instants of --snapshot and --export, neither of "
+                        "which is given")
 
 
 def _is_store_path(path: str) -> bool:
@@ -305,6 +306,21 @@ def _trace_ref(model, ref: str) -> list[str]:
     return parts
 
 
+def _frames(args) -> int:
+    """--frames, or the animation's default."""
+    from .outputs.draw import MAX_FRAMES
+
+    return args.frames if args.frames is not None else MAX_FRAMES
+
+
+def _export_frames(args) -> int | None:
+    """The instants of --export at most: --frames, or the animation's default for meshes
+    (None for a drawing: a snapshot's six)."""
+    if args.frames is not None or not args.export:
+        return args.frames
+    return None if args.export.lower().endswith((".dxf", ".svg")) else _frames(args)
+
+
 def _instants_option(text: str | None) -> list[float] | None:
     if text is None:
         return None
@@ -357,7 +373,7 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
     from .memory import outputs_bytes
 
     extra = outputs_bytes(system, figures=bool(args.plot), drawing=drawing,
-                          frames=min(args.frames, len(system.times)) if args.animate else 0,
+                          frames=min(_frames(args), len(system.times)) if args.animate else 0,
                           frames_kept=str(args.animate).lower().endswith(".gif"),
                           export=args.export)
     bar = ProgressBar(sys.stderr) if not args.quiet else None
@@ -577,7 +593,8 @@ def _write_outputs(args, system: System, results, at: list[float] | None,
         title += " (" + ", ".join(s.replace("=", " = ", 1) for s in args.set) + ")"
     labels = getattr(args, "labels", False)
     options = {"plot": {"title": title}, "snapshot": {"at": at, "labels": labels},
-               "animation": {"max_frames": args.frames, "labels": labels}}
+               "animation": {"max_frames": _frames(args), "labels": labels},
+               "export": {"at": at, "max_frames": _export_frames(args)}}
     try:
         csv = FORMATS["csv"]
         if args.output:
@@ -673,15 +690,19 @@ def _written_lines(args, results, written: list[str]) -> list[str]:
     if args.animate in written:
         from .outputs.draw import frame_count
 
-        n = frame_count(results, args.frames)
+        n = frame_count(results, _frames(args))
         lines.append(f"{args.animate}: animation of {n} frame{'s' if n != 1 else ''}")
     if args.export in written:
         from .outputs.export import written_files
 
-        per_variant = [f for f in written_files(args.export, results.n_solved) if f]
+        from .outputs.export import export_instants
+
+        ks = export_instants(results, args.export, _instants_option(args.at),
+                             _export_frames(args))
+        per_variant = [f for f in written_files(args.export, results.n_solved, ks) if f]
         count = sum(len(f) for f in per_variant)
         names = "; ".join(_file_range(f) for f in per_variant)
-        instants = int(results.n_solved.sum())
+        instants = int(sum(int((ks < k).sum()) for k in results.n_solved))
         what = (f"{len(per_variant)} variants ({instants} instants)" if results.sweep
                 else f"{instants} instants")
         lines.append(f"{args.export}: export of {what} in {count} file"

@@ -226,12 +226,13 @@ def test_the_summary_lists_every_output_written(tmp_path):
     assert lines[0].startswith("out.csv: 101 rows (") and lines[0].endswith(" ms)")
     assert lines[1:] == ["p.png: plot of 3 quantities", "s.png: snapshot at t = 0, 0.5",
                          "a.gif: animation of 5 frames",
-                         "e.vtu: export of 101 instants in 102 files: e_0000.vtu .. "
-                         "e_0100.vtu and e.pvd"]
+                         # --at chooses the export's instants too
+                         "e.vtu: export of 2 instants in 3 files: e_0000.vtu .. "
+                         "e_0050.vtu and e.pvd"]
     assert r.stdout == ""
     written = {p.name for p in tmp_path.iterdir()}
-    assert {"out.csv", "p.png", "s.png", "a.gif", "e.pvd", "e_0000.vtu", "e_0100.vtu"} <= written
-    assert len([n for n in written if n.endswith(".vtu")]) == 101
+    assert {"out.csv", "p.png", "s.png", "a.gif", "e.pvd", "e_0000.vtu", "e_0050.vtu"} <= written
+    assert len([n for n in written if n.endswith(".vtu")]) == 2
     r = mechdsl("run", slider_crank, "--step", "0.01", *outputs, "-q", cwd=tmp_path)
     assert r.returncode == 0 and r.stderr == "" and r.stdout == ""
     r = mechdsl("run", slider_crank, "--step", "0.05", "--sweep", "l=2.5,3.5", "--plot", "p.png",
@@ -259,3 +260,83 @@ def test_a_sweep_in_chunks_draws_and_exports_every_variant_as_in_one(tmp_path):
     assert r.returncode == 0, r.stderr
     assert sorted(p.name for p in tmp_path.glob("e_v*.xdmf")) == \
         ["e_v0.xdmf", "e_v1.xdmf", "e_v2.xdmf"]
+
+
+# -- drawings for CAD, and the instants of an export (issue 30) -------------------------------
+
+def _csv_columns(path):
+    import csv as _csv
+
+    with open(path) as f:
+        rows = [r for r in _csv.reader(f) if r and not r[0].startswith("#")]
+    return {name: np.array([float(r[j]) for r in rows[1:]]) for j, name in enumerate(rows[0])}
+
+
+def test_dxf_and_svg_read_back_give_the_runs_positions(tmp_path):
+    """--export out.dxf / out.svg at --at instants: read back (ezdxf, an XML parser), the
+    coupler plate's point P at each instant and the traced path of coupler.P equal the CSV
+    of the same run (the positions mechdsl run writes) to 1e-12; the DXF says metres."""
+    import xml.etree.ElementTree as ET
+
+    import ezdxf
+
+    at = [0.25, 0.5]
+    r = mechdsl("run", EXAMPLES / "fourbar.mech", "-o", tmp_path / "o.csv", "--export",
+                tmp_path / "f.dxf", "--at", "0.25,0.5", "-q")
+    assert r.returncode == 0, r.stderr
+    r = mechdsl("run", EXAMPLES / "fourbar.mech", "--export", tmp_path / "f.svg", "--at",
+                "0.25,0.5", "-q")
+    assert r.returncode == 0, r.stderr
+    cols = _csv_columns(tmp_path / "o.csv")
+    k = [int(np.argmin(np.abs(cols["t"] - a))) for a in at]
+    P = np.column_stack((cols["coupler.P.x"], cols["coupler.P.y"]))
+
+    doc = ezdxf.readfile(tmp_path / "f.dxf")
+    assert doc.header["$INSUNITS"] == 6  # metres
+    for a, kk in zip(at, k):
+        plates = [e for e in doc.modelspace().query(f'LWPOLYLINE[layer=="t {a:g}"]')
+                  if e.get_xdata("MECHDSL")[0].value == "coupler"]
+        (plate,) = plates
+        assert plate.closed
+        pts = np.array([(x, y) for x, y, *_ in plate.get_points()])
+        assert np.abs(pts - P[kk]).sum(axis=1).min() <= 1e-12  # P is a vertex
+    (path,) = doc.modelspace().query('LWPOLYLINE[layer=="paths"]')
+    traced = np.array([(x, y) for x, y, *_ in path.get_points()])
+    np.testing.assert_allclose(traced, P, atol=1e-12, rtol=0)
+
+    svg = ET.parse(tmp_path / "f.svg").getroot()
+    ns = {"s": "http://www.w3.org/2000/svg"}
+
+    def points(el):
+        return np.array([[float(v) for v in xy.split(",")] for xy in el.get("points").split()])
+    for a, kk in zip(at, k):
+        group = svg.find(f".//s:g[@id='t_{a:g}']", ns)
+        assert float(group.get("data-t")) == pytest.approx(cols["t"][kk], abs=1e-15)
+        plate = group.find("s:polygon[@data-body='coupler']", ns)
+        assert np.abs(points(plate) - P[kk]).sum(axis=1).min() == 0.0  # exact: repr
+    traced = points(svg.find(".//s:polyline[@data-path='coupler.P']", ns))
+    np.testing.assert_array_equal(traced, P)
+
+
+def test_export_honours_frames_and_at_for_every_format(tmp_path):
+    """1001 instants: --frames 5 writes five .vtu files (named by their instant) and the
+    index; --at 0.1,0.3 an XDMF series of those two instants; the default of a mesh export
+    is --frames' 100."""
+    import meshio
+
+    r = mechdsl("run", EXAMPLES / "slider_crank.mech", "--export", tmp_path / "s.vtu",
+                "--frames", "5", "-q")
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in tmp_path.glob("s_*.vtu")) == \
+        [f"s_{k:04d}.vtu" for k in (0, 250, 500, 750, 1000)]
+    assert 'file="s_0750.vtu"' in (tmp_path / "s.pvd").read_text()
+    r = mechdsl("run", EXAMPLES / "slider_crank.mech", "--export", tmp_path / "x.xdmf",
+                "--at", "0.1,0.3", "-q")
+    assert r.returncode == 0, r.stderr
+    with meshio.xdmf.TimeSeriesReader(str(tmp_path / "x.xdmf")) as reader:
+        reader.read_points_cells()
+        times = [reader.read_data(i)[0] for i in range(reader.num_steps)]
+    np.testing.assert_allclose(times, [0.1, 0.3], atol=1e-12)
+    r = mechdsl("run", EXAMPLES / "slider_crank.mech", "--export", tmp_path / "d.vtu", "-q")
+    assert r.returncode == 0, r.stderr
+    assert len(list(tmp_path.glob("d_*.vtu"))) == 100

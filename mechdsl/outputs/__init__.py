@@ -72,9 +72,9 @@ FORMATS: dict[str, Format] = {f.kind: f for f in (
            mechanism=True),
     Format("animation", "--animate", "animate", frozenset({"gif", "mp4"}),
            "an animation is a .gif or an .mp4", "draw:animate", mechanism=True),
-    Format("export", "--export", "export", frozenset({"xdmf", "vtu"}),
-           "use .xdmf (one time series) or .vtu (one file per instant, with a .pvd index)",
-           "export:export", mechanism=True),
+    Format("export", "--export", "export", frozenset({"xdmf", "vtu", "dxf", "svg"}),
+           "use .xdmf (one time series) or .vtu (one file per instant, with a .pvd index) "
+           "for ParaView, .dxf or .svg for a drawing", "export:export", mechanism=True),
     Format("page", "--html", "html", frozenset({"html", "htm"}),
            "a page is an .html file", "html:write_page", mechanism=True),
 )}

@@ -488,7 +488,8 @@ def animate(results: Results, system: System, path: str, fps: int = FPS,
     legend_entries = _sweep_legend(styles, fr.traces if results.sweep else ())
     side = "legend" if legend_entries else "bar" if styles.colorbar is not None else None
     fig, ax, size = _figure(fr, os.path.basename(results.source_name), colors, side)
-    clock = ax.text(0.02, 0.96, "", transform=ax.transAxes, fontsize=9, va="top")
+    clock = ax.text(0.02, 0.96, "", transform=ax.transAxes, fontsize=9, va="top",
+                    parse_math=False)
     lines = {(v, label): ax.plot([], [], ls=styles.linestyles[v], lw=1.2, color=colors[v])[0]
              for v in range(results.n_variants) for label in fr.traces}
     arts = [_Artists(ax, fr, colors[v], 1.0, size, labels and v == 0, styles.linestyles[v])

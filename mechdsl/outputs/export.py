@@ -52,14 +52,18 @@ def _vtu_name(stem: str, k: int) -> str:
     return f"{stem}_{k:04d}.vtu"
 
 
+#: the exports of one file per variant (the others: a .vtu per instant and a .pvd index)
+SINGLE = (".xdmf", ".dxf", ".svg")
+
+
 def series(path: str, n_variants: int, n_instants: int) -> Callable[[str], bool]:
     """Whether a file name (in the folder of ``path``) is one :func:`export` may write for
     ``path`` with ``n_variants`` variants of ``n_instants`` instants at most."""
     stem, ext = os.path.splitext(os.path.basename(path))
     ext = ext.lower()
     variant = "" if n_variants == 1 else r"_v(?P<v>\d+)"
-    if ext == ".xdmf":
-        pattern = re.compile(re.escape(stem) + variant + r"\.xdmf")
+    if ext in SINGLE:
+        pattern = re.compile(re.escape(stem) + variant + re.escape(ext))
     else:
         pattern = re.compile(re.escape(stem) + variant + r"(?:_(?P<k>\d+)\.vtu|\.pvd)")
 
@@ -75,20 +79,39 @@ def series(path: str, n_variants: int, n_instants: int) -> Callable[[str], bool]
     return member
 
 
-def written_files(path: str, n_solved) -> list[list[str]]:
+def written_files(path: str, n_solved, ks=None) -> list[list[str]]:
     """The files :func:`export` writes for ``path``, per variant, given the number of
-    instants each variant solved (none for a variant that solved none)."""
+    instants each variant solved (none for a variant that solved none) and the instants
+    exported (``ks``, indices into the run's; None: all)."""
     stem, ext = os.path.splitext(path)
     names = []
     for v, k in enumerate(int(k) for k in n_solved):
         name = _variant_stem(stem, v, len(n_solved))
-        if k == 0:
+        chosen = range(k) if ks is None else [i for i in ks if i < k]
+        if k == 0 or not len(chosen):
             names.append([])
-        elif ext.lower() == ".xdmf":
+        elif ext.lower() in SINGLE:
             names.append([name + ext])
         else:
-            names.append([*(_vtu_name(name, i) for i in range(k)), name + ".pvd"])
+            names.append([*(_vtu_name(name, i) for i in chosen), name + ".pvd"])
     return names
+
+
+def export_instants(results: Results, path: str, at: list[float] | None = None,
+                    max_frames: int | None = None) -> np.ndarray:
+    """The instants an export writes (indices into the run's): those nearest the times
+    ``at``; else ``max_frames`` at most, evenly spread (:func:`mechdsl.outputs.draw.frame_count`'s
+    rule); else every instant solved, except a drawing (.dxf, .svg), which gets a snapshot's
+    six."""
+    from .draw import _instants, snapshot_instants
+
+    if at:
+        return snapshot_instants(results, at)
+    if max_frames is None and os.path.splitext(path)[1].lower() in (".dxf", ".svg"):
+        return snapshot_instants(results)
+    if max_frames is None:
+        return np.arange(int(results.n_solved.max(initial=0)))
+    return _instants(results, max_frames)
 
 
 def _layout(system: System) -> tuple[list[tuple[int, np.ndarray]], list, list]:
@@ -162,28 +185,44 @@ def _kinematics(results: Results, owners, v: int) -> tuple[np.ndarray, ...]:
     return pos, vel, acc
 
 
-def export(results: Results, system: System, path: str) -> list[str]:
-    """Write the run as meshes (see the module's docstring); returns the files written."""
-    import meshio
-
+def export(results: Results, system: System, path: str, at: list[float] | None = None,
+           max_frames: int | None = None) -> list[str]:
+    """Write the run as meshes (see the module's docstring), or as a drawing for CAD (.dxf,
+    .svg: :mod:`mechdsl.outputs.cad`), at the instants of :func:`export_instants`; returns
+    the files written."""
     if results.poses is None:
         raise ValueError("the run kept no poses: simulate(..., poses=True, rates=True)")
     FORMATS["export"].check(path)
     stem, ext = os.path.splitext(path)
     ext = ext.lower()
-    owners, blocks, bodies = _layout(system)
+    ks = export_instants(results, path, at, max_frames)
     written = []
+    if ext in (".dxf", ".svg"):
+        from . import cad
+
+        for v in range(results.n_variants):
+            chosen = ks[ks < int(results.n_solved[v])]
+            if not len(chosen):
+                continue
+            name = _variant_stem(stem, v, results.n_variants) + ext
+            d = cad.drawing(results, system, v, chosen)
+            (cad.write_dxf if ext == ".dxf" else cad.write_svg)(d, name)
+            written.append(name)
+        return written
+    import meshio
+
+    owners, blocks, bodies = _layout(system)
     for v in range(results.n_variants):
-        k = int(results.n_solved[v])
-        if k == 0:
+        chosen = ks[ks < int(results.n_solved[v])]
+        if not len(chosen):
             continue
         name = _variant_stem(stem, v, results.n_variants)
-        pos, vel, acc = (a[:k] for a in _kinematics(results, owners, v))
-        times = results.times[:k]
+        pos, vel, acc = (a[chosen] for a in _kinematics(results, owners, v))
+        times = results.times[chosen]
         if ext == ".xdmf":
             written.append(_xdmf(meshio, name + ext, pos, vel, acc, times, blocks, bodies))
         else:
-            written.extend(_vtu(meshio, name, pos, vel, acc, times, blocks, bodies))
+            written.extend(_vtu(meshio, name, pos, vel, acc, times, blocks, bodies, chosen))
     return written
 
 
@@ -225,10 +264,11 @@ def _xdmf_writer(meshio):
     return Writer
 
 
-def _vtu(meshio, stem, pos, vel, acc, times, blocks, bodies) -> list[str]:
+def _vtu(meshio, stem, pos, vel, acc, times, blocks, bodies, ks) -> list[str]:
+    """A .vtu per exported instant, named by its index in the run (``ks``), and the index."""
     files = []
     for k in range(len(times)):
-        name = _vtu_name(stem, k)
+        name = _vtu_name(stem, int(ks[k]))
         mesh = meshio.Mesh(pos[k], blocks, point_data={
             "velocity": vel[k], "acceleration": acc[k],
             "speed": np.linalg.norm(vel[k], axis=1)}, cell_data={"body": bodies})
