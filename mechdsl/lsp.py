@@ -35,6 +35,8 @@ read only the documents the client opened, never a file from disk.
 from __future__ import annotations
 
 from .errors import MechError
+from .grammar import expr as E
+from .grammar.motion_functions import SIGNATURES
 
 
 #: Seconds without a change before a changed file is checked again (initializationOptions
@@ -517,8 +519,8 @@ _STATEMENTS = ("param", "ground", "body", "joint", "drive", "force", "gravity", 
                "output", "trace", "units", "sweep", "plugin", "optimize", "minimize",
                "maximize", "subject to")
 _ITEMS = ("point", "guess", "shape", "density", "mass", "inertia", "centroid", "v0")
-_FUNCTIONS = ("sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sqrt", "exp", "log",
-              "abs", "sign", "min", "max", "table", "distance")
+#: every function an expression may call (an output's functions of points and bodies too)
+_FUNCTIONS = (*E.FUNCTIONS, "table", *SIGNATURES)
 
 
 def completions(text: str, line: int, character: int, registry) -> list[tuple[str, str, str]]:

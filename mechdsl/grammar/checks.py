@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from ..errors import MechError, Source, Span, cut, suggest
 from . import expr as E
+from . import motion_functions
 from .model import (
     BODY_QUANTITIES, GROUND, ORIGIN, REDUCTIONS, Body, Drive, Force, Initial, Joint, Model, NamedOutput,
     Optimization, OutputRef, Param, Reduction, ReducedOutput,
@@ -386,8 +387,9 @@ def _optimization(found: dict[str, tuple], params: set[str]) -> Optimization:
 
 def named_output(out: NamedOutput, params: set[str]) -> NamedOutput | ReducedOutput:
     """``output NAME = EXPR`` with its references to output quantities (``rod.phi``,
-    ``lever.O.x``) as names (``Name("rod.phi")``) that the compiler resolves, and
-    ``distance(P, Q)`` written out as sqrt((P.x - Q.x)^2 + (P.y - Q.y)^2); checked as any
+    ``lever.O.x``) as names (``Name("rod.phi")``) that the compiler resolves, and the
+    functions of points and bodies (``distance(P, Q)``, ``ic_x(A, B)``, ...) written out as
+    expressions of them (:mod:`mechdsl.grammar.motion_functions`); checked as any
     expression of the params, ``t`` and those names."""
     if out.name in RESERVED or out.name == TIME:
         raise MechError(f"'{cut(out.name)}' is reserved and cannot name an output",
@@ -399,15 +401,8 @@ def named_output(out: NamedOutput, params: set[str]) -> NamedOutput | ReducedOut
     def rule(e: E.Expr) -> E.Expr:
         if isinstance(e, E.Ref):
             return E.Name(".".join(e.parts), e.span)
-        if isinstance(e, E.Call) and e.func == "distance":
-            points = [a for a in e.args if isinstance(a, E.Name) and a.id.count(".") == 1]
-            if len(e.args) != 2 or len(points) != 2:
-                raise MechError("distance() takes two points, such as distance(lever.O, "
-                                "block.origin)", e.span)
-            a, b = points
-            dx, dy = (E.sub(E.Name(f"{a.id}.{c}", a.span), E.Name(f"{b.id}.{c}", b.span))
-                      for c in ("x", "y"))
-            return E.call("sqrt", E.add(E.power(dx, E.Num(2.0)), E.power(dy, E.Num(2.0))))
+        if isinstance(e, E.Call) and e.func in motion_functions.SIGNATURES:
+            return motion_functions.expand(e)
         return e
 
     expr = E.rewrite(out.expr, rule)

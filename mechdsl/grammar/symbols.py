@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 from . import expr as E
 from .model import REDUCTIONS
+from .motion_functions import SIGNATURES
 
 #: Keywords that start a statement and name nothing else: a statement starts here
 RESERVED_STARTS = {"param", "body", "joint", "drive", "simulate", "output", "sweep", "plugin"}
@@ -45,9 +46,9 @@ DECLARED_KINDS = ("param", "body", "point", "joint", "drive", "force", "output")
 #: The body every file has, whether or not it writes ``ground { }``, and every body's point
 GROUND, ORIGIN = "ground", "origin"
 TIME = "t"
-#: Functions of the output expressions beside those of every expression: distance and the
-#: reductions over the run
-OUTPUT_FUNCTIONS = ("distance", *REDUCTIONS)
+#: Functions of the output expressions beside those of every expression: the functions of
+#: points and bodies (distance, instant centres, ...) and the reductions over the run
+OUTPUT_FUNCTIONS = (*SIGNATURES, *REDUCTIONS)
 
 
 @dataclass(frozen=True)
