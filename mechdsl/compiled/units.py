@@ -187,9 +187,8 @@ def expr_dim(e: E.Expr, name_dim: Callable[[str], Dim | None],
     dims: dict[int, object] = {}
 
     def agree(a, b, node, what: str):
-        if a is None or b is None:
-            return None if a is None and b is None else (b if a is None else a) \
-                if _LITERAL in (a, b) else None
+        if a is None or b is None:  # a param's unit is not known: nor is the sum's
+            return None
         if a == _LITERAL or a == b:
             return b
         if b == _LITERAL:
