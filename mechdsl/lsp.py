@@ -375,6 +375,8 @@ _QUANTITY_TEXT = {
     "force": "the force or torque the drive applies", "power": "the drive's power",
     "kinetic_energy": "the kinetic energy of all bodies",
     "potential_energy": "the potential energy of gravity and the conservative forces",
+    "dissipated_power": "the power the dampers dissipate",
+    "dissipated_energy": "the energy the dampers dissipated since t0 (forward dynamics)",
 }
 
 

@@ -844,7 +844,7 @@ class _Compiler:
     def _output(self, parts: tuple[str, ...], span: Span) -> list[OutputSpec]:
         body = parts[0]
         if body not in self.body_index and parts in ((q,) for q in ENERGY_QUANTITIES):
-            return [EnergyOutput(body, 1 if body == "kinetic_energy" else 0,
+            return [EnergyOutput(body, 0 if body == "potential_energy" else 1,
                                  self._unit(body))]
         if body not in self.body_index:
             for k, c in enumerate(self.constraints):

@@ -99,6 +99,8 @@ class Dynamics:
     force_groups: tuple = ()
     #: the values' leaves in the order traced: the constant folded, or None for P[j]
     leaves: tuple = ()
+    #: the power the force elements dissipate, P(q, qd, t) (their ``dissipation``)
+    dissipation: Kernel | LazyKernel | None = None
 
     def variant(self, v: int) -> "Dynamics":
         """The same for sweep variant ``v`` alone."""
@@ -155,6 +157,15 @@ class Dynamics:
     def kinetic_energy(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """T = 1/2 qd^T M(q) qd, shape (V, b)."""
         return 0.5 * np.einsum("...i,...ij,...j->...", qd, self.mass_matrix(q), qd)
+
+    def dissipated_power(self, q: np.ndarray, qd: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """The power the force elements dissipate (their ``dissipation``), shape (V, b)."""
+        if self.dissipation is None:
+            return np.zeros(q.shape[:-1])
+        with np.errstate(all="ignore"):
+            out = self.dissipation(q, qd, np.broadcast_to(t, q.shape[:-1]), self.params,
+                                   self.functions)
+        return np.broadcast_to(out[..., 0], q.shape[:-1]).copy()
 
     def potential_energy(self, q: np.ndarray) -> np.ndarray:
         """V(q): gravity's and the elements' that write one, shape (V, b)."""
@@ -216,7 +227,7 @@ def build(n_bodies: int, mass: np.ndarray, inertia: np.ndarray, centroid: np.nda
     rates = [Rate(graph.var("qd", 3 * i), graph.var("qd", 3 * i + 1), graph.var("qd", 3 * i + 2))
              for i in range(n_bodies)] + [Rate(zero, zero, zero)]
     Q = [zero] * n
-    potential = zero
+    potential = dissipation = zero
 
     def add(k: int, value) -> None:
         Q[k] = graph.lift(value) if Q[k] is zero else graph.lift(Q[k] + value)
@@ -244,6 +255,10 @@ def build(n_bodies: int, mass: np.ndarray, inertia: np.ndarray, centroid: np.nda
                 if ftype.supplies("energy"):
                     potential = graph.lift(potential + ftype.energy(
                         tuple(bodies[b] for b in slots), args))
+                if ftype.supplies("dissipation"):
+                    dissipation = graph.lift(dissipation + ftype.dissipation(
+                        tuple(bodies[b] for b in slots), tuple(rates[b] for b in slots),
+                        args, t))
             except GraphError as err:
                 raise ForceError(f"the force type '{ftype.name}': {err}") from None
     entries: list = []
@@ -268,6 +283,7 @@ def build(n_bodies: int, mass: np.ndarray, inertia: np.ndarray, centroid: np.nda
         mass=mass, inertia=inertia, centroid=centroid, gravity=gravity,
         loads=LazyKernel(graph, Q, "loads"), mass_entries=LazyKernel(graph, entries, "mass"),
         potential=LazyKernel(graph, [potential], "potential"),
+        dissipation=LazyKernel(graph, [dissipation], "dissipation"),
         rows=np.array(rows, dtype=np.intp), cols=np.array(cols, dtype=np.intp),
         params=tuple(params.arrays), functions=tuple(graph.functions), forces=elements,
         v0=v0, v0_given=v0_given, n=n, graph=graph, load_nodes=tuple(Q),

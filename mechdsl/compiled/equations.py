@@ -220,6 +220,10 @@ def _values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
     if isinstance(spec, EnergyOutput):
         d = system.dynamics
         with np.errstate(all="ignore"):
+            if spec.label == "dissipated_power":
+                return d.dissipated_power(q, qd, np.zeros(q.shape[:-1]) if t is None else t)
+            if spec.label == "dissipated_energy":  # integrated by the run (DynamicRun)
+                return np.array(np.broadcast_to(cache["dissipated_energy"], q.shape[:-1]))
             return (d.kinetic_energy(q, qd) if spec.order else d.potential_energy(q)).copy()
     if isinstance(spec, ReactionOutput):
         cache = {} if cache is None else cache

@@ -124,8 +124,10 @@ class ReactionOutput:
 
 @dataclass(frozen=True)
 class EnergyOutput:
-    """The mechanism's kinetic energy 1/2 qd^T M qd (``order`` 1) or the potential energy of
-    gravity and of the force elements that write one (``order`` 0)."""
+    """The mechanism's kinetic energy 1/2 qd^T M qd (``order`` 1), the potential energy of
+    gravity and of the force elements that write one (``order`` 0), the power its force
+    elements dissipate or the energy they dissipated since t0 (``order`` 1; label says
+    which)."""
 
     label: str
     order: int

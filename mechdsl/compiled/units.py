@@ -54,6 +54,7 @@ QUANTITY_DIMS: Mapping[str, Dim] = {
     "ax": dim(1, -2), "ay": dim(1, -2), "alpha": dim(0, -2, 0, 1),
     "fx": FORCE, "fy": FORCE, "force": FORCE, "torque": TORQUE, "power": POWER,
     "kinetic_energy": ENERGY, "potential_energy": ENERGY, "dissipated_energy": ENERGY,
+    "dissipated_power": POWER,
 }
 
 #: the angle units a model may report in, with the factor from radians

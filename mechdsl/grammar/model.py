@@ -22,8 +22,10 @@ POINT_QUANTITIES = ("x", "y", "vx", "vy", "ax", "ay")
 #: drive ``D.q`` (the actuator's effort, a torque or a force, and its power)
 JOINT_QUANTITIES = ("fx", "fy", "torque")
 DRIVE_QUANTITIES = ("torque", "force", "power")
-#: The mechanism's energies, output quantities of their own
-ENERGY_QUANTITIES = ("kinetic_energy", "potential_energy")
+#: The mechanism's energies, output quantities of their own: the power its force elements
+#: dissipate (dampers), and its time integral over a forward-dynamics run
+ENERGY_QUANTITIES = ("kinetic_energy", "potential_energy", "dissipated_power",
+                     "dissipated_energy")
 #: The options of the simulate statement: the forward dynamics' tolerances
 SIMULATE_OPTIONS = ("rtol", "atol")
 #: What a ``units`` statement names (the units of the others follow from these:

@@ -19,7 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from . import expr as E
-from .model import REDUCTIONS
+from .model import ENERGY_QUANTITIES, REDUCTIONS
 from .motion_functions import SIGNATURES
 
 #: Keywords that start a statement and name nothing else: a statement starts here
@@ -281,7 +281,7 @@ def index(text: str) -> SymbolIndex:
             out.append(sym("constant", i))
         elif w in constraints:
             out.append(sym(constraints[w], i))
-        elif w in ("kinetic_energy", "potential_energy"):
+        elif w in ENERGY_QUANTITIES:
             out.append(sym("quantity", i))
         elif i in in_args:  # the variable of a function argument: its type names it
             out.append(sym("variable", i))

@@ -69,8 +69,15 @@ class ForceType:
         then -dV/dq when its damping is zero."""
         raise NotImplementedError
 
+    def dissipation(self, bodies: tuple[Body, ...], rates: tuple[Rate, ...], args: Any,
+                    t: Any) -> Any:
+        """Optional: the power the element dissipates (>= 0; a damper's c v^2), whose time
+        integral is the output ``dissipated_energy``: then kinetic plus potential energy
+        plus the energy dissipated is constant in a free motion."""
+        raise NotImplementedError
+
     def supplies(self, method: str) -> bool:
-        """Whether the type writes ``method`` ("energy") itself."""
+        """Whether the type writes ``method`` ("energy", "dissipation") itself."""
         return getattr(type(self), method) is not getattr(ForceType, method)
 
 

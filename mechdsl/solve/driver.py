@@ -84,7 +84,8 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
               max_step: float = np.inf, max_steps: int = 1_000_000,
               on_output: Callable[[int, float, np.ndarray], None] | None = None,
               on_step: Callable[[float, int], None] | None = None,
-              stiff: tuple[type[Stepper], Callable[[], Equations]] | None = None
+              stiff: tuple[type[Stepper], Callable[[], Equations]] | None = None,
+              on_interval: Callable[[float, float, Callable], None] | None = None
               ) -> Solution:
     """Integrate y' = equations.rhs(t, y) from ``y0`` at ``t_eval[0]`` to ``t_eval[-1]``
     by steps of ``stepper``, returning the state at every instant of ``t_eval``
@@ -94,9 +95,11 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
     the equations have ``project`` (and ``settle``), every state after a step and every
     output is corrected by it (see the module). ``on_output(k, t, y)`` is called with
     each output as soon as it is known, ``on_step(t, attempts)`` after each accepted step
-    with the time reached and the steps taken, accepted and rejected; a KeyboardInterrupt
-    raised there or in the equations ends the integration ("interrupted") with the
-    outputs before it. A singular system (the equations raising numpy's LinAlgError) or a
+    with the time reached and the steps taken, accepted and rejected, and
+    ``on_interval(t_old, t_new, dense)`` with each accepted step's span and its dense
+    output, before its outputs are emitted (a quadrature along the solution); a
+    KeyboardInterrupt raised there or in the equations ends the integration
+    ("interrupted") with the outputs before it. A singular system (the equations raising numpy's LinAlgError) or a
     step the stepper cannot take (a derivative that is not finite, a step size that
     underflows) ends it "failed", the message saying where; so does ``max_steps`` steps,
     accepted and rejected, before the end (reason "budget")."""
@@ -157,6 +160,8 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             elif message is not None:
                 return done("failed", message)
             t_new, y_new = s.t, s.y
+            if on_interval is not None:  # a quadrature over the step (its dense output)
+                on_interval(t, t_new, s.dense_output())
             # -- outputs inside the step, by its dense output (one at the step's end is
             # the projected end state, below) -----------------------------------------------
             if k_next < n_out and t_eval[k_next] < t_new:

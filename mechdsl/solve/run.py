@@ -94,6 +94,10 @@ class KinematicRun(Run):
         super().__init__(system, options, progress=progress)
         opts = self.opts
         count_check(system)  # before anything the size of the model is allocated
+        if any(o.label == "dissipated_energy" for o in system.outputs):
+            raise MechError("dissipated_energy is integrated over a forward-dynamics run; a "
+                            "fully driven mechanism's dampers dissipate dissipated_power, "
+                            "and its drives supply that energy", source=system.source)
         sparse = use_sparse(system, opts, np.arange(system.m))
         compiled = _wants_native(system, opts)
         #: the reductions' extremes refined between the samples (:mod:`.extrema`): the

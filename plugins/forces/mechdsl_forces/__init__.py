@@ -9,10 +9,11 @@ type                                                   loads
                                                        and the tension f = k (L - length)
                                                        + c dL/dt (dL/dt = e . (rd^P2 - rd^P1)):
                                                        f e at P1, -f e at P2; V = k (L -
-                                                       length)^2 / 2
+                                                       length)^2 / 2; dissipating c (dL/dt)^2
 ``rotary_spring(body1, body2, k, angle = 0, c = 0)``   tau = -(k (phi2 - phi1 - angle) + c
                                                        (phid2 - phid1)) on body 2, -tau on body
-                                                       1; V = k (phi2 - phi1 - angle)^2 / 2
+                                                       1; V = k (phi2 - phi1 - angle)^2 / 2;
+                                                       dissipating c (phid2 - phid1)^2
 ``torque(body, value)``                                a torque value(t) on the body
 ``point_force(point, fx, fy)``                         the force (fx(t), fy(t)), global axes, at
                                                        a point of a body
@@ -60,6 +61,13 @@ class Spring(ForceType):
         stretch = (b2.point(args.p2) - b1.point(args.p1)).norm() - args.length
         return 0.5 * args.k * stretch * stretch
 
+    def dissipation(self, bodies, rates, args, t):
+        b1, b2 = bodies
+        r1, r2 = rates
+        d = b2.point(args.p2) - b1.point(args.p1)
+        rate = (d / d.norm()).dot(r2.point(b2, args.p2) - r1.point(b1, args.p1))
+        return args.c * rate * rate
+
 
 class RotarySpring(ForceType):
     name = "rotary_spring"
@@ -80,6 +88,10 @@ class RotarySpring(ForceType):
     def energy(self, bodies, args):
         twist = bodies[1].phi - bodies[0].phi - args.angle
         return 0.5 * args.k * twist * twist
+
+    def dissipation(self, bodies, rates, args, t):
+        spin = rates[1].phi - rates[0].phi
+        return args.c * spin * spin
 
 
 class Torque(ForceType):
