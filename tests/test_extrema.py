@@ -87,3 +87,29 @@ def test_the_summary_says_which_extremes_were_refined(load_example):
     text = summary(res)
     assert "extremes found between the samples: peak" in text
     assert "of the samples: mean(slider.x)" in text
+
+
+def test_a_forward_dynamics_extremes_between_samples_equal_the_damped_oscillators():
+    """On the integrator's dense output (integrated again around each candidate): the damped
+    oscillator's first minimum x(pi / omega_d) and the largest velocity, within the run's
+    tolerance of the closed form, at 31 output instants that miss both by 1e-2."""
+    import mechdsl
+    from test_dissipation import DAMPED, C, K, M, oscillator
+
+    text = DAMPED.replace("step 0.01", "step 0.1").replace(
+        "output block.x, kinetic_energy, potential_energy, dissipated_power, dissipated_energy",
+        "output lo = min(block.x), tmin = argmin(block.x), hi = max(block.vx), "
+        "thi = argmax(block.vx)")
+    mech = mechdsl.loads(text)
+    res = mech.simulate()
+    assert res.refined == ("lo", "tmin", "hi", "thi")
+    w0, z = np.sqrt(K / M), C / (2 * np.sqrt(K * M))
+    t_min = np.pi / (w0 * np.sqrt(1 - z * z))
+    assert res.reduced["lo"][0] == pytest.approx(oscillator(np.array([t_min]))[0][0], abs=1e-9)
+    assert res.reduced["tmin"][0] == pytest.approx(t_min, abs=1e-8)
+    best = minimize_scalar(lambda t: -oscillator(np.array([t]))[1][0], bounds=(0.5, 1.5),
+                           method="bounded", options={"xatol": 1e-13})
+    assert res.reduced["hi"][0] == pytest.approx(-best.fun, abs=1e-9)
+    assert res.reduced["thi"][0] == pytest.approx(best.x, abs=1e-8)
+    sampled = mech.simulate(options=SolverOptions(refine_extrema=False))
+    assert abs(sampled.reduced["lo"][0] - res.reduced["lo"][0]) > 1e-3

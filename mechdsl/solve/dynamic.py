@@ -39,6 +39,7 @@ from ..compiled.system import System
 from ..errors import MechError
 from ..memory import plan
 from ..results import Results
+from . import extrema
 from .assembly import gauss_newton
 from .base import Progress, Run
 from .diagnose import constraint_names, variant_label
@@ -69,6 +70,12 @@ class DynamicRun(Run):
                 "equations) and has no masses: give its bodies mass and inertia to simulate "
                 "its motion, or add drives", source=system.source)
         self.keep_poses, self.keep_rates = poses or rates, rates
+        #: the reductions' extremes refined between the samples on the integrator's dense
+        #: output (:meth:`_refine_extremes`), per (column, sense): values and times (V,)
+        self.to_refine = {pair for pair in extrema.wanted(system)
+                          if pair[0] != "dissipated_energy"} \
+            if self.opts.refine_extrema else set()
+        self.extrema: dict = {}
         # refused before anything the size of the run is allocated, as the kinematics is; a
         # large model's equations of motion are the augmented Lagrangian's band factor and
         # sparse terms (:mod:`.motion`), not a dense n x n matrix (a chain of 3000 links
@@ -385,6 +392,8 @@ class DynamicRun(Run):
                 sol = again  # its outputs replaced the first attempt's, instant by instant
         finally:  # an interrupt too: the instants solved are written, complete
             self._write(v)
+        if sol.status == "ok" and self.to_refine:
+            self._refine_extremes(v, equations, scale)
         if sol.status == "failed" and sol.reason == "budget":
             k = len(sol.t)
             self.failures.append(
@@ -434,6 +443,92 @@ class DynamicRun(Run):
             state["next"] = k
             state["total"] += integral(a, b, dense)
         return on_interval
+
+    def _refine_extremes(self, v: int, equations, scale: np.ndarray) -> None:
+        """Variant v's extremes of the reduced columns between the samples
+        (:mod:`mechdsl.solve.extrema`'s candidates and parabolic refinement), each trial
+        instant read from the dense output of an integration again from the output state
+        before the candidate to the one after it, at the run's tolerances: the extreme to
+        the integrator's accuracy. A variant's pairs not refined keep the samples'."""
+        times = self.times
+        K, V = len(times), self.system.n_variants
+        specs = {o.label: o for o in self.one.outputs}
+        self._dense_between: dict = {}
+        for label, sense in sorted(self.to_refine):
+            y = sense * self.data[label][v]
+            out = self.extrema.setdefault((label, sense), (np.full(V, np.nan),
+                                                           np.full(V, np.nan)))
+            if K < 2 or not np.isfinite(y).all():
+                continue
+            ks, done = extrema._candidates(y[None], times)
+            best_f, best_t = [], []
+            for k, finished in zip(ks[0], done[0]):
+                f, t = float(y[k]), float(times[k])
+                if not finished:
+                    try:
+                        f, t = self._refine_one(k, y, sense, specs[label], equations, scale)
+                    except (np.linalg.LinAlgError, ArithmeticError, ValueError):
+                        pass  # the sample stands
+                best_f.append(f)
+                best_t.append(t)
+            best_f, best_t = np.array(best_f), np.array(best_t)
+            tied = best_f >= best_f.max() - extrema.TIE * np.abs(y).max()
+            j = int(np.argmin(np.where(tied, best_t, np.inf)))
+            out[0][v], out[1][v] = sense * best_f[j], best_t[j]
+
+    def _refine_one(self, k: int, y: np.ndarray, sense: int, spec, equations,
+                    scale: np.ndarray) -> tuple[float, float]:
+        """The extreme of sense * the column ``spec`` near output instant k and its time."""
+        from .driver import integrate
+        from .integrators import INTEGRATORS
+
+        times, n, st = self.times, self.one.n, self.states
+        K = len(times)
+        lo, hi = max(k - 1, 0), min(k + 1, K - 1)
+        segments = self._dense_between.get((lo, hi))
+        if segments is None:  # (each bracket integrated once, for every column's extremes)
+            segments = []
+            start = np.concatenate((st["q"][lo], st["qd"][lo]))
+            sol = integrate(INTEGRATORS[self.method], equations, start, times[lo:hi + 1],
+                            rtol=self.rtol, atol=self.atol, scale=scale,
+                            max_steps=self.opts.max_steps,
+                            on_interval=lambda a, b, dense: segments.append((a, b, dense)))
+            if sol.status != "ok":
+                segments = []
+            self._dense_between[(lo, hi)] = segments
+        if not segments:
+            return float(y[k]), float(times[k])
+
+        def at(t: float) -> float:
+            dense = next((d for a, b, d in segments if a <= t <= b), segments[-1][2])
+            state = np.asarray(dense(t), dtype=float)
+            q, qd = state[:n], state[n:2 * n]
+            qdd, lam = self.ev.accelerations(t, q, qd)
+            value = eq.output_values(self.one, spec, q[None, None], qd[None, None],
+                                     qdd[None, None], np.array([[t]]),
+                                     {"lambda": lam[None, None]})
+            return sense * float(value[0, 0])
+
+        a, b = float(times[lo]), float(times[hi])
+        m = float(times[k]) if 0 < k < K - 1 else 0.5 * (a + b)
+        fa, fb = float(y[lo]), float(y[hi])
+        fm = at(m)
+        best_f, best_t = max((fm, m), (float(y[k]), float(times[k])))
+        xtol = extrema.XTOL * max(abs(times[-1] - times[0]), 1e-300)
+        # (the dense output is a smooth polynomial in each step: its extremum is found as
+        # the kinematics' is, the value then within the integrator's tolerance)
+        flat = extrema.FLAT * float(np.abs(y).max())
+        for _ in range(extrema.MAX_ITERATIONS):
+            u = float(extrema._vertex(a, m, b, fa, fm, fb))
+            fu = at(u)
+            if fu > best_f:
+                best_f, best_t = fu, u
+            done = abs(u - m) <= xtol or abs(fu - fm) <= flat
+            a, m, b, fa, fm, fb = (float(x) for x in extrema._narrow(a, m, b, fa, fm, fb,
+                                                                      u, fu))
+            if done or b - a <= xtol:
+                break
+        return best_f, best_t
 
     def _record(self, k: int, t: float, y: np.ndarray) -> None:
         """Keep the state at output instant k, with its accelerations and multipliers."""

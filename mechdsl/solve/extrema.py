@@ -1,5 +1,7 @@
 """Extremes found between the samples: the reductions ``max``, ``min``, ``argmax``,
-``argmin`` and ``range`` of a kinematic run, refined to the solver's accuracy.
+``argmin`` and ``range`` of a kinematic run, refined to the solver's accuracy (a forward
+dynamics run refines them on its dense output with the same candidates and steps:
+:meth:`mechdsl.solve.dynamic.DynamicRun._refine_extremes`).
 
 A reduction over the run's instants sees only the samples y_k = E(t_k): the peak of a
 slider's acceleration, or a stroke, falls between them, and the sampled value is short of it
