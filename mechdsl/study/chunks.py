@@ -120,6 +120,8 @@ def merge(parts: list[Results], solve_time: float | None = None,
         reduced={k: joined(lambda p, k=k: p.reduced[k]) for k in first.reduced},
         sweep={k: joined(lambda p, k=k: p.sweep[k]) for k in first.sweep},
         n_solved=joined(lambda p: p.n_solved),
+        # refined between the samples only where every chunk refined it
+        refined=tuple(r for r in first.refined if all(r in p.refined for p in parts)),
         status=status or worst,
         messages=tuple(m for p in parts for m in p.messages),
         warnings=tuple(dict.fromkeys(w for p in parts for w in p.warnings)) + warnings,
