@@ -330,7 +330,7 @@ class _Compiler:
                   or any(b.mass is not None or b.density is not None or b.v0 is not None
                          for b in self.bodies)
                   or any(isinstance(o, (ReactionOutput, EnergyOutput))
-                         or any(isinstance(i, (ReactionOutput, EnergyOutput))
+                         or any(isinstance(i, ReactionOutput)  # a named output of loads
                                 for _, i in getattr(o, "inputs", ()))
                          for o in outputs))
         if not wanted:
@@ -735,11 +735,10 @@ class _Compiler:
     def _dim_of(self, e: E.Expr, dims, owner: str):
         """The dimension of expression ``e`` of output ``owner``, its names' dimensions from
         ``dims``; each unit mismatch a located warning."""
-        def warn(w) -> None:
-            key = (w.message, w.span)
-            if key not in self.unit_warnings:
-                self.unit_warnings[key] = MechWarning(f"output '{cut(owner)}': {w.message}",
-                                                      w.span, self.model.source)
+        def warn(message: str, span: Span | None) -> None:
+            if (message, span) not in self.unit_warnings:
+                self.unit_warnings[message, span] = MechWarning(
+                    f"output '{cut(owner)}': {message}", span, self.model.source)
         return expr_dim(e, dims, warn, self.units)
 
     def _reduced(self, refs, reduced: list[ReducedOutput]) -> list[OutputSpec | ExprOutput]:
@@ -790,11 +789,9 @@ class _Compiler:
             d = self._dim_of(e, lambda n: self._dim(specs[n]) if n in specs else None, owner)
         else:
             d = dim_div(rate_of[0], dim_power(TIME_DIM, rate_of[1]))
-        # (an expression of energies is an energy, J; another of that dimension a torque, N*m)
-        energy = any(isinstance(spec, EnergyOutput) for spec in specs.values())
-        unit = self.units.label(d, "energy" if energy else "")
         return ExprOutput(label, E.compile_expr(e), inputs,
-                          max((s.order for _, s in inputs), default=0), e, unit, dim=d)
+                          max((s.order for _, s in inputs), default=0), e,
+                          self.units.label(d), dim=d)
 
     def _named(self, out: NamedOutput) -> list[ExprOutput]:
         """The columns of ``output NAME = EXPR``: NAME, and its exact time derivatives

@@ -19,7 +19,7 @@ The dimension of an expression (:func:`expr_dim`) follows its arithmetic; number
 carry none (None: they agree with anything, as ``slider.x - 2`` means two lengths), functions
 of angles (sin, exp, ...) are pure numbers, atan2 and the inverse functions give angles. A
 sum or comparison of two different known dimensions (an angle added to a length) is a
-:class:`UnitWarning`, located at the operator.
+warning, located at the operator.
 """
 
 from __future__ import annotations
@@ -81,14 +81,6 @@ def div(a: Dim | None, b: Dim | None) -> Dim | None:
 def power(a: Dim | None, k: float) -> Dim | None:
     return None if a is None else \
         _plain(tuple(x * Fraction(k).limit_denominator(1000) for x in a))
-
-
-@dataclass(frozen=True)
-class UnitWarning:
-    """A unit mismatch a user can see, located at the operator that makes it."""
-
-    message: str
-    span: Span | None
 
 
 @dataclass(frozen=True)
@@ -180,11 +172,11 @@ _LITERAL = "literal"
 
 
 def expr_dim(e: E.Expr, name_dim: Callable[[str], Dim | None],
-             warn: Callable[[UnitWarning], None], units: Units) -> Dim | None:
+             warn: Callable[[str, Span | None], None], units: Units) -> Dim | None:
     """The dimension of expression ``e`` (None where it is not known: a param, whose unit
     the model does not say, times a quantity); a name has ``name_dim``'s (None for a param),
     ``t`` is a time, a number written in the text agrees with anything it
-    is added to. Mismatches of known dimensions go to ``warn``."""
+    is added to. Mismatches of known dimensions go to ``warn(message, span)``."""
     dims: dict[int, object] = {}
 
     def agree(a, b, node, what: str):
@@ -194,8 +186,8 @@ def expr_dim(e: E.Expr, name_dim: Callable[[str], Dim | None],
             return b
         if b == _LITERAL:
             return a
-        warn(UnitWarning(f"{what} {_describe(a, units)} and {_describe(b, units)}",
-                         getattr(node, "span", None)))
+        warn(f"{what} {_describe(a, units)} and {_describe(b, units)}",
+             getattr(node, "span", None))
         return None
 
     for node in E.postorder(e):
@@ -233,8 +225,8 @@ def expr_dim(e: E.Expr, name_dim: Callable[[str], Dim | None],
                 d = first if first in (None, _LITERAL) else power(first, 0.5)
             elif node.func in _TRIG:
                 if first not in (None, _LITERAL, ANGLE, NUMBER):
-                    warn(UnitWarning(f"{node.func} of {_describe(first, units)}: it takes an "
-                                     "angle", node.span))
+                    warn(f"{node.func} of {_describe(first, units)}: it takes an angle",
+                         node.span)
                 d = NUMBER
             elif node.func in _NUMBER_FUNCS:
                 d = NUMBER

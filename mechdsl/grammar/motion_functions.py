@@ -64,57 +64,49 @@ def _q(ref: E.Name, quantity: str) -> E.Expr:
     return E.Name(f"{ref.id}.{quantity}", ref.span)
 
 
-def _sub(a, b):
-    return E.sub(a, b)
-
-
-def _mul(a, b):
-    return E.mul(a, b)
-
-
 def _ic(A: E.Name, B: E.Name, axis: str) -> E.Expr:
-    dw = _sub(_q(A, "omega"), _q(B, "omega"))
+    dw = E.sub(_q(A, "omega"), _q(B, "omega"))
     # c = v_B - v_A + w_A perp(r_A) - w_B perp(r_B), perp(x, y) = (-y, x)
-    cx = E.add(_sub(_q(B, "vx"), _q(A, "vx")),
-               _sub(_mul(_q(B, "omega"), _q(B, "y")), _mul(_q(A, "omega"), _q(A, "y"))))
-    cy = E.add(_sub(_q(B, "vy"), _q(A, "vy")),
-               _sub(_mul(_q(A, "omega"), _q(A, "x")), _mul(_q(B, "omega"), _q(B, "x"))))
+    cx = E.add(E.sub(_q(B, "vx"), _q(A, "vx")),
+               E.sub(E.mul(_q(B, "omega"), _q(B, "y")), E.mul(_q(A, "omega"), _q(A, "y"))))
+    cy = E.add(E.sub(_q(B, "vy"), _q(A, "vy")),
+               E.sub(E.mul(_q(A, "omega"), _q(A, "x")), E.mul(_q(B, "omega"), _q(B, "x"))))
     return E.div(cy, dw) if axis == "x" else E.div(E.neg(cx), dw)
 
 
 def _transmission(P: E.Name, Q: E.Name, R: E.Name) -> E.Expr:
-    ux, uy = _sub(_q(P, "x"), _q(Q, "x")), _sub(_q(P, "y"), _q(Q, "y"))
-    wx, wy = _sub(_q(R, "x"), _q(Q, "x")), _sub(_q(R, "y"), _q(Q, "y"))
-    cross = _sub(_mul(ux, wy), _mul(uy, wx))
-    dot = E.add(_mul(ux, wx), _mul(uy, wy))
+    ux, uy = E.sub(_q(P, "x"), _q(Q, "x")), E.sub(_q(P, "y"), _q(Q, "y"))
+    wx, wy = E.sub(_q(R, "x"), _q(Q, "x")), E.sub(_q(R, "y"), _q(Q, "y"))
+    cross = E.sub(E.mul(ux, wy), E.mul(uy, wx))
+    dot = E.add(E.mul(ux, wx), E.mul(uy, wy))
     return E.call("atan2", E.call("abs", cross), dot)
 
 
 def _relative_velocity(P: E.Name, B: E.Name) -> tuple[E.Expr, E.Expr]:
-    dx, dy = _sub(_q(P, "x"), _q(B, "x")), _sub(_q(P, "y"), _q(B, "y"))
+    dx, dy = E.sub(_q(P, "x"), _q(B, "x")), E.sub(_q(P, "y"), _q(B, "y"))
     w = _q(B, "omega")
-    return (_sub(_q(P, "vx"), _sub(_q(B, "vx"), _mul(w, dy))),
-            _sub(_q(P, "vy"), E.add(_q(B, "vy"), _mul(w, dx))))
+    return (E.sub(_q(P, "vx"), E.sub(_q(B, "vx"), E.mul(w, dy))),
+            E.sub(_q(P, "vy"), E.add(_q(B, "vy"), E.mul(w, dx))))
 
 
 def _relative_acceleration(P: E.Name, B: E.Name) -> tuple[E.Expr, E.Expr]:
-    dx, dy = _sub(_q(P, "x"), _q(B, "x")), _sub(_q(P, "y"), _q(B, "y"))
+    dx, dy = E.sub(_q(P, "x"), _q(B, "x")), E.sub(_q(P, "y"), _q(B, "y"))
     w, al = _q(B, "omega"), _q(B, "alpha")
-    w2 = _mul(w, w)
+    w2 = E.mul(w, w)
     vx, vy = _relative_velocity(P, B)
-    two_w = _mul(E.Num(2.0), w)
+    two_w = E.mul(E.Num(2.0), w)
     # a_P - (a_B + al perp(d) - w^2 d) - 2 w perp(v_rel), perp(v) = (-vy, vx)
-    ax = _sub(_sub(_q(P, "ax"), _sub(_sub(_q(B, "ax"), _mul(al, dy)), _mul(w2, dx))),
-              _mul(two_w, E.neg(vy)))
-    ay = _sub(_sub(_q(P, "ay"), _sub(E.add(_q(B, "ay"), _mul(al, dx)), _mul(w2, dy))),
-              _mul(two_w, vx))
+    ax = E.sub(E.sub(_q(P, "ax"), E.sub(E.sub(_q(B, "ax"), E.mul(al, dy)), E.mul(w2, dx))),
+              E.mul(two_w, E.neg(vy)))
+    ay = E.sub(E.sub(_q(P, "ay"), E.sub(E.add(_q(B, "ay"), E.mul(al, dx)), E.mul(w2, dy))),
+              E.mul(two_w, vx))
     return ax, ay
 
 
 _WRITERS: dict[str, Callable[..., E.Expr]] = {
     "distance": lambda P, Q: E.call("sqrt", E.add(
-        E.power(_sub(_q(P, "x"), _q(Q, "x")), E.Num(2.0)),
-        E.power(_sub(_q(P, "y"), _q(Q, "y")), E.Num(2.0)))),
+        E.power(E.sub(_q(P, "x"), _q(Q, "x")), E.Num(2.0)),
+        E.power(E.sub(_q(P, "y"), _q(Q, "y")), E.Num(2.0)))),
     "ic_x": lambda A, B: _ic(A, B, "x"),
     "ic_y": lambda A, B: _ic(A, B, "y"),
     "transmission": _transmission,

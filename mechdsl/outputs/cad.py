@@ -53,13 +53,11 @@ def _layer(t: float) -> str:
     return f"t {float(t):g}"
 
 
-def drawing(results: Results, system: System, v: int, ks) -> dict:
-    """What variant v's drawing holds, in world coordinates: per instant k of ``ks`` its
+def drawing(fr, results: Results, system: System, v: int, ks) -> dict:
+    """What variant v's drawing holds, from the run's frames ``fr``
+    (:func:`mechdsl.outputs.draw.frames`), in world coordinates: per instant k of ``ks`` its
     bodies (name, points (P, 2)), pins (J, 2), rails ((2, 2) each); the ground's pivots
     (G, 2); each traced point's path (label, (K, 2))."""
-    from .draw import frames
-
-    fr = frames(results, system)
     names = list(system.body_names)
     out = {"instants": [], "ground": fr.ground[v, 0], "paths": [],
            "unit": system.sketch.length_unit if system.sketch else ""}

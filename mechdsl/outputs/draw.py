@@ -26,7 +26,7 @@ from ..compiled.system import Sketch, System
 from ..errors import MechError
 from ..results import Results
 from .plot import literal, save_figure
-from .styles import variant_styles
+from .styles import decorate, variant_styles
 
 #: Frames of an animation at most (instants are sampled evenly when there are more).
 MAX_FRAMES = 100
@@ -369,25 +369,12 @@ class _Artists:
         return self.artists
 
 
-def _side(fig, ax, legend: list, colorbar: tuple | None, fontsize: int = 7):
-    """The legend (entries (label, colour, line style, line width)) and the colour bar
-    (label, colour map, low, high) beside the axes, outside the data; the legend."""
-    from matplotlib.cm import ScalarMappable
-    from matplotlib.colors import Normalize
-    from matplotlib.lines import Line2D
-
-    if colorbar is not None:
-        label, cmap, lo, hi = colorbar
-        cax = fig.add_axes([0.9 if legend else 0.885, 0.14, 0.018, 0.72])
-        bar = fig.colorbar(ScalarMappable(Normalize(lo, hi if hi > lo else lo + 1), cmap),
-                           cax=cax)
-        bar.set_label(label, parse_math=False)
-    if not legend:
-        return None
-    handles = [Line2D([], [], color=c, ls=ls, lw=lw, label=text)
-               for text, c, ls, lw in legend]
-    return literal(ax.legend(handles=handles, fontsize=fontsize, loc="upper left",
-                             bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0))
+def _side(fig, ax, legend: list, colorbar: tuple | None):
+    """The legend and the colour bar beside the axes of a fixed layout (the bar in an axes
+    of its own at the figure's right); the legend."""
+    cax = (fig.add_axes([0.9 if legend else 0.885, 0.14, 0.018, 0.72])
+           if colorbar is not None else None)
+    return decorate(fig, ax, legend, colorbar, cax=cax, fontsize=7)
 
 
 def _sweep_legend(styles, traces) -> list:
@@ -448,20 +435,10 @@ def snapshot(results: Results, system: System, path: str, at: list[float] | None
                 color, alpha = styles.colors[v], 0.25 + 0.75 * (i + 1) / len(ks)
             _Artists(ax, fr, color, alpha, size, labels and last and v == 0,
                      styles.linestyles[v]).update(v, k)
-    if not side:
-        _legend_inside(ax, results, styles.colors, fr.traces)
+    if not side:  # a single run at one instant: its traced paths named inside
+        _legend(ax, styles.colors, fr.traces, "best")
     _side(fig, ax, legend, colorbar)
     _save(fig, path)
-
-
-def _legend_inside(ax, results: Results, colors: list, traces) -> None:
-    """The paths of a single run's traced points drawn at one instant, named inside."""
-    from matplotlib.lines import Line2D
-
-    if traces:
-        handles = [Line2D([], [], lw=1.2, color=colors[0], label=f"path of {label}")
-                   for label in traces]
-        literal(ax.legend(handles=handles, fontsize=7, loc="best"))
 
 
 def animate(results: Results, system: System, path: str, fps: int = FPS,
@@ -497,7 +474,7 @@ def animate(results: Results, system: System, path: str, fps: int = FPS,
     if side:
         legend = _side(fig, ax, legend_entries, styles.colorbar)
     else:
-        legend = _legend(ax, results, colors, fr.traces, "upper right")
+        legend = _legend(ax, colors, fr.traces, "upper right")
     moving = [clock, *lines.values(), *(a for art in arts for a in art.artists)]
     if legend is not None and not side:  # drawn over the moving parts, as in a figure
         moving.append(legend)
@@ -520,12 +497,12 @@ def animate(results: Results, system: System, path: str, fps: int = FPS,
     return len(ks)
 
 
-def _legend(ax, results: Results, colors: list, traces, loc: str, alpha: float = 1.0):
+def _legend(ax, colors: list, traces, loc: str):
     """The legend inside the axes of a single run's traced paths (a thin line in its
     colour); None without a trace: an empty legend would only be a box (and a warning)."""
     from matplotlib.lines import Line2D
 
-    handles = [Line2D([], [], lw=1.2, color=colors[0], alpha=alpha, label=f"path of {label}")
+    handles = [Line2D([], [], lw=1.2, color=colors[0], label=f"path of {label}")
                for label in traces]
     if not handles:
         return None

@@ -199,13 +199,15 @@ def export(results: Results, system: System, path: str, at: list[float] | None =
     written = []
     if ext in (".dxf", ".svg"):
         from . import cad
+        from .draw import frames
 
+        fr = frames(results, system)  # every variant's, once
         for v in range(results.n_variants):
             chosen = ks[ks < int(results.n_solved[v])]
             if not len(chosen):
                 continue
             name = _variant_stem(stem, v, results.n_variants) + ext
-            d = cad.drawing(results, system, v, chosen)
+            d = cad.drawing(fr, results, system, v, chosen)
             (cad.write_dxf if ext == ".dxf" else cad.write_svg)(d, name)
             written.append(name)
         return written

@@ -73,7 +73,8 @@ def plot_results(results: Results, path: str | os.PathLike, title: str | None = 
             bottom.set_xlabel(f"t [{results.time_unit}]" if results.time_unit else "t",
                               parse_math=False)
             bottom.xaxis.set_tick_params(labelbottom=True)
-    decorate(fig, [ax for ax in axes[:len(labels)]], styles)
+    decorate(fig, axes[:len(labels)], [(text, c, ls, 2) for text, c, ls in styles.legend],
+             styles.colorbar)
     fig.suptitle(title or os.path.basename(results.source_name), parse_math=False)
     save_figure(fig, path)
 

@@ -94,9 +94,12 @@ def _label(sweep: dict, v: int) -> str:
     return ", ".join(f"{k} = {a[v]:g}" for k, a in sweep.items())
 
 
-def decorate(fig, axes, styles: VariantStyles, *, fontsize="small") -> None:
-    """The colour bar (beside ``axes``, a list or one axes) and the legend (outside the data,
-    right of the first axes) of ``styles``, where they have anything to show."""
+def decorate(fig, axes, legend: list, colorbar: tuple | None, *, cax=None,
+             fontsize="small"):
+    """The colour bar (label, colour map, low, high) and the legend (entries (label, colour,
+    line style, line width)) beside the data, where they have anything to show: the bar in
+    ``cax`` (a fixed layout) or beside ``axes`` (a list or one axes), the legend outside the
+    first axes, on its right. Returns the legend (None without entries)."""
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
     from matplotlib.lines import Line2D
@@ -104,13 +107,15 @@ def decorate(fig, axes, styles: VariantStyles, *, fontsize="small") -> None:
     from .plot import literal
 
     axes = list(np.ravel(axes))
-    if styles.colorbar is not None:
-        name, cmap, lo, hi = styles.colorbar
+    if colorbar is not None:
+        name, cmap, lo, hi = colorbar
         mappable = ScalarMappable(Normalize(lo, hi if hi > lo else lo + 1), cmap)
-        bar = fig.colorbar(mappable, ax=axes, shrink=0.9, pad=0.02)
+        bar = (fig.colorbar(mappable, cax=cax) if cax is not None else
+               fig.colorbar(mappable, ax=axes, shrink=0.9, pad=0.02))
         bar.set_label(name, parse_math=False)
-    if styles.legend:
-        handles = [Line2D([], [], color=c, ls=ls, lw=2, label=label)
-                   for label, c, ls in styles.legend]
-        literal(axes[0].legend(handles=handles, fontsize=fontsize, loc="upper left",
-                               bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0))
+    if not legend:
+        return None
+    handles = [Line2D([], [], color=c, ls=ls, lw=lw, label=label)
+               for label, c, ls, lw in legend]
+    return literal(axes[0].legend(handles=handles, fontsize=fontsize, loc="upper left",
+                                  bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0))

@@ -160,12 +160,14 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             elif message is not None:
                 return done("failed", message)
             t_new, y_new = s.t, s.y
+            dense = None  # (made once a step: an interpolant may cost stages of its own)
             if on_interval is not None:  # a quadrature over the step (its dense output)
-                on_interval(t, t_new, s.dense_output())
+                dense = s.dense_output()
+                on_interval(t, t_new, dense)
             # -- outputs inside the step, by its dense output (one at the step's end is
             # the projected end state, below) -----------------------------------------------
             if k_next < n_out and t_eval[k_next] < t_new:
-                dense = s.dense_output()
+                dense = dense or s.dense_output()
                 while k_next < n_out and t_eval[k_next] < t_new:
                     te = float(t_eval[k_next])
                     yo = dense(te)

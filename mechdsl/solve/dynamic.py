@@ -453,7 +453,7 @@ class DynamicRun(Run):
         times = self.times
         K, V = len(times), self.system.n_variants
         specs = {o.label: o for o in self.one.outputs}
-        self._dense_between: dict = {}
+        brackets: dict = {}  # (lo, hi) -> the dense output between (each integrated once)
         for label, sense in sorted(self.to_refine):
             y = sense * self.data[label][v]
             out = self.extrema.setdefault((label, sense), (np.full(V, np.nan),
@@ -466,18 +466,18 @@ class DynamicRun(Run):
                 f, t = float(y[k]), float(times[k])
                 if not finished:
                     try:
-                        f, t = self._refine_one(k, y, sense, specs[label], equations, scale)
+                        f, t = self._refine_one(k, y, sense, specs[label], equations, scale,
+                                                brackets)
                     except (np.linalg.LinAlgError, ArithmeticError, ValueError):
                         pass  # the sample stands
                 best_f.append(f)
                 best_t.append(t)
             best_f, best_t = np.array(best_f), np.array(best_t)
-            tied = best_f >= best_f.max() - extrema.TIE * np.abs(y).max()
-            j = int(np.argmin(np.where(tied, best_t, np.inf)))
+            j = int(extrema.first_best(best_f[None], best_t[None], np.abs(y).max())[0])
             out[0][v], out[1][v] = sense * best_f[j], best_t[j]
 
     def _refine_one(self, k: int, y: np.ndarray, sense: int, spec, equations,
-                    scale: np.ndarray) -> tuple[float, float]:
+                    scale: np.ndarray, brackets: dict) -> tuple[float, float]:
         """The extreme of sense * the column ``spec`` near output instant k and its time."""
         from .driver import integrate
         from .integrators import INTEGRATORS
@@ -485,7 +485,7 @@ class DynamicRun(Run):
         times, n, st = self.times, self.one.n, self.states
         K = len(times)
         lo, hi = max(k - 1, 0), min(k + 1, K - 1)
-        segments = self._dense_between.get((lo, hi))
+        segments = brackets.get((lo, hi))
         if segments is None:  # (each bracket integrated once, for every column's extremes)
             segments = []
             start = np.concatenate((st["q"][lo], st["qd"][lo]))
@@ -495,11 +495,12 @@ class DynamicRun(Run):
                             on_interval=lambda a, b, dense: segments.append((a, b, dense)))
             if sol.status != "ok":
                 segments = []
-            self._dense_between[(lo, hi)] = segments
+            brackets[(lo, hi)] = segments
         if not segments:
             return float(y[k]), float(times[k])
 
-        def at(t: float) -> float:
+        def at(t) -> float:
+            t = float(t)
             dense = next((d for a, b, d in segments if a <= t <= b), segments[-1][2])
             state = np.asarray(dense(t), dtype=float)
             q, qd = state[:n], state[n:2 * n]
@@ -511,24 +512,13 @@ class DynamicRun(Run):
 
         a, b = float(times[lo]), float(times[hi])
         m = float(times[k]) if 0 < k < K - 1 else 0.5 * (a + b)
-        fa, fb = float(y[lo]), float(y[hi])
-        fm = at(m)
-        best_f, best_t = max((fm, m), (float(y[k]), float(times[k])))
-        xtol = extrema.XTOL * max(abs(times[-1] - times[0]), 1e-300)
         # (the dense output is a smooth polynomial in each step: its extremum is found as
         # the kinematics' is, the value then within the integrator's tolerance)
-        flat = extrema.FLAT * float(np.abs(y).max())
-        for _ in range(extrema.MAX_ITERATIONS):
-            u = float(extrema._vertex(a, m, b, fa, fm, fb))
-            fu = at(u)
-            if fu > best_f:
-                best_f, best_t = fu, u
-            done = abs(u - m) <= xtol or abs(fu - fm) <= flat
-            a, m, b, fa, fm, fb = (float(x) for x in extrema._narrow(a, m, b, fa, fm, fb,
-                                                                      u, fu))
-            if done or b - a <= xtol:
-                break
-        return best_f, best_t
+        best_t, best_f = extrema.search(at, a, m, b, float(y[lo]), at(m), float(y[hi]),
+                                        False, float(np.abs(y).max()),
+                                        extrema.XTOL * max(abs(times[-1] - times[0]), 1e-300))
+        # never below the sample
+        return max((float(best_f), float(best_t)), (float(y[k]), float(times[k])))
 
     def _record(self, k: int, t: float, y: np.ndarray) -> None:
         """Keep the state at output instant k, with its accelerations and multipliers."""

@@ -121,22 +121,10 @@ def refine(run: "KinematicRun", pairs: set[tuple[str, int]]
     try:
         # the middle point: the sample itself inside, the bracket's middle at the run's ends
         m = np.where((k > 0) & (k < K - 1), tk, 0.5 * (a + b))
-        fm = at(m)
-        best_t, best_f = m.copy(), fm.copy()
         scale = np.concatenate([np.repeat(np.abs(y).max(axis=1, keepdims=True), C, axis=1)
                                 for y in ys], axis=1)
-        xtol = XTOL * max(abs(t[-1] - t[0]), 1e-300)
-        for _ in range(MAX_ITERATIONS):
-            u = _vertex(a, m, b, fa, fm, fb)
-            fu = at(u)
-            better = fu > best_f
-            best_t, best_f = np.where(better, u, best_t), np.where(better, fu, best_f)
-            # converged where the vertex stops moving, or where values no longer tell the
-            # points apart (a flat extremum: the value is exact, its time at round-off)
-            finished |= (np.abs(u - m) <= xtol) | (np.abs(fu - fm) <= FLAT * scale)
-            a, m, b, fa, fm, fb = _narrow(a, m, b, fa, fm, fb, u, fu)
-            if np.all(finished | (b - a <= xtol)):
-                break
+        best_t, best_f = search(at, a, m, b, fa, at(m), fb, finished, scale,
+                                XTOL * max(abs(t[-1] - t[0]), 1e-300))
     except Abandoned:
         return {}
     finally:
@@ -149,13 +137,38 @@ def refine(run: "KinematicRun", pairs: set[tuple[str, int]]
     for j, pair in enumerate(pairs):
         cut = slice(j * C, (j + 1) * C)
         fj, tj = f[:, cut], tt[:, cut]
-        tied = fj >= fj.max(axis=1, keepdims=True) - TIE * scale[:, cut]
-        pick = np.argmin(np.where(tied, tj, np.inf), axis=1)
+        pick = first_best(fj, tj, scale[:, cut])
         value, when = np.full(V, np.nan), np.full(V, np.nan)
         value[complete] = pair[1] * fj[np.arange(V), pick][complete]
         when[complete] = tj[np.arange(V), pick][complete]
         out[pair] = (value, when)
     return out
+
+
+def search(at, a, m, b, fa, fm, fb, finished, scale, xtol: float):
+    """The best point (times, values) of the safeguarded parabolic search (module
+    docstring) from brackets a < m < b with values fa, fm, fb (arrays of one shape; ``at``
+    gives the values at new points), each stopping where ``finished``, where its vertex
+    moves by at most ``xtol``, or where its values change by at most FLAT times ``scale``
+    (a flat extremum: the value is exact, its time at round-off)."""
+    best_t, best_f = np.array(m, dtype=float), np.array(fm, dtype=float)
+    for _ in range(MAX_ITERATIONS):
+        u = _vertex(a, m, b, fa, fm, fb)
+        fu = at(u)
+        better = fu > best_f
+        best_t, best_f = np.where(better, u, best_t), np.where(better, fu, best_f)
+        finished = finished | (np.abs(u - m) <= xtol) | (np.abs(fu - fm) <= FLAT * scale)
+        a, m, b, fa, fm, fb = _narrow(a, m, b, fa, fm, fb, u, fu)
+        if np.all(finished | (b - a <= xtol)):
+            break
+    return best_t, best_f
+
+
+def first_best(f: np.ndarray, t: np.ndarray, scale) -> np.ndarray:
+    """Per row of ``f`` (V, C), the index of its largest value, the first in time (``t``) of
+    those within TIE times ``scale`` of it (equal extremes: argmax is the first)."""
+    tied = f >= f.max(axis=1, keepdims=True) - TIE * scale
+    return np.argmin(np.where(tied, t, np.inf), axis=1)
 
 
 def _candidates(y: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

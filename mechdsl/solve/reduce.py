@@ -15,6 +15,7 @@ import numpy as np
 
 from ..compiled.system import System
 from ..results import Results
+from .extrema import SENSES
 
 
 def _mean(y: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -84,8 +85,7 @@ def _refined(func: str, label: str, extremes) -> np.ndarray | None:
     if func == "range":
         top, bottom = extremes.get((label, 1)), extremes.get((label, -1))
         return None if top is None or bottom is None else top[0] - bottom[0]
-    sense = {"max": 1, "argmax": 1, "min": -1, "argmin": -1}.get(func)
-    found = extremes.get((label, sense)) if sense is not None else None
+    found = extremes.get((label, SENSES[func][0])) if func in SENSES else None
     if found is None:
         return None
     return found[1].copy() if func.startswith("arg") else found[0].copy()
