@@ -21,6 +21,8 @@ done
 "$M" run examples/rod_sweep.mech -q -o /dev/null --sweep l=3.5,2.5,2.2,2.1 --sweep t1=0.5,1,1.5 \
     --step 0.002 --plot "$out/rod_ramp_sweep.png"
 "$M" run examples/fourbar.mech -q -o /dev/null --snapshot "$out/fourbar_coupler_curve.png" --at 0,0.2,0.4,0.6,0.8
+# centrodes: the elliptic trammel's Cardan circles
+"$M" run examples/trammel.mech -q -o /dev/null --snapshot "$out/trammel_centrodes.png" --at 0.1,0.5,0.9 --labels
 # a sweep: each variant in its colour, named in the legend, with its own supports
 "$M" run examples/fourbar.mech -q -o /dev/null --sweep d=3.8,4.2 --snapshot "$out/fourbar_sweep.png" \
     --at 0,0.5

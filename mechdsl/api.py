@@ -462,6 +462,7 @@ class Mechanism:
         params: Mapping[str, float] | None = None,
         options: SolverOptions | None = None,
         poses: bool = False,
+        rates: bool = False,
         reduce: str | Sequence[str] | None = None,
         client=None,
         chunk: int | None = None,
@@ -475,7 +476,9 @@ class Mechanism:
         the keywords here); ``sweep`` maps param names to lists of values. Every value may
         be a number or, as on the command line (``--set l=3*2``), the text of an expression
         of the params before it (``l="3*2"``, ``sweep={"l": ["r", "2*r"]}``). ``poses``
-        keeps every body's pose at every instant in ``Results.poses``. ``reduce`` replaces
+        keeps every body's pose at every instant in ``Results.poses``, ``rates`` their
+        velocities and accelerations too in ``Results.rates`` (as ``mechdsl run`` keeps
+        them for ``--export`` and for centrodes). ``reduce`` replaces
         the file's outputs by reductions, as ``mechdsl run --reduce`` (``"max(abs(slider.ax)),
         stroke = range(slider.x)"``, or a list of such texts): one value per variant, in
         ``Results.reduced``.
@@ -496,7 +499,7 @@ class Mechanism:
         planned = plan(mech, ov, chunk)
         system, total, size, _ = planned
         if store is None and client is None and total <= size:
-            return simulate(system, options, poses=poses)
+            return simulate(system, options, poses=poses, rates=rates)
         if store is not None:
             from .outputs.store import open_store, store_kind
 
@@ -505,7 +508,7 @@ class Mechanism:
                 raise MechError(f"store={store!r}: a store is a .zarr or .parquet path")
         placed: list[str] = []  # where the store went: beside store if interrupted
         results = solve_sweep(mech, ov, options, client=client, store=store, poses=poses,
-                              planned=planned, placed=placed.append)
+                              rates=rates, planned=planned, placed=placed.append)
         return results if store is None else open_store(placed[-1] if placed else store)
 
     def optimize(self, *, span: tuple[float, float] | None = None, step: float | None = None,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import signal
 import sys
 from typing import Iterator
@@ -292,18 +293,34 @@ class SearchStatus(ProgressBar):
                        f"{'s' if sweeps != 1 else ''}, {now - self.start:.0f} s ")
 
 
-def _trace_ref(model, ref: str) -> list[str]:
-    """Check a --trace BODY.POINT against the model's bodies and points."""
-    parts = ref.split(".")
+def _trace_ref(model, ref: str):
+    """A --trace BODY.POINT (an OutputRef) or ic(A, B) (a CentrodeTrace), checked against the
+    model's bodies and points."""
+    from .grammar.model import TRACE_FUNCTIONS, CentrodeTrace, OutputRef
+
     bodies = {b.name: b for b in (*model.bodies, model.ground)}
+    call = re.fullmatch(r"\s*(\w+)\s*\(\s*(\w+)\s*,\s*(\w+)\s*\)\s*", ref)
+    if call:
+        func, a, b = call.groups()
+        if func not in TRACE_FUNCTIONS:
+            raise MechError(f"--trace {ref}: '{func}' cannot be traced; expected BODY.POINT or "
+                            + " or ".join(f"{n}(A, B)" for n in TRACE_FUNCTIONS))
+        for name in (a, b):
+            if name not in bodies:
+                raise MechError(f"--trace {ref}: unknown body '{name}'" + suggest(name, bodies))
+        if a == b:
+            raise MechError(f"--trace {ref}: the centrodes of '{a}' relative to itself: name "
+                            "two bodies")
+        return CentrodeTrace(a, b, None)
+    parts = ref.split(".")
     if not 1 <= len(parts) <= 2 or parts[0] not in bodies:
-        raise MechError(f"--trace {ref}: expected BODY.POINT with a body of the model"
-                        + suggest(parts[0], bodies))
+        raise MechError(f"--trace {ref}: expected BODY.POINT with a body of the model, or "
+                        "ic(A, B)" + suggest(parts[0], bodies))
     points = {"origin", *(p.name for p in bodies[parts[0]].points)}
     if len(parts) == 2 and parts[1] not in points:
         raise MechError(f"--trace {ref}: body '{parts[0]}' has no point '{parts[1]}'"
                         + suggest(parts[1], points, f"{parts[0]}."))
-    return parts
+    return OutputRef(tuple(parts), None)
 
 
 def _frames(args) -> int:
@@ -353,8 +370,7 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
     if args.trace:
         from dataclasses import replace
 
-        from .grammar.model import OutputRef
-        extra = tuple(OutputRef(tuple(_trace_ref(mech.model, r)), None) for r in args.trace)
+        extra = tuple(_trace_ref(mech.model, r) for r in args.trace)
         mech.model = replace(mech.model, traces=mech.model.traces + extra)
     if getattr(args, "reduce", None):
         mech = mech.reducing(args.reduce)
@@ -369,7 +385,9 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
     store = _store(args)
     client = _client(args)
     drawing = bool(args.snapshot or args.animate or args.html)
-    rates = bool(args.export or args.html)  # (the page's velocity and acceleration arrows)
+    # (the page's velocity and acceleration arrows; the instant centres of centrodes)
+    rates = bool(args.export or args.html
+                 or (drawing and system.sketch is not None and system.sketch.centrodes))
     from .memory import outputs_bytes
 
     extra = outputs_bytes(system, figures=bool(args.plot), drawing=drawing,

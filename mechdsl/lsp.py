@@ -560,11 +560,15 @@ def completions(text: str, line: int, character: int, registry) -> list[tuple[st
         if depth > 0:
             return [(w, "keyword", "body item") for w in _ITEMS]
         return [(w, "keyword", "statement") for w in _STATEMENTS]
-    from .grammar.model import REDUCTIONS
+    from .grammar.model import REDUCTIONS, TRACE_FUNCTIONS
 
     reductions = ([(name, "function", f"reduction: {what}") for name, what in REDUCTIONS.items()
                    if name not in _FUNCTIONS]
                   if statement in ("output", "minimize", "maximize", "subject") else [])
+    if statement == "trace":  # a point's path, or a trace function's curves
+        return ([(b, "body", "body") for b in bodies if b != "ground"]
+                + [("ground", "body", "")]
+                + [(f, "function", what) for f, what in TRACE_FUNCTIONS.items()])
     return ([(p, "param", "param") for p in params]
             + [(b, "body", "body") for b in bodies if b != "ground"] + [("ground", "body", "")]
             + [(f, "function", "function") for f in _FUNCTIONS] + reductions

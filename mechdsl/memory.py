@@ -194,7 +194,7 @@ def outputs_bytes(system: System, *, figures: bool = False, drawing: bool = Fals
         total += FRAME_BYTES * (frames if frames_kept else 1)
     if drawing:
         drawn = sum(o.shape[1] + 1 for o in sk.outlines) + sum(p.shape[1] for _, p in sk.pins)
-        drawn += len(sk.traces) + sum(2 * e.shape[1] for e in sk.shapes if e is not None)
+        drawn += len(sk.traces) + 2 * len(sk.centrodes) + sum(2 * e.shape[1] for e in sk.shapes if e is not None)
         total += 3 * 2 * BYTES * V * K * drawn
     if export:
         points = sum(2 * o.shape[1] for o in sk.outlines)

@@ -261,6 +261,9 @@ async def test_completion_offers_points_types_keywords_and_names(client: Languag
     names = await offered("param k = 2*")
     assert {"r", "l", "omega", "crank", "sin", "pi"} <= set(names)
     assert {"param", "body", "joint", "simulate"} <= set(await offered("\n"))
+    traced = await offered("trace rod.C, ")  # a body's point, or a centrode's function
+    assert {"crank", "rod", "ground", "ic"} <= set(traced) and "sin" not in traced
+    assert "centrodes" in traced["ic"].detail
 
 
 @pytest.mark.asyncio

@@ -194,3 +194,23 @@ def test_a_short_run_plays_in_slow_motion_over_two_seconds(browser):
         assert 0.015 * 0.5 <= rate <= 0.015 * (elapsed + 0.034) / elapsed, rate
     finally:
         viewer.stop()
+
+
+def test_a_saved_page_draws_the_centrodes(browser, tmp_path):
+    """`trace ic(coupler, ground)`: the page draws both centrodes at every frame (a drawing
+    that threw would stop the play) and logs no error."""
+    model = tmp_path / "fourbar.mech"
+    model.write_text((EXAMPLES / "fourbar.mech").read_text() + "trace ic(coupler, ground)\n")
+    page = tmp_path / "out.html"
+    subprocess.run([sys.executable, "-m", "mechdsl", "run", str(model), "--html", str(page),
+                    "-q"], check=True)
+    browser.get_log("browser")  # what earlier tests logged
+    browser.get(page.as_uri())
+    wait_for(browser, READY)
+    kinds = browser.execute_script("return window.mechdslView.header.items.map(i => i.kind)")
+    assert kinds.count("centrode") == 1
+    first = browser.execute_script("return window.mechdslView.frame()")
+    wait_for(browser, f"return window.mechdslView.frame() !== {first}")  # it plays
+    second = browser.execute_script("return window.mechdslView.frame()")
+    wait_for(browser, f"return window.mechdslView.frame() !== {second}")
+    assert not [e for e in browser.get_log("browser") if e["level"] == "SEVERE"]

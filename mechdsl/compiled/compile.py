@@ -20,7 +20,7 @@ from ..grammar.checks import TIME, check_expr
 from ..grammar.derive import derivative, total_derivative
 from ..grammar.model import (
     BODY_QUANTITIES, DRIVE_QUANTITIES, ENERGY_QUANTITIES, GROUND, JOINT_QUANTITIES, ORIGIN, POINT_QUANTITIES, Body,
-    Drive, Force, Initial, Joint, Model, NamedOutput, ReducedOutput, Vector,
+    CentrodeTrace, Drive, Force, Initial, Joint, Model, NamedOutput, ReducedOutput, Vector,
 )
 from ..memory import check_compile
 from ..plugins.contract import REQUIRED, ArgError, ConstraintType
@@ -680,8 +680,12 @@ class _Compiler:
                     guides.append((int(g.slots[j, 0]), _readonly(g.params[p1][:, 0, j]),
                                    _readonly(g.params[axis][:, 0, j]), int(g.slots[j, 1]),
                                    _readonly(g.params[p2][:, 0, j])))
-        traces = []
+        traces, centrodes = [], []
         for r in self.model.traces:
+            if isinstance(r, CentrodeTrace):
+                centrodes.append((r.label, self._body_ref(r.a, r.span),
+                                   self._body_ref(r.b, r.span)))
+                continue
             body = r.parts[0]
             i = self._body_ref(body, r.span)
             if len(r.parts) > 2:
@@ -696,7 +700,7 @@ class _Compiler:
         return Sketch(tuple(outlines), tuple(pins), tuple(traces), shapes,
                       tuple(getattr(self, "links", ())), tuple(guides),
                       tuple(b.name for b in self.bodies), tuple(pin_names),
-                      self.units.length)
+                      self.units.length, tuple(centrodes))
 
     def _outputs(self) -> list[OutputSpec | ExprOutput]:
         refs = self.model.outputs

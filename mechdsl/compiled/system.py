@@ -160,6 +160,8 @@ class Sketch:
     pin_names: tuple[str, ...] = ()
     #: the unit of length (axes), "" where the model names none
     length_unit: str = ""
+    #: ``trace ic(A, B)``: (label, body A, body B), the ground as ``n_bodies``
+    centrodes: tuple[tuple[str, int, int], ...] = ()
 
 
 @dataclass(frozen=True)

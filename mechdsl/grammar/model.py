@@ -181,6 +181,31 @@ class OutputRef:
     span: Span
 
 
+#: The functions a ``trace`` statement may call, by name: what each draws.
+TRACE_FUNCTIONS: dict[str, str] = {
+    "ic": "the centrodes of body A relative to body B: the paths of their instant centre in "
+          "B's frame (fixed centrode) and in A's (moving centrode)",
+}
+
+
+@dataclass(frozen=True)
+class CentrodeTrace:
+    """``trace ic(A, B)``: the centrodes of body A relative to body B (either may be the
+    ground), drawn as traces. The instant centre I_AB is the point whose velocity is the
+    same as a point of A and as a point of B,
+    v_A + omega_A perp(r^I - r_A) = v_B + omega_B perp(r^I - r_B), perp(x, y) = (-y, x);
+    its path in B's frame is the fixed centrode, in A's the moving centrode, which rolls
+    without slipping on the fixed one. Where omega_A = omega_B it is at infinity."""
+
+    a: str
+    b: str
+    span: Span
+
+    @property
+    def label(self) -> str:
+        return f"ic({self.a}, {self.b})"
+
+
 @dataclass(frozen=True)
 class NamedOutput:
     """``output NAME = EXPR``: a quantity of the user's, an expression of params, ``t`` and
@@ -278,8 +303,9 @@ class Model:
     sweeps: tuple[Sweep, ...]
     #: ``plugin "module"`` statements: modules to load as plugins, with where they are named.
     plugins: tuple[tuple[str, Span], ...] = ()
-    #: ``trace body.P`` statements: points whose paths snapshots and animations draw.
-    traces: tuple[OutputRef, ...] = ()
+    #: ``trace body.P`` statements: points whose paths snapshots and animations draw, and
+    #: ``trace ic(A, B)``: centrodes.
+    traces: tuple[OutputRef | CentrodeTrace, ...] = ()
     #: ``units length = "m", time = "s", mass = "kg"``: the names of the units (labels, and
     #: the angle outputs' unit), as (dimension, name) pairs.
     units: tuple[tuple[str, str], ...] = ()

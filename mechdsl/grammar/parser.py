@@ -31,9 +31,9 @@ from ..errors import MechError, Source, Span, cut
 from . import expr as E
 from .cache import cached_tables
 from .checks import TIME, build_model, check_expr
-from .model import ANGLE_UNITS, SIMULATE_OPTIONS, UNIT_NAMES
+from .model import ANGLE_UNITS, SIMULATE_OPTIONS, TRACE_FUNCTIONS, UNIT_NAMES
 from .model import (
-    Arg, Drive, Force, Initial, Joint, MeshFile, Model, NamedOutput, OutputRef, Param, Point, Polygon,
+    Arg, CentrodeTrace, Drive, Force, Initial, Joint, MeshFile, Model, NamedOutput, OutputRef, Param, Point, Polygon,
     ReducedOutput, Simulate, Sweep, Vector,
 )
 from .tables import PointList, make_table
@@ -372,6 +372,17 @@ class _ToModel(Transformer_NonRecursive):
 
     def trace(self, meta, items):
         return ("trace", tuple(items))
+
+    def trace_call(self, meta, items):
+        func, a, b = items
+        if str(func) not in TRACE_FUNCTIONS:
+            raise MechError(f"'{cut(func)}' cannot be traced; trace body.P (a point's path) or "
+                            f"{' or '.join(f'{n}(A, B)' for n in TRACE_FUNCTIONS)}",
+                            _tspan(func))
+        if str(a) == str(b):
+            raise MechError(f"the centrodes of '{cut(a)}' relative to itself: name two bodies",
+                            _span(meta))
+        return CentrodeTrace(str(a), str(b), _span(meta))
 
     def unit(self, meta, items):
         name, text = items

@@ -19,7 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from . import expr as E
-from .model import ENERGY_QUANTITIES, REDUCTIONS
+from .model import ENERGY_QUANTITIES, REDUCTIONS, TRACE_FUNCTIONS
 from .motion_functions import SIGNATURES
 
 #: Keywords that start a statement and name nothing else: a statement starts here
@@ -211,6 +211,8 @@ def index(text: str) -> SymbolIndex:
             in_args.add(i)
         if w == "ground" and i in starts and nxt(i) == "{":
             role[i] = sym("body", i, declaration=True)
+        if statement == "trace" and depth == 0 and nxt(i) == "(" and w in TRACE_FUNCTIONS:
+            role[i] = sym("function", i)  # trace ic(A, B): a function of traces alone
         if not _is_word(tok) or i in starts or INNER_KEYWORDS.get(statement) == w:
             continue
         prev = words[i - 1] if i else None

@@ -5,7 +5,9 @@ What is drawn is what a snapshot draws (:func:`mechdsl.outputs.draw.frames`), in
 coordinates r^P = r + A(phi) s'^P (Haug eq. 2.6.4): every body through its points (an open
 polyline for a bar, a closed one for a plate, a point for a body of one point), the pins as
 small circles, the guides' rails as lines, the ground's pivots as points, and each traced
-point's whole path as one polyline. Each instant is its own layer (DXF, named ``t 0.25``)
+point's whole path as one polyline; with ``trace ic(A, B)``, the fixed centrode (dashed in
+SVG) on ``paths`` where its frame is the ground, and at each instant the moving centrode
+(dotted; and the fixed one of a moving frame). Each instant is its own layer (DXF, named ``t 0.25``)
 or group (SVG, ``id="t_0.25"``, ``data-t`` its time); the paths are on ``paths``, the
 ground on ``ground``. Coordinates are
 written to round-trip (repr of each double), so a file read back gives the run's positions
@@ -35,6 +37,7 @@ from ..compiled.system import System
 from ..errors import MechError
 from ..results import Results
 from ..writing import atomic_path, write_text
+from .centrodes import pieces, within_reach
 
 #: DXF $INSUNITS codes of the length units it knows
 DXF_UNITS = {"in": 1, "ft": 2, "mi": 3, "mm": 4, "cm": 5, "m": 6, "km": 7, "um": 13,
@@ -56,31 +59,47 @@ def _layer(t: float) -> str:
 def drawing(fr, results: Results, system: System, v: int, ks) -> dict:
     """What variant v's drawing holds, from the run's frames ``fr``
     (:func:`mechdsl.outputs.draw.frames`), in world coordinates: per instant k of ``ks`` its
-    bodies (name, points (P, 2)), pins (J, 2), rails ((2, 2) each); the ground's pivots
-    (G, 2); each traced point's path (label, (K, 2))."""
+    bodies (name, points (P, 2)), pins (J, 2), rails ((2, 2) each) and centrodes that move
+    (label, piece (M, 2)); the ground's pivots (G, 2); each traced point's path (label,
+    (K, 2)); the pieces of each fixed centrode whose frame is the ground (``centrodes``,
+    label and piece); the instant centres drawn (``centres``, for the extent)."""
     names = list(system.body_names)
-    out = {"instants": [], "ground": fr.ground[v, 0], "paths": [],
+    nb = len(fr.outlines)
+    out = {"instants": [], "ground": fr.ground[v, 0], "paths": [], "centres": [],
            "unit": system.sketch.length_unit if system.sketch else ""}
     for k in ks:
         bodies = [(names[i], o[v, k]) for i, o in enumerate(fr.outlines)]
         pins = np.array([p[v, k] for p in fr.pins]).reshape(-1, 2)
         rails = [np.array([a[v, k], b[v, k]]) for a, b, _ in fr.guides]
-        out["instants"].append((float(results.times[k]), bodies, pins, rails))
+        curves = []
+        for c in fr.centrodes:
+            fixed, moving = c.at(v, k)
+            curves += [(f"moving centrode of {c.label}", p) for p in pieces(moving)]
+            if c.b < nb:
+                curves += [(f"fixed centrode of {c.label}", p) for p in pieces(fixed)]
+            out["centres"].append(c.centre[v, k])
+        out["instants"].append((float(results.times[k]), bodies, pins, rails, curves))
     n = int(results.n_solved[v])
     out["paths"] = [(label, p[v, :n]) for label, p in fr.traces.items()]
+    out["centrodes"] = [(f"fixed centrode of {c.label}", p) for c in fr.centrodes
+                        if c.b >= nb for p in pieces(c.fixed[v])]
+    out["centres"] += [c.centre[v, :n] for c in fr.centrodes]
     return out
 
 
 def _extent(d: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The box of the drawing: the mechanism and the traced points' paths, and the instant
+    centres of centrodes within reach of them (:func:`within_reach`; the curves themselves
+    may run far away, to infinity)."""
     pts = [d["ground"].reshape(-1, 2)]
-    for _, bodies, pins, rails in d["instants"]:
+    for _, bodies, pins, rails, _ in d["instants"]:
         pts += [b for _, b in bodies] + [pins] + rails
     pts += [p for _, p in d["paths"]]
     allp = np.concatenate([p.reshape(-1, 2) for p in pts if p.size])
     allp = allp[np.isfinite(allp).all(axis=1)]
     if not len(allp):
         return np.zeros(2), np.ones(2)
-    return allp.min(axis=0), allp.max(axis=0)
+    return within_reach(allp.min(axis=0), allp.max(axis=0), d["centres"])
 
 
 def write_dxf(d: dict, path: str) -> None:
@@ -105,7 +124,10 @@ def write_dxf(d: dict, path: str) -> None:
             msp.add_lwpolyline([tuple(q) for q in good],
                                dxfattribs={"layer": "paths"}).set_xdata(
                 "MECHDSL", [(1000, f"path of {label}")])
-    for t, bodies, pins, rails in d["instants"]:
+    for label, p in d["centrodes"]:
+        msp.add_lwpolyline([tuple(q) for q in p], dxfattribs={"layer": "paths"}).set_xdata(
+            "MECHDSL", [(1000, label)])
+    for t, bodies, pins, rails, curves in d["instants"]:
         layer = _layer(t)
         if layer not in doc.layers:
             doc.layers.add(layer)
@@ -125,6 +147,9 @@ def write_dxf(d: dict, path: str) -> None:
         for rail in rails:
             if np.isfinite(rail).all():
                 msp.add_line(tuple(rail[0]), tuple(rail[1]), dxfattribs=attrs)
+        for label, p in curves:
+            msp.add_lwpolyline([tuple(q) for q in p], dxfattribs=attrs).set_xdata(
+                "MECHDSL", [(1000, label)])
     doc.appids.add("MECHDSL")
     with atomic_path(path) as tmp:
         doc.saveas(tmp)
@@ -141,6 +166,7 @@ def write_svg(d: dict, path: str) -> None:
     mm = MM_PER.get(d["unit"])
     size = (f'width="{_num(w * mm)}mm" height="{_num(h * mm)}mm" ' if mm else "")
     stroke = _num(0.004 * float(max(span)))
+    dash, gap = _num(0.02 * float(max(span))), _num(0.01 * float(max(span)))  # centrodes
 
     def points(p: np.ndarray) -> str:
         return " ".join(f"{_num(x)},{_num(y)}" for x, y in p)
@@ -157,8 +183,11 @@ def write_svg(d: dict, path: str) -> None:
     for label, p in d["paths"]:
         good = p[np.isfinite(p).all(axis=1)]
         lines.append(f'<polyline data-path={quoteattr(label)} points="{points(good)}"/>')
+    lines += [f'<polyline data-centrode={quoteattr(label)} points="{points(p)}" '
+              f'stroke-dasharray="{dash} {gap}"/>'
+              for label, p in d["centrodes"]]
     lines.append('</g>')
-    for t, bodies, pins, rails in d["instants"]:
+    for t, bodies, pins, rails, curves in d["instants"]:
         lines.append(f'<g id={quoteattr(f"t_{float(t):g}")} data-t="{_num(t)}">')
         for name, pts in bodies:
             if not np.isfinite(pts).all():
@@ -174,6 +203,9 @@ def write_svg(d: dict, path: str) -> None:
                   for x, y in pins if math.isfinite(x) and math.isfinite(y)]
         lines += [f'<polyline data-rail="" points="{points(r)}" stroke="gray"/>'
                   for r in rails if np.isfinite(r).all()]
+        lines += [f'<polyline data-centrode={quoteattr(label)} points="{points(p)}" '
+                  f'stroke="gray" stroke-dasharray="{gap} {gap}"/>'
+                  for label, p in curves]
         lines.append('</g>')
     lines += ['</g>', f'<title>{escape(os.path.basename(path))}</title>', '</svg>']
     write_text(path, lambda f: f.write("\n".join(lines) + "\n"))

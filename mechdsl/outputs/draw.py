@@ -25,6 +25,7 @@ import numpy as np
 from ..compiled.system import Sketch, System
 from ..errors import MechError
 from ..results import Results
+from .centrodes import Centrode, centrodes, pieces, within_reach
 from .plot import literal, save_figure
 from .styles import decorate, variant_styles
 
@@ -102,6 +103,8 @@ class Frames:
     pin_names: list[tuple[str, np.ndarray]] = field(default_factory=list)
     #: the unit of length ("" where the model names none)
     unit: str = ""
+    #: ``trace ic(A, B)``: the centrodes (:mod:`mechdsl.outputs.centrodes`)
+    centrodes: list[Centrode] = field(default_factory=list)
 
 
 def frames(results: Results, system: System) -> Frames:
@@ -127,8 +130,14 @@ def frames(results: Results, system: System) -> Frames:
         if not any(np.allclose(p, q, equal_nan=True) for q in seen):
             seen.append(p)
             pin_names.append((name, p))
+    rolling = []
+    if sk.centrodes:
+        if results.rates is None:
+            raise ValueError("centrodes need the bodies' velocities: the run kept no rates "
+                             "(simulate(..., poses=True, rates=True))")
+        rolling = centrodes(poses, results.rates, sk.centrodes)
     return Frames(bodies, pins, paths(results, sk), ground, shapes, links, guides, names,
-                  pin_names, sk.length_unit)
+                  pin_names, sk.length_unit, rolling)
 
 
 def _rail(poses: np.ndarray, body: int, p1: np.ndarray, axis: np.ndarray, slider: int,
@@ -173,6 +182,7 @@ def _limits(fr: Frames) -> tuple[float, float, float, float]:
     allp = np.concatenate(pts)
     allp = allp[np.isfinite(allp).all(axis=1)]
     lo, hi = allp.min(axis=0), allp.max(axis=0)
+    lo, hi = within_reach(lo, hi, [c.centre for c in fr.centrodes])
     pad = 0.08 * max(float((hi - lo).max()), 1e-9)
     return lo[0] - pad, hi[0] + pad, lo[1] - pad, hi[1] + pad
 
@@ -299,6 +309,22 @@ def _ground_rails(ax, fr: Frames, colors: list, size: float) -> None:
                                  zorder=1))
 
 
+def _collinear(outline: np.ndarray) -> bool:
+    """Whether a body's points (V, K, P, 2) lie on one line in every variant (a rigid body:
+    the first instant solved says it): the cross products of their offsets from the first
+    point vanish to round-off of the body's size."""
+    for v in range(outline.shape[0]):
+        good = np.flatnonzero(np.isfinite(outline[v]).all(axis=(1, 2)))
+        if not len(good):
+            continue
+        d = outline[v, good[0]] - outline[v, good[0], 0]
+        u = d[np.argmax(np.hypot(d[:, 0], d[:, 1]))]  # the farthest point's direction
+        size = float(np.hypot(*u)) or 1.0
+        if np.abs(d[:, 0] * u[1] - d[:, 1] * u[0]).max() > 1e-9 * size**2:
+            return False
+    return True
+
+
 class _Artists:
     """One variant's drawing, as a few artists whatever the number of bodies (so that a
     frame of an animation costs a few updates, not one artist per body): the bars (two-point
@@ -312,8 +338,11 @@ class _Artists:
         from matplotlib.collections import LineCollection, PolyCollection
 
         self.fr, self.w = fr, 0.45 * size
-        self.bars = [i for i, o in enumerate(fr.outlines) if o.shape[2] == 2]
-        self.plates = [i for i, o in enumerate(fr.outlines) if o.shape[2] >= 3]
+        # points on one line (a rod with a point beyond its end) are a bar, not a plate
+        self.bars = [i for i, o in enumerate(fr.outlines)
+                     if o.shape[2] == 2 or (o.shape[2] >= 3 and _collinear(o))]
+        self.plates = [i for i, o in enumerate(fr.outlines)
+                       if o.shape[2] >= 3 and i not in self.bars]
         self.dots = [i for i, o in enumerate(fr.outlines) if o.shape[2] == 1]
         self.bar_art = ax.add_collection(LineCollection([], colors=[color], linewidths=3,
                                                         alpha=alpha, capstyle="round",
@@ -330,8 +359,16 @@ class _Artists:
                                                          alpha=alpha, zorder=1))
         self.rail_art = ax.add_collection(LineCollection([], colors=[SUPPORT_COLOR],
                                                          linewidths=1.0, alpha=alpha, zorder=1))
+        # centrodes: the moving ones (dotted) and the fixed ones of a moving frame (dashed),
+        # the instant centre a cross where they touch
+        self.centrode_art = ax.add_collection(LineCollection([], colors=[color], linewidths=1.0,
+                                                             alpha=alpha, zorder=1))
+        self.ic_art = ax.plot([], [], "x", color=color, ms=6, mew=1.2, alpha=alpha,
+                              zorder=3)[0]
         self.artists = [self.bar_art, self.plate_art, self.dot_art, self.pin_art,
                         self.shape_art, self.link_art, self.rail_art]
+        if fr.centrodes:
+            self.artists += [self.centrode_art, self.ic_art]
         self.texts = []
         if labels:  # dark on a white halo, a few points off the spot they name
             from matplotlib import patheffects
@@ -362,11 +399,48 @@ class _Artists:
         self.link_art.set_segments([zigzag(a[v, k], b[v, k]) for a, b in fr.links])
         self.rail_art.set_segments([side for a, b, fixed in fr.guides if not fixed
                                     for side in _rail_lines(a[v, k], b[v, k], self.w)])
+        if fr.centrodes:
+            segments, styles = [], []
+            for c in fr.centrodes:
+                fixed, moving = c.at(v, k)
+                for curve, style, drawn in ((moving, ":", True),
+                                            (fixed, "--", c.b < len(fr.outlines))):
+                    if drawn:
+                        runs = pieces(curve)
+                        segments += runs
+                        styles += [style] * len(runs)
+            self.centrode_art.set_segments(segments)
+            self.centrode_art.set_linestyles(styles or "-")
+            ics = np.array([c.centre[v, k] for c in fr.centrodes]).reshape(-1, 2)
+            self.ic_art.set_data(ics[:, 0], ics[:, 1])
         for text, at in self.texts:
             x, y = at[v, k]
             text.xy = (x, y)
             text.set_visible(bool(np.isfinite([x, y]).all()))
         return self.artists
+
+
+def _ground_centrodes(ax, fr: Frames, v: int, color, linestyle: str = "--") -> list:
+    """The fixed centrodes of variant v whose frame is the ground: drawn once, whole, as the
+    traced paths are."""
+    lines = []
+    for c in fr.centrodes:
+        if c.b >= len(fr.outlines):
+            for piece in pieces(c.fixed[v]):
+                lines += ax.plot(piece[:, 0], piece[:, 1], ls=linestyle, lw=1.2, color=color,
+                                 alpha=0.9, zorder=1)
+    return lines
+
+
+def _path_entries(fr: Frames, color) -> list:
+    """The legend's entries of what is traced: each point's path, and each pair of
+    centrodes (fixed dashed, moving dotted), as (text, colour, line style, width)."""
+    entries = [(f"path of {label}", color, "-", 1.2) for label in fr.traces]
+    for c in fr.centrodes:  # named where there are several
+        of = f" {c.label}" if len(fr.centrodes) > 1 else ""
+        entries += [(f"fixed centrode{of}", color, "--", 1.2),
+                    (f"moving centrode{of}", color, ":", 1.2)]
+    return entries
 
 
 def _side(fig, ax, legend: list, colorbar: tuple | None):
@@ -377,11 +451,11 @@ def _side(fig, ax, legend: list, colorbar: tuple | None):
     return decorate(fig, ax, legend, colorbar, cax=cax, fontsize=7)
 
 
-def _sweep_legend(styles, traces) -> list:
-    """The legend's entries: the variants (their styles' entries, thick), then each traced
-    path (thin, in grey: the colours name the variants, or the instants)."""
+def _sweep_legend(styles, fr: Frames | None) -> list:
+    """The legend's entries: the variants (their styles' entries, thick), then what is
+    traced (thin, in grey: the colours name the variants, or the instants), if ``fr``."""
     entries = [(text, c, ls, 3) for text, c, ls in styles.legend]
-    return entries + [(f"path of {label}", "0.3", "-", 1.2) for label in traces]
+    return entries + (_path_entries(fr, "0.3") if fr is not None else [])
 
 
 #: the colour map of the instants of a snapshot (its light end left out: bars on white)
@@ -413,7 +487,7 @@ def snapshot(results: Results, system: System, path: str, at: list[float] | None
     tu = f" [{results.time_unit}]" if results.time_unit else ""
     colorbar = (("t" + tu, _time_cmap(), float(results.times[ks[0]]),
                  float(results.times[ks[-1]])) if timed else styles.colorbar)
-    legend = _sweep_legend(styles, fr.traces if results.sweep or timed else ())
+    legend = _sweep_legend(styles, fr if results.sweep or timed else None)
     side = "legend" if legend else "bar" if colorbar is not None else None
     fig, ax, size = _figure(fr, f"{os.path.basename(results.source_name)}: "
                             f"t = {', '.join(f'{results.times[k]:g}' for k in ks)}",
@@ -424,6 +498,7 @@ def snapshot(results: Results, system: System, path: str, at: list[float] | None
         for p in fr.traces.values():
             ax.plot(p[v, :, 0], p[v, :, 1], ls=styles.linestyles[v], lw=1.2,
                     color=path_color, alpha=0.9)
+        _ground_centrodes(ax, fr, v, path_color)
         drawn = [k for k in ks if k < results.n_solved[v]]
         for i, k in enumerate(drawn):
             last = i == len(drawn) - 1
@@ -436,7 +511,7 @@ def snapshot(results: Results, system: System, path: str, at: list[float] | None
             _Artists(ax, fr, color, alpha, size, labels and last and v == 0,
                      styles.linestyles[v]).update(v, k)
     if not side:  # a single run at one instant: its traced paths named inside
-        _legend(ax, styles.colors, fr.traces, "best")
+        _legend(ax, _path_entries(fr, styles.colors[0]), "best")
     _side(fig, ax, legend, colorbar)
     _save(fig, path)
 
@@ -462,7 +537,7 @@ def animate(results: Results, system: System, path: str, fps: int = FPS,
     ks = _instants(results, max_frames)
     styles = variant_styles(results)
     colors = styles.colors
-    legend_entries = _sweep_legend(styles, fr.traces if results.sweep else ())
+    legend_entries = _sweep_legend(styles, fr if results.sweep else None)
     side = "legend" if legend_entries else "bar" if styles.colorbar is not None else None
     fig, ax, size = _figure(fr, os.path.basename(results.source_name), colors, side)
     clock = ax.text(0.02, 0.96, "", transform=ax.transAxes, fontsize=9, va="top",
@@ -471,10 +546,12 @@ def animate(results: Results, system: System, path: str, fps: int = FPS,
              for v in range(results.n_variants) for label in fr.traces}
     arts = [_Artists(ax, fr, colors[v], 1.0, size, labels and v == 0, styles.linestyles[v])
             for v in range(results.n_variants)]
+    for v in range(results.n_variants):  # fixed over the whole animation
+        _ground_centrodes(ax, fr, v, colors[v])
     if side:
         legend = _side(fig, ax, legend_entries, styles.colorbar)
     else:
-        legend = _legend(ax, colors, fr.traces, "upper right")
+        legend = _legend(ax, _path_entries(fr, colors[0]), "upper right")
     moving = [clock, *lines.values(), *(a for art in arts for a in art.artists)]
     if legend is not None and not side:  # drawn over the moving parts, as in a figure
         moving.append(legend)
@@ -497,13 +574,14 @@ def animate(results: Results, system: System, path: str, fps: int = FPS,
     return len(ks)
 
 
-def _legend(ax, colors: list, traces, loc: str):
-    """The legend inside the axes of a single run's traced paths (a thin line in its
-    colour); None without a trace: an empty legend would only be a box (and a warning)."""
+def _legend(ax, entries: list, loc: str):
+    """The legend inside the axes of a single run's traced paths and centrodes
+    (:func:`_path_entries`); None without a trace: an empty legend would only be a box (and
+    a warning)."""
     from matplotlib.lines import Line2D
 
-    handles = [Line2D([], [], lw=1.2, color=colors[0], label=f"path of {label}")
-               for label in traces]
+    handles = [Line2D([], [], lw=lw, color=c, ls=ls, label=text)
+               for text, c, ls, lw in entries]
     if not handles:
         return None
     return literal(ax.legend(handles=handles, fontsize=7, loc=loc))

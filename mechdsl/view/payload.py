@@ -26,6 +26,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from ..compiled.system import System
+from ..outputs.centrodes import within_reach
 from ..outputs.draw import frames, variant_labels
 from ..results import Results, summary
 
@@ -129,6 +130,12 @@ def run_message(system: System, results: Results, sliders: Sequence[Slider], *,
         for a, b in fr.links:
             items.append({"kind": "spring", "v": v,
                           "o": pk.add(np.stack((a[v], b[v]), -2), True)})
+        for c in fr.centrodes:  # local curves, carried by their frames' poses on the page
+            items.append({"kind": "centrode", "name": c.label, "v": v,
+                          "m": int(c.fixed.shape[1]), "ground": bool(c.b >= len(fr.outlines)),
+                          "fixed": pk.add(c.fixed[v]), "moving": pk.add(c.moving[v]),
+                          "pa": pk.add(c.pose_a[v]), "pb": pk.add(c.pose_b[v]),
+                          "ic": pk.add(c.centre[v])})
         for label, body, _ in sk.traces:
             at = fr.traces[label][v]
             item = {"kind": "trace", "name": label, "v": v, "o": pk.add(at, True)}
@@ -144,6 +151,7 @@ def run_message(system: System, results: Results, sliders: Sequence[Slider], *,
         np.zeros((0, 2))
     pts = pts[np.isfinite(pts).all(axis=1)]
     lo, hi = (pts.min(axis=0), pts.max(axis=0)) if pts.size else ((-1.0, -1.0), (1.0, 1.0))
+    lo, hi = within_reach(np.asarray(lo), np.asarray(hi), [c.centre for c in fr.centrodes])
     bounds = [float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])]
     series = []
     for name in results.data:

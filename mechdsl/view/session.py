@@ -129,10 +129,12 @@ class Session:
             ov = _overrides(mech, self.values)
             system, total, size, _ = plan(mech, ov)
             if total <= size:  # one run: the traced points' velocities and accelerations too
+                sk = system.sketch
                 results = simulate(system, self.options, poses=True,
-                                   rates=bool(system.sketch and system.sketch.traces))
+                                   rates=bool(sk and (sk.traces or sk.centrodes)))
             else:  # a sweep of many chunks: as the API solves it, without the vectors
                 results = mech.simulate(params=dict(self.values), poses=True,
+                                        rates=bool(system.sketch and system.sketch.centrodes),
                                         options=self.options)
                 system = mech.compile(ov)
         except MechError as err:

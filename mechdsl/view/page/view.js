@@ -230,6 +230,7 @@
       const c = color(it.v, h.V);
       if (it.kind === "ground") drawSupports(view.data.subarray(it.o, it.o + 2 * it.p), unit);
       else if (it.kind === "trace") drawTrace(it, c, unit);
+      else if (it.kind === "centrode") drawCentrodes(it, c, unit);
     }
     for (const it of h.items) {
       const c = color(it.v, h.V);
@@ -314,6 +315,37 @@
       if (pen) ctx.lineTo(X(x), Y(y)); else { ctx.moveTo(X(x), Y(y)); pen = true; }
     }
     ctx.stroke(); ctx.globalAlpha = 1;
+  }
+
+  // the centrodes at the instant shown: the fixed one (dashed) carried by its frame's pose,
+  // the moving one (dotted) by the moving body's, touching at the instant centre (a cross)
+  function drawCentrodes(it, c, unit) {
+    const k = Math.min(view.k, view.header.solved[it.v] - 1);
+    if (k < 0) return;
+    const curve = (o, p, dash) => {
+      const x0 = view.data[p + 3 * k], y0 = view.data[p + 3 * k + 1], f = view.data[p + 3 * k + 2];
+      const cs = Math.cos(f), sn = Math.sin(f), a = view.data.subarray(o, o + 2 * it.m);
+      ctx.setLineDash(dash); ctx.beginPath();
+      let pen = false;
+      for (let i = 0; i < it.m; i++) {
+        const u = a[2 * i], w = a[2 * i + 1];
+        if (!Number.isFinite(u) || !Number.isFinite(w)) { pen = false; continue; }
+        const x = X(x0 + cs * u - sn * w), y = Y(y0 + sn * u + cs * w);
+        if (pen) ctx.lineTo(x, y); else { ctx.moveTo(x, y); pen = true; }
+      }
+      ctx.stroke();
+    };
+    ctx.strokeStyle = c; ctx.globalAlpha = 0.6; ctx.lineWidth = unit * 0.35;
+    curve(it.fixed, it.pb, [4 * unit, 2 * unit]);
+    curve(it.moving, it.pa, [unit, 1.5 * unit]);
+    ctx.setLineDash([]); ctx.globalAlpha = 1;
+    const x = view.data[it.ic + 2 * k], y = view.data[it.ic + 2 * k + 1];
+    if (Number.isFinite(x) && Number.isFinite(y)) {
+      const d = 1.5 * unit;
+      ctx.lineWidth = unit * 0.5; ctx.beginPath();
+      ctx.moveTo(X(x) - d, Y(y) - d); ctx.lineTo(X(x) + d, Y(y) + d);
+      ctx.moveTo(X(x) - d, Y(y) + d); ctx.lineTo(X(x) + d, Y(y) - d); ctx.stroke();
+    }
   }
 
   function drawLegend(h) {
