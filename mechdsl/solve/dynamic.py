@@ -521,17 +521,20 @@ class DynamicRun(Run):
         return max((float(best_f), float(best_t)), (float(y[k]), float(times[k])))
 
     def _record(self, k: int, t: float, y: np.ndarray) -> None:
-        """Keep the state at output instant k, with its accelerations and multipliers."""
+        """Keep the state at output instant k, with its accelerations and multipliers where
+        an output (order 2: an acceleration, a load) or the kept rates need them (a solve of
+        the equations of motion per instant, skipped otherwise)."""
         n, st = self.ev.n, self.states
         q, qd = y[:n], y[n:]
-        try:
-            qdd, lam = self.ev.accelerations(t, q, qd)
-        except np.linalg.LinAlgError:
-            qdd, lam = np.full(n, np.nan), np.full(self.ev.m, np.nan)
+        if self.one.order >= 2 or self.keep_rates:
+            try:
+                st["qdd"][k], st["lambda"][k] = self.ev.accelerations(t, q, qd)
+            except np.linalg.LinAlgError:
+                pass  # (NaN: what the states hold)
         if self.ev.m:
             phi, _ = self.ev.phi_jac(t, q)
             self.residual = max(self.residual, float(np.abs(phi).max()))
-        st["q"][k], st["qd"][k], st["qdd"][k], st["lambda"][k] = q, qd, qdd, lam
+        st["q"][k], st["qd"][k] = q, qd
         self.n_solved[self.variant] = k + 1
 
     def _write(self, v: int) -> None:
