@@ -797,8 +797,11 @@ def check_command(args) -> int:
 def plugins_command() -> int:
     """``mechdsl plugins``: every installed type with its signature and distribution."""
     from .plugins.manager import build_registry
+    from .plugins.version import CONTRACT_VERSION, DECLARATION
 
     registry = build_registry()
+    emit(f"plugin contract {CONTRACT_VERSION} (a plugin declares {DECLARATION} = "
+         f"{CONTRACT_VERSION})")
     for kind in ("joint", "drive", "force"):
         names = registry.names(kind)
         emit(f"{kind} types:")

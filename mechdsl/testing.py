@@ -141,12 +141,23 @@ def _traced(ctype: ConstraintType) -> None:
         text = str(err)
         own = f"the {prefix}: "
         text = text[len(own):] if text.startswith(own) else text
-        raise ContractViolation(f"{prefix}: its equations cannot be traced: {text}") from err
+        supplied = next((m for m in _SUPPLIED if f"{m}()" in text), None)
+        raise ContractViolation(f"{prefix}: {_what_failed(supplied)}: {text}") from err
     except Exception as err:  # noqa: BLE001 - the plugin's failure is the finding
         frames = [fr.name for fr in traceback.extract_tb(err.__traceback__)]
         method = next((m for m in reversed(frames) if m in _TRACED_METHODS), "equations")
-        raise ContractViolation(f"{prefix}: its equations cannot be traced: {method}() raised "
-                                f"{type(err).__name__}: {err}") from err
+        raise ContractViolation(f"{prefix}: {_what_failed(method if method in _SUPPLIED else None)}"
+                                f": {method}() raised {type(err).__name__}: {err}") from err
+
+
+#: The terms a type may supply instead of having them derived
+_SUPPLIED = ("jacobian_terms", "gamma_terms")
+
+
+def _what_failed(supplied: str | None) -> str:
+    """What a tracing failure is of: the supplied terms named, or the equations."""
+    return (f"its supplied {supplied}() does not fit the contract" if supplied
+            else "its equations cannot be traced")
 
 
 def _supplied(ctype: ConstraintType, q, qd, p, blocks, gamma) -> None:

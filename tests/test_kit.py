@@ -136,6 +136,11 @@ class JacobianOffByOnePartInABillion(SameX):
         return same_x_jacobian(bodies, args, scale=(1 + 1e-9, 1 + 1e-9))
 
 
+class TooManyGammaTerms(SameX):
+    def gamma_terms(self, bodies, rates, args):
+        return (0.0, 0.0)
+
+
 @pytest.mark.parametrize("ctype, message", [
     (WrongJacobian(), r"Jacobian block 1 \(attached body 1\) is wrong \(against central "
                       r"differences of phi\): at index \(\d+, 0, 2\) got"),
@@ -143,8 +148,11 @@ class JacobianOffByOnePartInABillion(SameX):
     (WrongCount(), r"joint type 'same_x': its equations cannot be traced: equations\(\) gave 2 "
                    r"values, expected 1"),
     (IgnoresBatchAxes(), r"declared wrongly: method gamma\(\) is overridden"),
-    (TooFewBlocks(), r"its equations cannot be traced: jacobian_terms\(\) gave 1 blocks for 2 "
-                     r"bodies"),
+    # a wrong number of supplied terms is named as the supplied terms' fault (issue 31)
+    (TooFewBlocks(), r"its supplied jacobian_terms\(\) does not fit the contract: "
+                     r"jacobian_terms\(\) gave 1 blocks, expected one per attached body \(2\)"),
+    (TooManyGammaTerms(), r"its supplied gamma_terms\(\) does not fit the contract: "
+                          r"gamma_terms\(\) gave 2 values, expected 1"),
     (NotFinite(), r"phi is inf at index \(\d+, 0\) for valid input"),
     (FalselyInvariant(), r"\|phi\| after a rigid motion .* is wrong"),
     (SharesOneGap(), r"declared wrongly: method phi\(\) is overridden"),

@@ -80,8 +80,13 @@ def test_the_core_pins_its_library_and_each_plugin_pins_the_core():
     for folder in LIBRARY:
         assert dict(map(requirement, project(folder)["dependencies"]))["mechdsl"] \
             == "==" + VERSION, folder
-    # a third-party plugin depends on the core by its plain name, as the guide shows
-    assert requirement(project(EXAMPLE_PLUGIN)["dependencies"][0]) == ("mechdsl", "")
+    # a third-party plugin depends on the range of the core that implements the plugin
+    # contract it is written for, as the guide shows: this core's version is in it
+    from packaging.specifiers import SpecifierSet
+
+    name, spec = requirement(project(EXAMPLE_PLUGIN)["dependencies"][0])
+    assert (name, spec) == ("mechdsl", ">=0.1,<0.2")
+    assert SpecifierSet(spec).contains(VERSION)
 
 
 def test_requirements_dev_installs_each_distribution_editable_from_its_folder():

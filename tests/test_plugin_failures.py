@@ -100,3 +100,106 @@ def test_two_plugins_claiming_one_name_is_an_error_naming_both(tmp_path):
     assert "mechdsl-revolute 0.1.0" in r.stderr and "mechdsl-other-revolute 0.1" in r.stderr
     r = mechdsl(tmp_path, "plugins")
     assert "provided twice" in r.stdout
+
+
+# -- the plugin contract's version (issue 31) --------------------------------------------------
+
+#: A plugin of contract 1, as third parties wrote them: phi, jacobian and gamma on arrays.
+OLD_CONTRACT = '''
+    import numpy as np
+    from mechdsl.plugins import Arg, ConstraintType, hookimpl
+
+    class CircleSlot(ConstraintType):
+        name = "circle_slot"
+        kind = "joint"
+        signature = (Arg("centre", "point"), Arg("pin", "point"), Arg("radius", "scalar"))
+        n_eq = 1
+
+        def phi(self, q, p):
+            return np.zeros(q[0].shape[:-1] + (1,))
+
+        def jacobian(self, q, p):
+            return np.zeros(q[0].shape[:-1] + (1, 6))
+
+        def gamma(self, q, qd, p):
+            return np.zeros(q[0].shape[:-1] + (1,))
+
+    @hookimpl
+    def mechdsl_constraint_types():
+        return [CircleSlot()]
+'''
+#: The same plugin as it fails on import: contract 1's helpers are gone from mechdsl.
+OLD_IMPORT = "\n    from mechdsl.plugins.geometry import block" + OLD_CONTRACT
+
+SLOT_MODEL = """\
+body a { point P = (1, 0) }
+joint pa: revolute(ground.origin, a.origin)
+joint slot: circle_slot(ground.origin, a.P, radius = 1)
+simulate t = 0 .. 1 step 0.1
+"""
+
+
+def _located_contract_error(tmp_path, r):
+    assert r.returncode == 1, r.stderr
+    assert "Traceback" not in r.stderr
+    first = r.stderr.splitlines()[0]
+    assert first.startswith(f"{tmp_path / 'slot.mech'}:3:13: error: the joint type "
+                            "'circle_slot' comes from the plugin mechdsl_circle_slot "
+                            "(mechdsl-circle-slot 0.1), which cannot be loaded: "), first
+    assert "mechdsl implements plugin contract 2: the contract changed (migration notes: " \
+           "docs/plugins.md#contract-versions-and-migration)" in first
+    return first
+
+
+def test_an_old_contract_plugin_gets_the_located_contract_error(tmp_path):
+    fake_distribution(tmp_path, "mechdsl-circle-slot", "mechdsl_circle_slot", OLD_CONTRACT,
+                      ["circle_slot"])
+    (tmp_path / "slot.mech").write_text(SLOT_MODEL)
+    r = mechdsl(tmp_path, "run", tmp_path / "slot.mech")
+    first = _located_contract_error(tmp_path, r)
+    assert "type 'circle_slot' writes phi, jacobian, gamma() and no equations(): it was " \
+           "written for plugin contract 1" in first
+    listing = mechdsl(tmp_path, "plugins").stdout
+    assert listing.startswith("plugin contract 2 (a plugin declares MECHDSL_CONTRACT = 2)")
+    assert "mechdsl_circle_slot (mechdsl-circle-slot 0.1): type 'circle_slot' writes" in listing
+
+
+def test_a_plugin_that_imports_what_the_old_contract_had_gets_the_contract_error(tmp_path):
+    fake_distribution(tmp_path, "mechdsl-circle-slot", "mechdsl_circle_slot", OLD_IMPORT,
+                      ["circle_slot"])
+    (tmp_path / "slot.mech").write_text(SLOT_MODEL)
+    first = _located_contract_error(tmp_path, mechdsl(tmp_path, "run", tmp_path / "slot.mech"))
+    assert "it imports what mechdsl no longer has (cannot import name 'block' from " \
+           "'mechdsl.plugins.geometry'" in first
+
+
+def test_a_plugin_declaring_another_contract_is_not_loaded_and_the_current_one_is(tmp_path):
+    current = (EXAMPLES / "plugins" / "curve_slot" / "mechdsl_curve_slot"
+               / "__init__.py").read_text()
+    assert "MECHDSL_CONTRACT = 2" in current
+    fake_distribution(tmp_path, "mechdsl-circle-slot", "mechdsl_circle_slot",
+                      current.replace("MECHDSL_CONTRACT = 2", "MECHDSL_CONTRACT = 3")
+                      .replace('name = "curve_slot"', 'name = "circle_slot"'), ["circle_slot"])
+    (tmp_path / "slot.mech").write_text(SLOT_MODEL)
+    first = _located_contract_error(tmp_path, mechdsl(tmp_path, "run", tmp_path / "slot.mech"))
+    assert "it was written for plugin contract 3 (MECHDSL_CONTRACT = 3)" in first
+    # declaring the current version: it loads and runs as today (the example's own model)
+    site = tmp_path / "site"
+    site.mkdir()
+    fake_distribution(site, "mechdsl-curve-slot", "mechdsl_curve_slot", current,
+                      ["curve_slot"])
+    model = EXAMPLES / "plugins" / "curve_slot" / "curve_slot.mech"
+    r = mechdsl(site, "run", model, "-o", tmp_path / "o.csv", "-q")
+    assert r.returncode == 0, r.stderr
+
+
+def test_every_plugin_of_the_library_declares_the_current_contract():
+    import importlib
+
+    from mechdsl.plugins import CONTRACT_VERSION
+    from mechdsl.plugins.discover import entry_points
+
+    modules = {ep.value.split(":")[0].strip() for ep in entry_points("mechdsl")}
+    assert {"mechdsl_revolute", "mechdsl_prismatic", "mechdsl_forces"} <= modules
+    for name in modules:
+        assert importlib.import_module(name).MECHDSL_CONTRACT == CONTRACT_VERSION, name

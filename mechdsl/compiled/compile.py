@@ -478,6 +478,11 @@ class _Compiler:
             raise MechError(self.registry.conflicts[key], span)
         ctype = self.registry.get(kind, name)
         if ctype is None:
+            old = self.registry.broken_for(name)
+            if old is not None:  # its plugin was written for another contract
+                raise MechError(f"the {kind} type '{name}' comes from the plugin "
+                                f"{old.provider.plugin} ({old.provider}), which cannot be "
+                                f"loaded: {old.reason}", span)
             other = {"drive": "joint", "joint": "drive", "force": "joint"}[kind]
             if self.registry.get(other, name) is not None:
                 raise MechError(f"'{name}' is a {other} type, not a {kind} type", span)

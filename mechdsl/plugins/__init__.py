@@ -11,8 +11,10 @@ from .force import ForceType
 from .hookspecs import hookimpl
 from .manager import ENTRY_POINT_GROUP, build_registry
 from .registry import BrokenPlugin, Provider, Registry
+from .version import CONTRACT_VERSION
 
 __all__ = [
     "REQUIRED", "Arg", "ArgError", "ConstraintType", "ForceType", "hookimpl", "geometry",
     "ENTRY_POINT_GROUP", "build_registry", "BrokenPlugin", "Provider", "Registry",
+    "CONTRACT_VERSION",
 ]

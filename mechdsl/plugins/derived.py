@@ -83,7 +83,8 @@ def trace(ctype, graph: Graph, bodies: Sequence[Body], args: Mapping[str, object
             blocks = list(ctype.jacobian_terms(tuple(bodies), args))
             if len(blocks) != len(bodies):
                 raise EquationError(f"the {ctype.kind} type '{ctype.name}': jacobian_terms() "
-                                    f"gave {len(blocks)} blocks for {len(bodies)} bodies")
+                                    f"gave {len(blocks)} blocks, expected one per attached "
+                                    f"body ({len(bodies)}), each of n_eq = {m} rows of 3")
             rows_k = [[_rows(ctype, graph, r, "a row of jacobian_terms()", 3)
                        for r in _rows_list(ctype, blk, m)] for blk in blocks]
             jac = tuple(tuple(x for k in range(len(bodies)) for x in rows_k[k][i])

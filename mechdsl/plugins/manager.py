@@ -27,6 +27,7 @@ import pluggy
 from . import hookspecs
 from .discover import entry_points as find_entry_points
 from .registry import BrokenPlugin, PluginConflict, Provider, Registry
+from .version import declared_problem, import_problem, old_contract
 
 ENTRY_POINT_GROUP = "mechdsl"
 AUTOLOAD_ENV = "MECHDSL_DISABLE_PLUGIN_AUTOLOAD"
@@ -90,7 +91,7 @@ def build_registry(
             try:
                 plugin = import_module(plugin)
             except PLUGIN_FAILURES as err:  # any failure of a plugin is contained
-                registry.broken.append(BrokenPlugin(Provider(str(plugin)), _reason(err)))
+                registry.broken.append(_failed(Provider(str(plugin)), err))
                 continue
         name = getattr(plugin, "__name__", repr(plugin))
         _register(pm, registry, plugin, Provider(name), providers)
@@ -110,6 +111,14 @@ def build_registry(
     return registry
 
 
+def _failed(provider: Provider, err: BaseException, types: tuple[str, ...] = ()
+            ) -> BrokenPlugin:
+    """A plugin that failed to import: written for another contract where it imports what
+    mechdsl no longer has."""
+    contract = import_problem(err)
+    return BrokenPlugin(provider, contract or _reason(err), types, contract is not None)
+
+
 def _reason(err: BaseException) -> str:
     if isinstance(err, SystemExit):
         return f"it called sys.exit({err.code!r}) while loading"
@@ -117,8 +126,16 @@ def _reason(err: BaseException) -> str:
 
 
 def _register(pm, registry: Registry, plugin: object, provider: Provider,
-              providers: dict[str, Provider]) -> None:
+              providers: dict[str, Provider], types: tuple[str, ...] = ()) -> None:
     if pm.is_registered(plugin):
+        return
+    try:
+        other = declared_problem(plugin)
+    except PLUGIN_FAILURES as err:  # a declaration whose attribute raises
+        registry.broken.append(BrokenPlugin(provider, _reason(err), types))
+        return
+    if other is not None:  # written for another contract: not registered at all
+        registry.broken.append(BrokenPlugin(provider, other, types, True))
         return
     try:
         pm.register(plugin, name=provider.plugin)
@@ -140,9 +157,9 @@ def _load_entry_points(pm, registry: Registry, eps: list, providers: dict[str, P
         try:
             plugin = ep.load()
         except PLUGIN_FAILURES as err:
-            registry.broken.append(BrokenPlugin(provider, _reason(err)))
+            registry.broken.append(_failed(provider, err, (ep.name,)))
             continue
-        _register(pm, registry, plugin, provider, providers)
+        _register(pm, registry, plugin, provider, providers, (ep.name,))
 
 
 def _collect(pm, registry: Registry, providers: dict[str, Provider]) -> None:
@@ -165,6 +182,11 @@ def _collect(pm, registry: Registry, providers: dict[str, Provider]) -> None:
                         raise ValueError(f"type {getattr(ctype, 'name', ctype)!r}: a "
                                          f"{hook.name} hook returned a type of kind "
                                          f"{getattr(ctype, 'kind', None)!r}")
+                    old = old_contract(ctype)
+                    if old is not None:
+                        registry.broken.append(BrokenPlugin(
+                            provider, old, (str(getattr(ctype, "name", "")),), True))
+                        continue
                     registry.add(ctype, provider)
                 except (ValueError, PluginConflict) as err:
                     registry.broken.append(BrokenPlugin(provider, str(err)))

@@ -24,10 +24,15 @@ class Provider:
 
 @dataclass(frozen=True)
 class BrokenPlugin:
-    """A plugin that could not be loaded or returned a malformed type, and why."""
+    """A plugin that could not be loaded or returned a malformed type, and why; ``types``:
+    the type names it would have given, where known (its entry points' names, or the
+    malformed type's); ``contract``: whether it was written for another plugin contract
+    (:mod:`mechdsl.plugins.version`)."""
 
     provider: Provider
     reason: str
+    types: tuple[str, ...] = ()
+    contract: bool = False
 
 
 class PluginConflict(Exception):
@@ -71,6 +76,11 @@ class Registry:
             except PluginConflict as err:
                 out.broken.append(BrokenPlugin(provider, str(err)))
         return out
+
+    def broken_for(self, name: str) -> BrokenPlugin | None:
+        """The plugin written for another contract that would have given the type ``name``,
+        or None."""
+        return next((b for b in self.broken if b.contract and name in b.types), None)
 
     def get(self, kind: str, name: str) -> ConstraintType | ForceType | None:
         """The type of that kind and name, or None."""

@@ -42,6 +42,9 @@ import numpy as np
 
 from mechdsl.plugins import Arg, ArgError, ConstraintType, hookimpl
 
+#: The plugin contract this module is written for (mechdsl.plugins.version)
+MECHDSL_CONTRACT = 2
+
 TURN = 2 * np.pi
 
 

@@ -24,6 +24,9 @@ import numpy as np
 from mechdsl.plugins import Arg, ConstraintType, hookimpl
 from mechdsl.plugins.geometry import Vec
 
+#: The plugin contract this module is written for (mechdsl.plugins.version)
+MECHDSL_CONTRACT = 2
+
 
 class Angle(ConstraintType):
     name = "angle"

@@ -27,6 +27,9 @@ from mechdsl.plugins.geometry import Vec
 
 import numpy as np
 
+#: The plugin contract this module is written for (mechdsl.plugins.version)
+MECHDSL_CONTRACT = 2
+
 
 def _not_negative(p, *names: str) -> None:
     for name in names:

@@ -35,6 +35,9 @@ import numpy as np
 from mechdsl.plugins import Arg, ArgError, ConstraintType, hookimpl
 from mechdsl.plugins.geometry import Vec
 
+#: The plugin contract this module is written for (mechdsl.plugins.version)
+MECHDSL_CONTRACT = 2
+
 
 class _GearPair(ConstraintType):
     kind = "joint"

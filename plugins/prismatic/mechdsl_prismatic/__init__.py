@@ -26,6 +26,9 @@ import numpy as np
 
 from mechdsl.plugins import Arg, ArgError, ConstraintType, hookimpl
 
+#: The plugin contract this module is written for (mechdsl.plugins.version)
+MECHDSL_CONTRACT = 2
+
 
 def _check_axis(p) -> None:
     if np.any(np.linalg.norm(p["axis"], axis=-1) == 0):

@@ -16,6 +16,9 @@ from __future__ import annotations
 
 from mechdsl.plugins import Arg, ConstraintType, hookimpl
 
+#: The plugin contract this module is written for (mechdsl.plugins.version)
+MECHDSL_CONTRACT = 2
+
 
 class Rigid(ConstraintType):
     name = "rigid"

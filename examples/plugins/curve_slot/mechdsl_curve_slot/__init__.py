@@ -11,6 +11,9 @@ mechdsl derives the Jacobian and gamma from it, with f's exact derivatives.
 
 from mechdsl.plugins import Arg, ConstraintType, hookimpl
 
+#: The plugin contract this module is written for (mechdsl.plugins.version)
+MECHDSL_CONTRACT = 2
+
 
 class CurveSlot(ConstraintType):
     name = "curve_slot"
