@@ -21,6 +21,15 @@ done
 "$M" run examples/rod_sweep.mech -q -o /dev/null --sweep l=3.5,2.5,2.2,2.1 --sweep t1=0.5,1,1.5 \
     --step 0.002 --plot "$out/rod_ramp_sweep.png"
 "$M" run examples/fourbar.mech -q -o /dev/null --snapshot "$out/fourbar_coupler_curve.png" --at 0,0.2,0.4,0.6,0.8
+# the redundant crank through the parallelogram's singular positions; the offset stroke at
+# its optimum, over a revolution
+"$M" run examples/parallelogram.mech -q -o /dev/null --through-singular --plot "$out/parallelogram.png"
+# (the file's output is the stroke, one value: drawn from a copy that writes the histories)
+tmp=$(mktemp -d)
+sed 's/^output .*/output slider.x/' examples/offset_stroke.mech > "$tmp/offset_stroke.mech"
+"$M" run "$tmp/offset_stroke.mech" -q -o /dev/null --set e=0.958 \
+    --snapshot "$out/offset_stroke.png" --at 0,0.25,0.5,0.75 --trace rod.C --labels
+rm -r "$tmp"
 # centrodes: the elliptic trammel's Cardan circles
 "$M" run examples/trammel.mech -q -o /dev/null --snapshot "$out/trammel_centrodes.png" --at 0.1,0.5,0.9 --labels
 # a sweep: each variant in its colour, named in the legend, with its own supports

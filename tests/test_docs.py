@@ -5,6 +5,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 import mechdsl
 from closed_forms import slider_crank
@@ -64,8 +65,10 @@ def test_the_library_reference_lists_every_type_with_its_signature(registry):
     assert documented == set(registry.types)
 
 
-def test_every_documented_run_option_exists():
-    block = next(b for b in code_blocks(README) if b.startswith("mechdsl run FILE"))
+@pytest.mark.parametrize("page", ["README.md", "docs/cli.md"])
+def test_every_documented_run_option_exists(page):
+    text = (ROOT / page).read_text()
+    block = next(b for b in code_blocks(text) if b.startswith("mechdsl run FILE"))
     # each command's lines (up to the next 'mechdsl COMMAND') against its own --help
     for command, text in re.findall(r"^mechdsl (\w+)(.*?)(?=^mechdsl |\Z)", block,
                                     flags=re.M | re.S):
