@@ -71,7 +71,8 @@ def main() -> int:
     if args.quick:
         return 0
     print("\nlong stress tests:")
-    return subprocess.call([sys.executable, "-m", "pytest", "-q", "-m", "long",
+    # one process: the long cases measure time and memory, which parallel workers would share
+    return subprocess.call([sys.executable, "-m", "pytest", "-q", "-n", "0", "-m", "long",
                             str(ROOT / "tests" / "stress")], cwd=ROOT)
 
 
