@@ -517,9 +517,9 @@ def rename_problem(text: str, line: int, character: int, new_name: str) -> str |
     return None
 
 
-_STATEMENTS = ("param", "ground", "body", "joint", "drive", "force", "gravity", "simulate",
-               "output", "trace", "units", "sweep", "plugin", "optimize", "minimize",
-               "maximize", "subject to")
+_STATEMENTS = ("param", "ground", "body", "joint", "drive", "initial", "force", "gravity",
+               "simulate", "output", "trace", "units", "sweep", "plugin", "optimize",
+               "minimize", "maximize", "subject to")
 _ITEMS = ("point", "guess", "shape", "density", "mass", "inertia", "centroid", "v0")
 #: every function an expression may call (an output's functions of points and bodies too)
 _FUNCTIONS = (*E.FUNCTIONS, "table", *SIGNATURES)
