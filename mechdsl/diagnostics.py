@@ -48,10 +48,10 @@ def _unfinished(err: MechError, text: str, span: tuple[int, int]) -> MechError:
     """The end of a statement that stops half-way, where its last token ends (not at the
     end of the comments after it), said as such."""
     from .errors import Span
-    from .grammar.parser import _parser
+    from .grammar.parser import lex
 
     last = None
-    for tok in _parser().lex(_blank(text, [span])):
+    for tok in lex(_blank(text, [span])):
         last = tok
     if last is None:
         return err

@@ -479,7 +479,7 @@ def rename_problem(text: str, line: int, character: int, new_name: str) -> str |
     from .grammar import expr as E
     from .grammar.checks import RESERVED
     from .grammar.model import BODY_QUANTITIES, ENERGY_QUANTITIES
-    from .grammar.parser import _parser
+    from .grammar.parser import lex
     from .grammar.symbols import DECLARED_KINDS, GROUND, ORIGIN, OUTPUT_FUNCTIONS, TIME
 
     table, sym = _symbol_at(text, line, character)
@@ -488,7 +488,7 @@ def rename_problem(text: str, line: int, character: int, new_name: str) -> str |
     if new_name == sym.name:
         return None
     shown = cut(new_name)
-    toks = list(_parser().lex(new_name)) if new_name.isidentifier() and new_name.isascii() \
+    toks = list(lex(new_name)) if new_name.isidentifier() and new_name.isascii() \
         else []
     if len(toks) == 1 and toks[0].type != "NAME":
         return f"'{shown}' is a keyword of the language; choose another name"

@@ -21,10 +21,10 @@ ALL = sorted(EXAMPLES.glob("*.mech")) + sorted((EXAMPLES / "plugins").glob("*/*.
 def respaced(text: str, rng: random.Random) -> str:
     """The same tokens with random whitespace: spaces and newlines between tokens where the
     language allows them (everywhere but inside a token or a comment)."""
-    from mechdsl.grammar.parser import _parser
+    from mechdsl.grammar.parser import lex
 
     out = []
-    for tok in _parser().lex(text, dont_ignore=True):
+    for tok in lex(text, dont_ignore=True):
         if tok.type == "WS":
             out.append("\n" if "\n" in tok and rng.random() < 0.5 else
                        rng.choice([" ", "  ", "\n", " \n\n   "]))

@@ -112,3 +112,12 @@ def test_the_textmate_grammar_colours_every_keyword_and_function():
     # 'initial' and 'range' are both statements or functions by place; every function is
     # coloured as one where it is called
     assert _functions() - functions == set(), "functions the TextMate grammar does not colour"
+
+
+def test_no_module_reaches_into_the_parser():
+    """The parser's tables are its own: the tools lex and parse through its public
+    functions (lex, parse_tree, parse), never its private parser object."""
+    users = [p for p in (ROOT / "mechdsl").rglob("*.py")
+             if p.name != "parser.py" and re.search(r"parser import[^\n]*\b_parser\b|"
+                                                    r"parser\._parser\b", p.read_text())]
+    assert users == []

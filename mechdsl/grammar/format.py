@@ -21,7 +21,7 @@ from __future__ import annotations
 from lark import Token, Tree
 
 from ..errors import MechError, Source
-from .parser import _parser, normalise, parse
+from .parser import lex, normalise, parse, parse_tree
 
 #: The statement keywords whose item lists sit in braces
 _BLOCKS = ("body", "ground")
@@ -121,9 +121,8 @@ def format_text(text: str, name: str = "<string>") -> str:
     MechError that parsing it gives."""
     text = normalise(text)
     parse(text, name)  # a file that does not parse is reported as the command line does
-    parser = _parser()
-    tree = parser.parse(text, start="start")
-    tokens = [t for t in parser.lex(text, dont_ignore=True)]
+    tree = parse_tree(text)
+    tokens = list(lex(text, dont_ignore=True))
     layout = _Layout()
     stmts = _statements(tree)
     pos = 0
@@ -140,7 +139,7 @@ def format_text(text: str, name: str = "<string>") -> str:
         pos = (trailing.end_pos if trailing is not None else end)
     _gap(layout, [t for t in tokens if t.start_pos >= pos], bool(layout.lines))
     out = layout.text()
-    _same_tokens(text, out, parser, name)
+    _same_tokens(text, out, name)
     return out
 
 
@@ -242,10 +241,10 @@ def _block(layout: _Layout, stmt: Tree, tokens: list[Token], trailing: Token | N
     layout.add("}", None if trailing is None else str(trailing).rstrip())
 
 
-def _same_tokens(before: str, after: str, parser, name: str) -> None:
+def _same_tokens(before: str, after: str, name: str) -> None:
     """The formatted text must have the input's tokens and comments, in order."""
-    a = list(parser.lex(before, dont_ignore=True))
-    b = list(parser.lex(after, dont_ignore=True))
+    a = list(lex(before, dont_ignore=True))
+    b = list(lex(after, dont_ignore=True))
     comments = ([str(t).rstrip() for t in a if t.type == "COMMENT"],
                 [str(t).rstrip() for t in b if t.type == "COMMENT"])
     if _significant(a) != _significant(b) or comments[0] != comments[1]:

@@ -38,7 +38,7 @@ from .model import (
 )
 from .tables import PointList, make_table
 
-__all__ = ["parse", "parse_expr", "parse_expr_list", "parse_reductions", "check_expr", "TIME", "MAX_DEPTH"]
+__all__ = ["parse", "parse_tree", "lex", "parse_expr", "parse_expr_list", "parse_reductions", "check_expr", "TIME", "MAX_DEPTH"]
 
 #: The options of an ``initial`` statement after its value
 INITIAL_OPTIONS = ("rate",)
@@ -115,6 +115,19 @@ def _build_parser() -> Lark:
 @functools.cache
 def _parser() -> Lark:
     return _build_parser()
+
+
+def lex(text: str, dont_ignore: bool = False) -> Iterable[Token]:
+    """The grammar's tokens of ``text`` (lark's), in order; with ``dont_ignore``, the
+    comments and white space too. Lexing stops with lark's UnexpectedCharacters at a
+    character no token takes."""
+    return _parser().lex(text, dont_ignore=dont_ignore)
+
+
+def parse_tree(text: str):
+    """The parse tree of a whole file (lark's, with positions): for tools that keep the
+    text's own layout, such as the formatter; :func:`parse` gives the model."""
+    return _parser().parse(text, start="start")
 
 
 def _span(meta) -> Span:

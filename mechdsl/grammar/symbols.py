@@ -96,9 +96,8 @@ def tokens(text: str) -> list[Token]:
     may hold one), comments and white space are not tokens."""
     from lark.exceptions import UnexpectedCharacters
 
-    from .parser import _parser
+    from .parser import lex
 
-    lexer = _parser()
     out: list[Token] = []
     # a character no token takes is read as a space, and lexing resumes at the token before
     # it (whose end may depend on what follows: "body @ ="): lexing the whole text again for
@@ -106,7 +105,7 @@ def tokens(text: str) -> list[Token]:
     work, start, line, column = text, 0, 1, 1  # what is left to lex, and where it begins
     for _ in range(1002):
         try:
-            for t in lexer.lex(work):
+            for t in lex(work):
                 first = t.line == 1  # tokens are on one line: only the first one shifts
                 out.append(Token(t.type, str(t), line + t.line - 1,
                                  t.column + (column - 1 if first else 0),
