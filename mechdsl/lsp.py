@@ -681,8 +681,8 @@ def serve() -> None:
     try:
         import lsprotocol.types as lsp
         from pygls.exceptions import JsonRpcException
+        from pygls.lsp.server import LanguageServer
         from pygls.protocol import default_converter
-        from pygls.server import LanguageServer
     except ImportError:
         raise MechError("the language server needs pygls: pip install mechdsl[lsp]") from None
     import asyncio
@@ -710,6 +710,8 @@ def serve() -> None:
     # initialize seen, shutdown seen: what the server answers before and after
     stage = {"initialized": False, "shut down": False}
     converter = default_converter()
+    # pygls's logger of its JSON-RPC protocol: error answers, messages it cannot handle
+    pygls_log = logging.getLogger("pygls.protocol.json_rpc")
 
     class Refusal(JsonRpcException):
         """A request refused on purpose (a rename to a reserved name): answered with its
@@ -721,8 +723,9 @@ def serve() -> None:
             return not (record.exc_info and isinstance(record.exc_info[1], Refusal))
 
     class Transport:
-        """Standard output for pygls's answers and this module's; closing it (exit) closes
-        standard input too, as pygls's own adapter does."""
+        """Standard output for pygls's answers and this module's (the protocol's writer);
+        closing it (exit) closes standard input too, as pygls 1's adapter did: pygls 2's
+        StdoutWriter closes standard output only."""
 
         def __init__(self, rfile, wfile) -> None:
             self.rfile, self.wfile = rfile, wfile
@@ -739,22 +742,30 @@ def serve() -> None:
         parsed = urlparse(uri)
         return unquote(parsed.path) if parsed.scheme == "file" else uri
 
+    def opened(uri: str):
+        # pygls keys its documents by the URI unquoted (file:///a%20b.mech as file:///a b.mech)
+        return server.workspace.text_documents.get(unquote(uri))
+
     def text_of(uri: str) -> str | None:
         # only what the client opened: pygls would read any other URI from disk, unbounded
         # (/dev/zero), and a document over the limit is never parsed
-        doc = server.workspace.text_documents.get(uri)
+        doc = opened(uri)
         return None if doc is None or uri in oversized else doc.source
 
+    def publish_diagnostics(uri: str, diagnostics: list, version=None) -> None:
+        server.text_document_publish_diagnostics(lsp.PublishDiagnosticsParams(
+            uri=uri, diagnostics=diagnostics, version=version))
+
     async def publish(uri: str) -> None:
-        doc = server.workspace.text_documents.get(uri)
+        doc = opened(uri)
         if doc is None or uri in oversized:
             return
         version, text = doc.version, doc.source
         found = await asyncio.get_running_loop().run_in_executor(
             checker, _diagnostics, text, path_of(uri), registry, lsp, settings["assemble"])
-        now = server.workspace.text_documents.get(uri)
+        now = opened(uri)
         if now is not None and now.version == version and uri not in oversized:
-            server.publish_diagnostics(uri, found, version=version)
+            publish_diagnostics(uri, found, version=version)
 
     def drop(uri: str, version, message: str) -> None:
         """Keep an empty text for ``uri`` (so that later edits and closing still work) and
@@ -762,14 +773,14 @@ def serve() -> None:
         old = pending.pop(uri, None)
         if old is not None:
             old.cancel()
-        doc = server.workspace.text_documents.get(uri)
+        doc = opened(uri)
         version = version if isinstance(version, int) else (doc.version if doc else None)
         server.workspace.put_text_document(lsp.TextDocumentItem(
             uri=uri, language_id=doc.language_id if doc and doc.language_id else "mech",
             version=version or 0, text=""))
         oversized[uri] = message
         start = lsp.Position(line=0, character=0)
-        server.publish_diagnostics(uri, [lsp.Diagnostic(
+        publish_diagnostics(uri, [lsp.Diagnostic(
             range=lsp.Range(start=start, end=start), message=message,
             severity=lsp.DiagnosticSeverity.Error, source="mechdsl")], version=version)
 
@@ -779,9 +790,11 @@ def serve() -> None:
                                 "error": {"code": int(code), "message": message}}))
 
     def log(message: str, shown: bool = False) -> None:
-        server.show_message_log(message, lsp.MessageType.Error)
+        server.window_log_message(lsp.LogMessageParams(type=lsp.MessageType.Error,
+                                                       message=message))
         if shown:
-            server.show_message(message, lsp.MessageType.Error)
+            server.window_show_message(lsp.ShowMessageParams(type=lsp.MessageType.Error,
+                                                             message=message))
 
     def refuse(size: int, head: bytes) -> None:
         """A message over max_message_bytes(), skipped unread: answer what its first bytes
@@ -802,7 +815,7 @@ def serve() -> None:
         elif method in (lsp.TEXT_DOCUMENT_DID_OPEN, lsp.TEXT_DOCUMENT_DID_CHANGE) \
                 and isinstance(uri, str) and stage["initialized"] and not stage["shut down"] \
                 and (method == lsp.TEXT_DOCUMENT_DID_OPEN
-                     or uri in server.workspace.text_documents):
+                     or opened(uri) is not None):
             log(said)
             drop(uri, fields.get("params.textDocument.version"),
                  too_big_message(size, "message"))
@@ -816,7 +829,7 @@ def serve() -> None:
         method = data.get("method")
         if not isinstance(method, str):
             return lsp.ErrorCodes.InvalidRequest, "a message without a method"
-        known = server.lsp.fm.features.keys() | server.lsp.fm.builtin_features.keys()
+        known = server.protocol.fm.features.keys() | server.protocol.fm.builtin_features.keys()
         if method not in known:
             return lsp.ErrorCodes.MethodNotFound, f"mechdsl lsp has no method {cut(method)!r}"
         if not stage["initialized"] and method not in (lsp.INITIALIZE, lsp.EXIT):
@@ -830,6 +843,8 @@ def serve() -> None:
             except Exception as err:  # noqa: BLE001 - cattrs' errors vary; all mean one thing
                 return (lsp.ErrorCodes.InvalidParams,
                         f"invalid params for {method}: {cut(str(err), 200)}")
+        if isinstance(data.get("id"), (list, dict)):  # pygls keys its requests by id
+            return lsp.ErrorCodes.InvalidRequest, "a request whose id is not a number or a string"
         return None
 
     def deliver(body: bytes) -> None:
@@ -872,7 +887,15 @@ def serve() -> None:
         elif data["method"] == lsp.SHUTDOWN:
             stage["shut down"] = True
         del data, nested
-        server.lsp.data_received(b"Content-Length: %d\r\n\r\n%s" % (len(body), body))
+        try:  # as pygls's own reader (pygls.io_.run_async) hands it a message
+            message = json.loads(body.decode("utf-8"),
+                                 object_hook=server.protocol.structure_message)
+            server.protocol.handle_message(message)
+        except BrokenPipeError:
+            raise  # the client is gone: serve() ends
+        except Exception as err:  # noqa: BLE001 - the server goes on, as pygls's reader does
+            pygls_log.exception("Unable to handle message")
+            server.report_server_error(err, JsonRpcException)
 
     def changed(data: dict):
         """A didChange pygls may apply (None), or why not, or "handled" where the document's
@@ -881,7 +904,7 @@ def serve() -> None:
         the model limit."""
         params = data["params"]
         uri = params["textDocument"]["uri"]
-        doc = server.workspace.text_documents.get(uri)
+        doc = opened(uri)
         if doc is None:
             return lsp.ErrorCodes.InvalidParams, f"didChange of {cut(uri)}, which is not open"
         changes = params["contentChanges"]
@@ -925,7 +948,7 @@ def serve() -> None:
     @server.feature(lsp.TEXT_DOCUMENT_DID_CHANGE)
     def did_change(ls, params: lsp.DidChangeTextDocumentParams) -> None:
         uri = params.text_document.uri
-        doc = server.workspace.text_documents.get(uri)
+        doc = opened(uri)
         if doc is None:
             return
         if uri in oversized and any(not hasattr(c, "range") for c in params.content_changes):
@@ -945,7 +968,7 @@ def serve() -> None:
         if old is not None:
             old.cancel()
         oversized.pop(params.text_document.uri, None)
-        server.publish_diagnostics(params.text_document.uri, [])
+        publish_diagnostics(params.text_document.uri, [])
 
     @server.feature(lsp.TEXT_DOCUMENT_FORMATTING)
     def formatting(ls, params: lsp.DocumentFormattingParams):
@@ -1056,26 +1079,30 @@ def serve() -> None:
         return [] if source is None else _symbols(source, path_of(params.text_document.uri),
                                                   lsp)
 
-    # pygls's own reader (start_io, aio_readline) reads any message whole, whatever its
-    # length: this one is read_messages, and the rest is pygls 1's public surface
-    # (data_received, connection_made, fm, workspace.text_documents, the loop and its
-    # executor, shutdown, the logger's name). With pygls 2: start_io reads with
-    # pygls.io_.run_async (readexactly of any length) and data_received is gone; deliver would
-    # hand pygls server.protocol.handle_message(json.loads(body, object_hook=
-    # server.protocol.structure_message)), server.lsp becomes server.protocol and
-    # publish_diagnostics text_document_publish_diagnostics
+    # pygls's own reader (start_io, which runs pygls.io_.run_async) reads any message whole,
+    # whatever its Content-Length: standard input is read by read_messages instead, and the
+    # rest is set up as start_io would, so that pygls handles each message as its own: the
+    # writer (set_writer), handle_message, the thread pool, shutdown() at the end; exit
+    # closes the writer and raises SystemExit out of handle_message
     rfile = sys.stdin.buffer
     transport = Transport(rfile, sys.stdout.buffer)
-    server.lsp.connection_made(transport)
-    quiet = Quiet()
-    pygls_log = logging.getLogger("pygls.protocol.json_rpc")
-    pygls_log.addFilter(quiet)
+    server.protocol.set_writer(transport)
 
     async def blocking(function, *args):
-        return await server.loop.run_in_executor(server.thread_pool_executor, function, *args)
+        return await asyncio.get_running_loop().run_in_executor(server.thread_pool, function,
+                                                                *args)
 
+    async def main() -> None:
+        try:
+            await read_messages(rfile, deliver, refuse, blocking)
+        finally:  # no check starts while the loop winds down
+            for handle in pending.values():
+                handle.cancel()
+
+    quiet = Quiet()
+    pygls_log.addFilter(quiet)
     try:
-        server.loop.run_until_complete(read_messages(rfile, deliver, refuse, blocking))
+        asyncio.run(main())
     except BrokenPipeError:
         pass  # the client is gone
     except (KeyboardInterrupt, SystemExit):
