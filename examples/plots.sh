@@ -20,7 +20,7 @@ done
 # the seed paper's study (section VII): three run-up times by four rods, twelve variants
 "$M" run examples/rod_sweep.mech -q -o /dev/null --sweep l=3.5,2.5,2.2,2.1 --sweep t1=0.5,1,1.5 \
     --step 0.002 --plot "$out/rod_ramp_sweep.png"
-"$M" run examples/fourbar.mech -q -o /dev/null --snapshot "$out/fourbar_coupler_curve.png" --at 0,0.2,0.4,0.6,0.8
+"$M" run examples/fourbar.mech -q -o /dev/null --snapshot "$out/fourbar_curve.png" --at 0,0.2,0.4,0.6,0.8
 # the redundant crank through the parallelogram's singular positions; the offset stroke at
 # its optimum, over a revolution
 "$M" run examples/parallelogram.mech -q -o /dev/null --through-singular --plot "$out/parallelogram.png"

@@ -196,3 +196,18 @@ def test_a_sweep_draws_each_variants_centrodes(tmp_path):
                 str(tmp_path / "s.png"), "--export", str(tmp_path / "e.svg"), "--at", "0.5")
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "e_v0.svg").exists() and (tmp_path / "e_v1.svg").exists()
+
+
+def test_a_body_that_only_translates_has_no_centrode_drawn(loads):
+    """The parallelogram's coupler translates: omega is round-off (1e-14), its instant
+    centre at infinity throughout; no point, no piece of curve is drawn for it."""
+    from mechdsl.compiled.variants import Overrides
+    from mechdsl.outputs.draw import frames
+    from mechdsl.solve import simulate
+
+    text = (EXAMPLES / "parallelogram.mech").read_text() + "\ntrace ic(coupler, ground)\n"
+    system = loads(text).compile(Overrides(t1=0.2))
+    res = simulate(system, poses=True, rates=True)
+    (c,) = frames(res, system).centrodes
+    assert np.abs(res.rates[0, :, 0, system.body_names.index("coupler"), 2]).max() < 1e-9
+    assert not np.isfinite(c.centre).any() and not np.isfinite(c.fixed).any()

@@ -42,6 +42,17 @@ def test_the_gallery_shows_every_example_with_its_picture(site):
             path.name
 
 
+def test_each_picture_is_shown_under_its_own_example():
+    import sys as _sys
+
+    _sys.path.insert(0, str(ROOT / "docs" / "_ext"))
+    from gallery import pictures
+
+    assert pictures("fourbar") == ["images/fourbar.png", "images/fourbar_curve.png",
+                                   "images/fourbar_sweep.png"]
+    assert pictures("fourbar_coupler") == ["images/fourbar_coupler.png"]
+
+
 def test_the_readme_is_short_and_links_into_the_docs():
     assert len(README.splitlines()) <= 250
     for target in re.findall(r"\]\((docs/[^)#]+)", README):

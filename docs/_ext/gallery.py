@@ -33,11 +33,22 @@ def _intro(path: str) -> str:
     return " ".join(lines)
 
 
+def _owner(name: str, stems: list[str]) -> str | None:
+    """The example a picture ``name`` (without .png) is of: the longest stem it is, or
+    starts with followed by '_' (fourbar_coupler.png is fourbar_coupler.mech's, not
+    fourbar.mech's)."""
+    owners = [s for s in stems if name == s or name.startswith(s + "_")]
+    return max(owners, key=len) if owners else None
+
+
 def pictures(stem: str) -> list[str]:
     """The pictures of example ``stem`` under images/, by name relative to the docs."""
-    found = sorted(glob.glob(os.path.join(DOCS, "images", f"{stem}.png")))
-    found += sorted(glob.glob(os.path.join(DOCS, "images", f"{stem}_*.png")))
-    return [os.path.relpath(p, DOCS).replace(os.sep, "/") for p in found]
+    stems = [os.path.splitext(os.path.basename(p))[0]
+             for p in glob.glob(os.path.join(EXAMPLES, "*.mech"))]
+    found = sorted(glob.glob(os.path.join(DOCS, "images", "*.png")),
+                   key=lambda p: (os.path.basename(p) != f"{stem}.png", p))
+    return [os.path.relpath(p, DOCS).replace(os.sep, "/") for p in found
+            if _owner(os.path.splitext(os.path.basename(p))[0], stems) == stem]
 
 
 class MechGallery(SphinxDirective):

@@ -204,7 +204,7 @@ def write_svg(d: dict, path: str) -> None:
         lines += [f'<polyline data-rail="" points="{points(r)}" stroke="gray"/>'
                   for r in rails if np.isfinite(r).all()]
         lines += [f'<polyline data-centrode={quoteattr(label)} points="{points(p)}" '
-                  f'stroke="gray" stroke-dasharray="{gap} {gap}"/>'
+                  f'stroke="gray" stroke-dasharray="{gap if label.startswith("moving") else dash} {gap}"/>'
                   for label, p in curves]
         lines.append('</g>')
     lines += ['</g>', f'<title>{escape(os.path.basename(path))}</title>', '</svg>']

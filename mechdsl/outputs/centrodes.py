@@ -71,6 +71,17 @@ def instant_centre(poses: np.ndarray, rates: np.ndarray, a: int, b: int
     dw = va[..., 2] - vb[..., 2]
     cx = vb[..., 0] - va[..., 0] - va[..., 2] * qa[..., 1] + vb[..., 2] * qb[..., 1]
     cy = vb[..., 1] - va[..., 1] + va[..., 2] * qa[..., 0] - vb[..., 2] * qb[..., 0]
+    # a relative rotation below round-off of the run's rates is none (a body that only
+    # translates: its omega is 1e-14, not 0): the centre is at infinity there, not 1e17 away
+    with np.errstate(invalid="ignore"):
+        w = np.nanmax(np.abs(np.stack((va[..., 2], vb[..., 2]))), axis=(0, 2), initial=0.0)
+        v = np.nanmax(np.abs(np.concatenate((va[..., :2], vb[..., :2]), axis=-1)),
+                      axis=(1, 2), initial=0.0)
+        xy = poses[..., :2]
+        size = np.nanmax(np.nanmax(xy, axis=(1, 2)) - np.nanmin(xy, axis=(1, 2)), axis=-1,
+                         initial=0.0) if np.isfinite(xy).any() else np.zeros(len(w))
+    tol = 1e-9 * np.maximum(w, v / np.where(size > 0, size, 1.0))
+    dw = np.where(np.abs(dw) > tol[:, None], dw, 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         r = np.stack((cy / dw, -cx / dw), axis=-1)
     r[~np.isfinite(r).all(axis=-1)] = np.nan

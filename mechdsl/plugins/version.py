@@ -4,8 +4,9 @@ The contract is what :mod:`mechdsl.plugins` offers a plugin and asks of it: the 
 classes a type subclasses (:class:`~mechdsl.plugins.ConstraintType`,
 :class:`~mechdsl.plugins.ForceType`), the methods it writes, the names it imports. Its
 version, :data:`CONTRACT_VERSION`, changes whenever a plugin written for the old one would
-no longer work; mechdsl's minor version (0.x) changes with it, so that a plugin's dependency
-range (``mechdsl >= 0.1, < 0.2``) pins the contract it was written for.
+no longer work; from contract 2 on, mechdsl's minor version (0.x) changes with it, so that a
+plugin's dependency range (``mechdsl >= 0.1, < 0.2``) names the releases of its contract
+(contract 1 was never released: the declaration, not the range, tells it apart).
 
 A plugin module declares the version it was written for, ``MECHDSL_CONTRACT = 2``. One that
 declares another version is not loaded: the types it would give are errors at the line that

@@ -529,8 +529,8 @@ class DynamicRun(Run):
         if self.one.order >= 2 or self.keep_rates:
             try:
                 st["qdd"][k], st["lambda"][k] = self.ev.accelerations(t, q, qd)
-            except np.linalg.LinAlgError:
-                pass  # (NaN: what the states hold)
+            except np.linalg.LinAlgError:  # (NaN, not what an earlier attempt left there)
+                st["qdd"][k], st["lambda"][k] = np.nan, np.nan
         if self.ev.m:
             phi, _ = self.ev.phi_jac(t, q)
             self.residual = max(self.residual, float(np.abs(phi).max()))
