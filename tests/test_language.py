@@ -307,3 +307,28 @@ def test_a_range_of_a_swept_param_is_checked_in_every_variant():
     with pytest.raises(MechError, match="the range of param 'l' is empty: 3 .. 3"):
         evaluate(parse("param r = 2\nparam l = 3.5 in 2*r - 1 .. 3\nsweep r = [1.5, 2]\n"),
                  Overrides())
+
+
+def test_the_parser_positions_are_larks():
+    """The parser's own position callbacks (parser._Positions, faster) give every node of
+    the tree the line, column and offsets lark's propagate_positions gives, on every example
+    and on text whose containers matter (parentheses, a keyword before a name, comments)."""
+    from pathlib import Path
+
+    from mechdsl.grammar import parser as P
+
+    def positions(tree):
+        return [(t.data, t.meta.empty, *(getattr(t.meta, a, None) for a in (
+            "line", "column", "start_pos", "end_line", "end_column", "end_pos")))
+            for t in tree.iter_subtrees()]
+
+    fast, lark_own = P._build_parser(), P._build_parser(fast=False)
+    assert any(isinstance(c, P._Positions) for c in fast.parser.parser.parser.callbacks.values())
+    texts = [p.read_text() for p in sorted(Path(__file__).parent.parent.glob("examples/*.mech"))]
+    texts.append("param a = ((1 + 2)) * (3) - -(4)^2  # c\nparam b = if a > 1 then (a) else -a\n"
+                 "body  # note\n  bar { guess = ((0), 0, 0)  point P = (1, (2)) }\n"
+                 "output x = max(abs((bar.P.x))), bar.P\n")
+    assert len(texts) > 10
+    for text in texts:
+        assert positions(fast.parse(text, start="start")) == \
+            positions(lark_own.parse(text, start="start"))
