@@ -39,7 +39,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
 from browser import Viewer  # noqa: E402 - `mechdsl view` in a child process
-from mechdsl.view import payload  # noqa: E402
+from mechdsl.outputs import payload  # noqa: E402
 from mechdsl.view.server import MAX_MESSAGE  # noqa: E402
 
 SEED = ROOT / "examples" / "slider_crank.mech"

@@ -494,12 +494,7 @@ class Mechanism:
         """
         ov = self._overrides(span, step, sweep, {**(params or {}), **param_values}, options)
         mech = self.reducing(reduce) if reduce is not None else self
-        from .study import plan, solve_sweep
-
-        planned = plan(mech, ov, chunk)
-        system, total, size, _ = planned
-        if store is None and client is None and total <= size:
-            return simulate(system, options, poses=poses, rates=rates)
+        prepared = mech.prepare(ov, chunk)
         if store is not None:
             from .outputs.store import open_store, store_kind
 
@@ -507,9 +502,40 @@ class Mechanism:
             if store_kind(store) is None:
                 raise MechError(f"store={store!r}: a store is a .zarr or .parquet path")
         placed: list[str] = []  # where the store went: beside store if interrupted
-        results = solve_sweep(mech, ov, options, client=client, store=store, poses=poses,
-                              rates=rates, planned=planned, placed=placed.append)
+        results = prepared.solve(options, client=client, store=store, poses=poses,
+                                 rates=rates, placed=placed.append)
         return results if store is None else open_store(placed[-1] if placed else store)
+
+    def prepare(self, overrides: Overrides | None = None, chunk: int | None = None
+                ) -> "PreparedRun":
+        """The run of these overrides compiled and cut into chunks of ``chunk`` variants,
+        not yet solved (:class:`PreparedRun`): what :meth:`simulate` and ``mechdsl run``
+        both solve."""
+        from .study import plan
+
+        ov = overrides or Overrides()
+        system, total, size, sweep = plan(self, ov, chunk)
+        return PreparedRun(self, ov, system, total, size, sweep)
+
+    def search(self, overrides: Overrides | None = None, options: SolverOptions | None = None,
+               **kwargs):
+        """:func:`mechdsl.study.optimize.optimize` of this mechanism with these overrides
+        (its keywords: ``client``, ``chunk``, ``popsize``, ``maxiter``, ``tol``, ``seed``,
+        ``refine``, ``run``, ``grid``, ``progress``): what :meth:`optimize` and ``mechdsl
+        optimize`` both call."""
+        from .study.optimize import optimize
+
+        return optimize(self, overrides, options, **kwargs)
+
+    def portable(self) -> "PortableModel":
+        """What the processes that solve a study's chunks need of this mechanism: its model
+        and its plugins by module name (:class:`PortableModel`); a MechError where a plugin
+        was given as a Python object, which cannot be sent to another process."""
+        objects = [p for p in self._plugins if not isinstance(p, str)]
+        if objects:
+            raise MechError(f"a plugin given as a Python object ({objects[0]!r}) cannot be "
+                            "sent to another process; give its module name")
+        return PortableModel(self.model, tuple(self._plugins), tuple(self._allowed), self)
 
     def optimize(self, *, span: tuple[float, float] | None = None, step: float | None = None,
                  params: Mapping[str, float] | None = None,
@@ -528,11 +554,9 @@ class Mechanism:
         its ``.run`` made there (a second Ctrl-C stops that run, keeping what it solved). An
         objective that is a finite number for no design raises
         :class:`~mechdsl.errors.NumericalError`."""
-        from .study.optimize import optimize
-
         ov = self._overrides(span, step, None, {**(params or {}), **param_values}, options)
-        return optimize(self, ov, options, client=client, chunk=chunk, popsize=popsize,
-                        maxiter=maxiter, tol=tol, seed=seed, refine=refine, grid=grid)
+        return self.search(ov, options, client=client, chunk=chunk, popsize=popsize,
+                           maxiter=maxiter, tol=tol, seed=seed, refine=refine, grid=grid)
 
     def _overrides(self, span, step, sweep, values, options) -> Overrides:
         """The overrides of :meth:`simulate`'s arguments: numbers, or texts of expressions of
@@ -586,6 +610,96 @@ class Mechanism:
         return other
 
 
+@dataclass(frozen=True)
+class PreparedRun:
+    """A run compiled and cut into chunks, not yet solved: the one use case behind both
+    :meth:`Mechanism.simulate` and ``mechdsl run`` (which reads ``system`` to check its
+    outputs and estimate its drawings before it solves). ``system`` is the compiled model of
+    the first chunk (of the whole run without a sweep), ``total`` the number of variants,
+    ``chunk`` the variants per chunk, ``sweep`` the whole sweep table."""
+
+    mechanism: Mechanism
+    overrides: Overrides
+    system: System
+    total: int
+    chunk: int
+    sweep: dict
+
+    def solve(self, options: SolverOptions | None = None, *, client=None,
+              store: str | None = None, poses: bool = False, rates: bool = False,
+              progress=None, extra_memory: int = 0, placed=None) -> Results:
+        """Solve the run: in one piece here (:func:`mechdsl.solve.simulate`), or chunk by
+        chunk (:func:`mechdsl.study.solve_sweep`) where it has more variants than a chunk,
+        a Dask ``client`` or a ``store`` (``placed`` is called with where the store went).
+        ``progress(done, total)`` follows it; ``extra_memory`` is what the caller's outputs
+        will add (the run is refused before it starts where the sum exceeds the limit)."""
+        if store is None and client is None and self.total <= self.chunk:
+            return simulate(self.system, options, poses=poses, rates=rates, progress=progress,
+                            extra_memory=extra_memory)
+        from .study import solve_sweep
+
+        return solve_sweep(self.mechanism, self.overrides, options, client=client, store=store,
+                           poses=poses, rates=rates, progress=progress,
+                           planned=(self.system, self.total, self.chunk, self.sweep),
+                           extra_memory=extra_memory, placed=placed)
+
+
+class PortableModel:
+    """A mechanism as a study sends it to the processes that solve its chunks: the model
+    and the plugins by module name (and the modules allowed); it pickles without its
+    registry, and :meth:`compile` builds the :class:`Mechanism` once in each process."""
+
+    def __init__(self, model: Model, plugins: tuple[str, ...], allowed: tuple[str, ...],
+                 mechanism: Mechanism | None = None) -> None:
+        self.model, self.plugins, self.allowed = model, plugins, allowed
+        self._mechanism = mechanism
+
+    def __getstate__(self) -> dict:
+        # the registry is rebuilt where it is unpickled, from that side's plugins
+        return {"model": self.model, "plugins": self.plugins, "allowed": self.allowed}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state, _mechanism=None)
+
+    def compile(self, overrides: Overrides) -> System:
+        """:meth:`Mechanism.compile` of the model with these overrides."""
+        if self._mechanism is None:
+            self._mechanism = Mechanism(self.model, plugins=self.plugins,
+                                        allow_plugins=self.allowed)
+        return self._mechanism.compile(overrides)
+
+
+def local_cluster(workers: int, timeout: float):
+    """A Dask client of a new local cluster of ``workers`` processes
+    (:func:`mechdsl.study.cluster.local_client`), for ``client=``."""
+    from .study.cluster import local_client
+
+    return local_client(workers, timeout)
+
+
+def remote_cluster(address: str, timeout: float, tls: tuple = (None, None, None)):
+    """A Dask client of the scheduler at ``address``, with the TLS files (CA, certificate,
+    key) given (:func:`mechdsl.study.cluster.remote_client`), for ``client=``."""
+    from .study.cluster import remote_client, security_of
+
+    return remote_client(address, timeout, security_of(*tls))
+
+
+def integrators_help() -> str:
+    """The integrators of the registry and the automatic choice, for ``--method``'s help
+    (:func:`mechdsl.solve.integrators.help_text`)."""
+    from .solve.integrators import help_text
+
+    return help_text()
+
+
+def close_cluster(client) -> None:
+    """Close a client, and the local cluster it started (not a remote one)."""
+    from .study.cluster import close
+
+    close(client)
+
+
 def parse_value(text: str, what: str, params: Iterable[str], many: bool = False):
     """A value given as text on the command line or to the API (``--set l=2*r``,
     ``l="2*r"``): one expression of ``params`` (with ``many``, a comma-separated list of
@@ -618,7 +732,8 @@ def load(path: str | os.PathLike, *, max_memory: int | None = None, **kwargs) ->
     path = os.fspath(path)
     raw = read_data(path, "", "MAX_MODEL_BYTES")
     if max_memory is not None:
-        from .memory import PARSE_BYTES_PER_BYTE, resident_bytes, within
+        from .grammar.parser import PARSE_BYTES_PER_BYTE
+        from .memory import resident_bytes, within
 
         try:
             within({"the process so far": resident_bytes(),

@@ -63,22 +63,13 @@ def _parser() -> argparse.ArgumentParser:
                              "file imports no module that is not an installed plugin otherwise)")
 
     def run_options(run: argparse.ArgumentParser) -> None:
-        run.add_argument("-o", "--output", metavar="OUT.csv",
-                         help="write the results as CSV ('-' for standard output)")
-        run.add_argument("--plot", metavar="OUT.png", help="draw the time histories")
-        run.add_argument("--snapshot", metavar="OUT.png",
-                         help="draw the mechanism at a few instants over the traced paths")
+        from .outputs import FORMATS  # the registry of output formats: a flag each
+
+        for fmt in FORMATS.values():
+            fmt.add_flag(run)
         run.add_argument("--at", metavar="T1,T2,...",
                          help="the instants of --snapshot and --export (default: six, evenly "
                               "spread, for a drawing)")
-        run.add_argument("--animate", metavar="OUT.gif",
-                         help="write an animation of the motion (.gif; .mp4 with ffmpeg)")
-        run.add_argument("--export", metavar="OUT.xdmf",
-                         help="write the motion as meshes for ParaView: .xdmf (a time series) or "
-                              ".vtu (a file per instant and a .pvd index)")
-        run.add_argument("--html", metavar="OUT.html",
-                         help="write one page that animates the run and plots its outputs, "
-                              "offline, without a server (every variant of a sweep)")
         run.add_argument("--frames", type=int, default=None, metavar="N",
                          help="frames of --animate and instants of --export at most, at least "
                               "2 (default 100; a .dxf or .svg export: the six of a snapshot, "
@@ -100,9 +91,9 @@ def _parser() -> argparse.ArgumentParser:
         run.add_argument("--atol", type=float, metavar="TOL",
                          help="forward dynamics: the integrator's absolute tolerance, relative to "
                               "the model's size (overrides the simulate statement's; default 1e-10)")
-        from .solve.integrators import help_text  # the registry of integrators
+        from .api import integrators_help  # the registry of integrators
 
-        run.add_argument("--method", metavar="NAME", help=help_text())
+        run.add_argument("--method", metavar="NAME", help=integrators_help())
         run.add_argument("--max-steps", type=int, metavar="N",
                          help="forward dynamics: the integrator's step budget per variant, "
                               "accepted and rejected steps (default 1,000,000); a run that "

@@ -57,7 +57,7 @@ def _max_memory(args) -> int | None:
 
 
 def _options(args):
-    from .solve import SolverOptions
+    from .api import SolverOptions
 
     given = {}
     if getattr(args, "newton_tol", None) is not None:
@@ -330,12 +330,16 @@ def _frames(args) -> int:
     return args.frames if args.frames is not None else MAX_FRAMES
 
 
-def _export_frames(args) -> int | None:
-    """The instants of --export at most: --frames, or the animation's default for meshes
-    (None for a drawing: a snapshot's six)."""
-    if args.frames is not None or not args.export:
-        return args.frames
-    return None if args.export.lower().endswith((".dxf", ".svg")) else _frames(args)
+def _settings(args, at: list[float] | None) -> dict:
+    """The run's settings that the output formats read (:func:`mechdsl.outputs.settings`):
+    the plot's title (the file's name, and the params set), --at, --labels, --frames."""
+    from .outputs import settings
+
+    title = os.path.basename(args.file)
+    if args.set:
+        title += " (" + ", ".join(s.replace("=", " = ", 1) for s in args.set) + ")"
+    return settings(title=title, at=at, labels=getattr(args, "labels", False),
+                    frames=args.frames)
 
 
 def _instants_option(text: str | None) -> list[float] | None:
@@ -359,8 +363,6 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
     failure, a plugin's error or an interrupt (with the instants solved before it); print a
     summary or what stopped the run. ``signals``, entered by the caller, turns SIGTERM into
     an interrupt as Ctrl-C and holds both back while the CSV is written."""
-    from .solve import simulate
-
     signals = signals or SignalGuard()
     _check_targets(args)
     at = _instants_option(args.at)
@@ -375,36 +377,30 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
     if getattr(args, "reduce", None):
         mech = mech.reducing(args.reduce)
     ov = _overrides(mech, args)
-    from .study import plan, solve_sweep
-
-    planned = plan(mech, ov, args.chunk)
-    system, total, chunk, _ = planned
+    prepared = mech.prepare(ov, args.chunk)
+    system, total = prepared.system, prepared.total
     _check_outputs(args, mech, ov, system, at, total)  # system: the first chunk's
     if system.reductions:
         _check_reduced(args, system)
     store = _store(args)
     client = _client(args)
-    drawing = bool(args.snapshot or args.animate or args.html)
-    # (the page's velocity and acceleration arrows; the instant centres of centrodes)
-    rates = bool(args.export or args.html
-                 or (drawing and system.sketch is not None and system.sketch.centrodes))
-    from .memory import outputs_bytes
+    asked = [f for f in FORMATS.values() if getattr(args, f.arg)]
+    drawing = any(f.mechanism for f in asked)  # every body's pose at every instant
+    # their velocities and accelerations: the formats that show them, and centrodes
+    rates = any(f.rates for f in asked) or (
+        drawing and system.sketch is not None and bool(system.sketch.centrodes))
+    from .outputs import outputs_bytes
 
-    extra = outputs_bytes(system, figures=bool(args.plot), drawing=drawing,
-                          frames=min(_frames(args), len(system.times)) if args.animate else 0,
-                          frames_kept=str(args.animate).lower().endswith(".gif"),
-                          export=args.export)
+    extra = outputs_bytes(system, {f.kind: getattr(args, f.arg) for f in FORMATS.values()
+                                   if f.kind != "csv" and getattr(args, f.arg)},
+                          _settings(args, at))
     bar = ProgressBar(sys.stderr) if not args.quiet else None
     options = _options(args)
     placed: list[str] = []  # where the store went: beside -o if an interrupt kept the old one
     try:
-        if store is None and client is None and total <= chunk:
-            results = simulate(system, options, poses=drawing, rates=rates,
-                               progress=bar, extra_memory=extra)
-        else:  # chunks of the sweep, here or on the cluster, merged or into the store
-            results = solve_sweep(mech, ov, options, client=client, store=store,
-                                  poses=drawing, rates=rates, progress=bar,
-                                  planned=planned, extra_memory=extra, placed=placed.append)
+        results = prepared.solve(options, client=client, store=store, poses=drawing,
+                                 rates=rates, progress=bar, extra_memory=extra,
+                                 placed=placed.append)
     finally:
         signals.hold()  # what was solved is written whole before any signal acts
         if bar is not None:
@@ -413,7 +409,7 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
             _close(client)
     if store is not None:
         return _report(args, results, placed[-1:] or [store], None, signals)
-    if total > system.n_variants and (drawing or args.export):
+    if total > system.n_variants and drawing:
         # the drawings and exports need every variant's geometry, not the first chunk's
         system = mech.compile(ov)
     written, stop = _write_outputs(args, system, results, at, signals)
@@ -441,7 +437,7 @@ def _client(args):
     if args.workers is not None and args.scheduler is not None:
         raise MechError("--workers starts a local cluster and --scheduler names one; give "
                         "one of them")
-    from .study.cluster import local_client, remote_client, security_of
+    from .api import local_cluster, remote_cluster
 
     timeout = args.scheduler_timeout
     if not timeout > 0:  # NaN too
@@ -451,17 +447,17 @@ def _client(args):
         raise MechError("--tls-ca-file, --tls-cert and --tls-key are for --scheduler: the "
                         "cluster of --workers makes credentials of its own")
     if args.workers is not None:
-        return local_client(args.workers, timeout)
+        return local_cluster(args.workers, timeout)
     if args.scheduler is not None:
-        return remote_client(args.scheduler, timeout, security_of(*tls))
+        return remote_cluster(args.scheduler, timeout, tls)
     return None
 
 
 def _close(client) -> None:
     """Close a client, and the local cluster it started (not a remote one)."""
-    from .study.cluster import close
+    from .api import close_cluster
 
-    close(client)
+    close_cluster(client)
 
 
 def optimize_command(args, signals: SignalGuard | None = None) -> int:
@@ -472,8 +468,6 @@ def optimize_command(args, signals: SignalGuard | None = None) -> int:
     with a finite objective: exit 2, nothing run. SIGINT or SIGTERM during the search stops
     it: the best design so far is printed and run as above (a second signal stops that run,
     which keeps what it solved), and the exit status is 130 or 143."""
-    from .study.optimize import optimize
-
     _check_targets(args)
     mech = load(args.file, plugins=args.plugin, allow_plugins=args.allow_plugin,
                 max_memory=_max_memory(args) or MAX_MEMORY)
@@ -490,10 +484,10 @@ def optimize_command(args, signals: SignalGuard | None = None) -> int:
     best, signum = None, None
     try:
         try:
-            best = optimize(mech, ov, _options(args), client=client, chunk=args.chunk,
-                            popsize=args.popsize, maxiter=args.maxiter, tol=args.tol,
-                            seed=args.seed, refine=not args.no_refine, run=False,
-                            grid=args.grid, progress=status)
+            best = mech.search(ov, _options(args), client=client, chunk=args.chunk,
+                               popsize=args.popsize, maxiter=args.maxiter, tol=args.tol,
+                               seed=args.seed, refine=not args.no_refine, run=False,
+                               grid=args.grid, progress=status)
         finally:
             if status is not None:
                 status.close()
@@ -545,8 +539,6 @@ def _optimum_lines(file: str, mech: Mechanism, best, signum: int | None) -> list
     """What ``mechdsl optimize`` prints of the :class:`~mechdsl.study.optimize.Optimum`
     ``best``: the params, the objective, each requirement's slack, the work done, and, when
     the search was stopped by the signal ``signum``, that it was."""
-    from .study.optimize import REQUIRE_TOL
-
     opt = mech.model.optimization
     verb = "terminated" if signum == signal.SIGTERM else "interrupted"
     if signum is None:
@@ -565,7 +557,7 @@ def _optimum_lines(file: str, mech: Mechanism, best, signum: int | None) -> list
         lines.append(f"objective: {best.objective!r}")
         for text, slack in best.requirements.items():
             lines.append(f"requirement {text}: "
-                         f"{'holds' if slack >= -REQUIRE_TOL else 'VIOLATED'} (slack {slack:.6g})")
+                         f"{'holds' if best.holds(slack) else 'VIOLATED'} (slack {slack:.6g})")
     lines.append(f"{best.variants} variants solved in {best.sweeps} "
                  f"sweep{'s' if best.sweeps != 1 else ''}, "
                  f"{best.seconds:.2f} s ({best.message})"
@@ -606,13 +598,7 @@ def _write_outputs(args, system: System, results, at: list[float] | None,
     (their temporary files are removed as it goes up)."""
     written: list[str] = []
     solved = results.n_solved.max(initial=0) > 0
-    title = os.path.basename(args.file)
-    if args.set:
-        title += " (" + ", ".join(s.replace("=", " = ", 1) for s in args.set) + ")"
-    labels = getattr(args, "labels", False)
-    options = {"plot": {"title": title}, "snapshot": {"at": at, "labels": labels},
-               "animation": {"max_frames": _frames(args), "labels": labels},
-               "export": {"at": at, "max_frames": _export_frames(args)}}
+    run_settings = _settings(args, at)
     try:
         csv = FORMATS["csv"]
         if args.output:
@@ -629,7 +615,7 @@ def _write_outputs(args, system: System, results, at: list[float] | None,
                 continue
             try:
                 with _writing(fmt.option, path):
-                    fmt.write(results, system, path, **options.get(fmt.kind, {}))
+                    fmt.write(results, system, path, run_settings)
             except Exception:
                 # an interrupt that lands inside matplotlib's compiled code can come out as
                 # that code's own error (Agg's "Invalid bounding box"): it is the interrupt
@@ -715,8 +701,8 @@ def _written_lines(args, results, written: list[str]) -> list[str]:
 
         from .outputs.export import export_instants
 
-        ks = export_instants(results, args.export, _instants_option(args.at),
-                             _export_frames(args))
+        ks = export_instants(results, args.export, **FORMATS["export"].options_of(
+            _settings(args, _instants_option(args.at)), args.export))
         per_variant = [f for f in written_files(args.export, results.n_solved, ks) if f]
         count = sum(len(f) for f in per_variant)
         names = "; ".join(_file_range(f) for f in per_variant)
@@ -726,6 +712,10 @@ def _written_lines(args, results, written: list[str]) -> list[str]:
         lines.append(f"{args.export}: export of {what} in {count} file"
                      f"{'s' if count != 1 else ''}" + ("" if names == args.export else
                                                         f": {names}"))
+    for fmt in FORMATS.values():  # the formats that say what they wrote themselves
+        path = getattr(args, fmt.arg)
+        if fmt.summary is not None and path in written:
+            lines.append(fmt.summary_of(results, path))
     return lines
 
 

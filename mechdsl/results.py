@@ -4,7 +4,7 @@ terminal. What writes them, and reads a CSV back, is in :mod:`mechdsl.outputs`."
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import Iterator, Mapping
 
 import numpy as np
 
@@ -92,12 +92,39 @@ class Results:
             return [*self.sweep, *self.reduced]
         return [*self.sweep, "t", *self.data]
 
-    def table(self) -> tuple[list[str], np.ndarray]:
-        """The CSV's header and all its rows as one array
-        (:func:`mechdsl.outputs.csv.table`)."""
-        from .outputs.csv import table
+    def rows(self, size: int | None = None) -> Iterator[np.ndarray]:
+        """The table's rows (one per solved instant of each variant, columns as
+        :attr:`header`; one per variant for reductions) as arrays of at most ``size`` rows
+        (None: a variant's at once): what the CSV writes, a block at a time."""
+        ncols = len(self.header)
+        if self.reduced:  # one row per variant: the swept params, then the reductions
+            step = size or self.n_variants
+            for start in range(0, self.n_variants, step):
+                stop = min(self.n_variants, start + step)
+                block = np.empty((stop - start, ncols))
+                for j, column in enumerate((*self.sweep.values(), *self.reduced.values())):
+                    block[:, j] = np.asarray(column)[start:stop]
+                yield block
+            return
+        for v in range(self.n_variants):
+            k = int(self.n_solved[v])
+            step = size or max(k, 1)
+            for start in range(0, k, step):
+                stop = min(k, start + step)
+                block = np.empty((stop - start, ncols))
+                for j, s in enumerate(self.sweep):
+                    block[:, j] = self.sweep[s][v]
+                j = len(self.sweep)
+                block[:, j] = self.times[start:stop]
+                for i, label in enumerate(self.data, start=j + 1):
+                    block[:, i] = self.data[label][v, start:stop]
+                yield block
 
-        return table(self)
+    def table(self) -> tuple[list[str], np.ndarray]:
+        """The CSV's header and all its rows as one array (:meth:`rows`)."""
+        blocks = list(self.rows())
+        rows = np.concatenate(blocks) if blocks else np.empty((0, len(self.header)))
+        return self.header, rows
 
 
 def summary(results: Results) -> str:

@@ -175,7 +175,7 @@ def test_centrodes_drawn_by_the_command_line(tmp_path):
 
 def test_the_view_message_carries_the_centrodes(loads):
     from mechdsl.solve import simulate
-    from mechdsl.view.payload import decode, run_message
+    from mechdsl.outputs.payload import decode, run_message
 
     system = loads(TRAMMEL).compile()
     res = simulate(system, poses=True, rates=True)
@@ -211,3 +211,30 @@ def test_a_body_that_only_translates_has_no_centrode_drawn(loads):
     (c,) = frames(res, system).centrodes
     assert np.abs(res.rates[0, :, 0, system.body_names.index("coupler"), 2]).max() < 1e-9
     assert not np.isfinite(c.centre).any() and not np.isfinite(c.fixed).any()
+
+
+def test_the_drawn_instant_centre_is_the_ic_output(loads):
+    """The centre the drawings compute from the run's poses and rates
+    (centrodes.instant_centre) is the one the expression functions ic_x, ic_y give as
+    outputs (the motion functions' symbolic form): the two are written apart, in numpy and
+    in expressions, and must agree, on the four-bar's coupler (whose centre moves far
+    away) relative to the ground and to the crank."""
+    from mechdsl.outputs.centrodes import instant_centre
+
+    text = (EXAMPLES / "fourbar.mech").read_text() + (
+        "\noutput gx = ic_x(coupler, ground), gy = ic_y(coupler, ground), "
+        "cx = ic_x(coupler, crank), cy = ic_y(coupler, crank)\n")
+    system = loads(text).compile()
+    from mechdsl.solve import simulate
+
+    res = simulate(system, poses=True, rates=True)
+    names = system.body_names
+    for other, (x, y) in (("ground", ("gx", "gy")), ("crank", ("cx", "cy"))):
+        b = len(names) if other == "ground" else names.index(other)
+        centre, _ = instant_centre(res.poses, res.rates, names.index("coupler"), b)
+        expected = np.stack((res[x], res[y]), axis=-1)
+        finite = np.isfinite(centre[0]).all(axis=-1)
+        assert finite.sum() > 0.9 * len(res["t"])
+        scale = np.maximum(1.0, np.linalg.norm(expected[finite], axis=-1))[:, None]
+        np.testing.assert_allclose(centre[0][finite] / scale, expected[finite] / scale,
+                                   rtol=0, atol=1e-9)

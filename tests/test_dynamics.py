@@ -334,3 +334,22 @@ def test_the_command_line_names_the_integrator(tmp_path):
                           "-o", "-", "-q", "--method", "rk4"], capture_output=True, text=True)
     assert bad.returncode == 1 and "--method: method must be" in bad.stderr
     assert "Traceback" not in bad.stderr
+
+
+def test_accelerations_are_solved_where_an_output_or_the_rates_need_them():
+    """The point-mass pendulum's angular acceleration is -g cos(phi) / L (phi from the
+    horizontal): an output of order 2 (rod.alpha) gets it at every output instant, and so do
+    the kept rates of a run whose outputs need none (simulate(rates=True)); a run that needs
+    neither keeps no rates."""
+    length = 1.0
+    with_alpha = pendulum(length).replace("output rod.phi,", "output rod.alpha, rod.phi,")
+    res = mechdsl.loads(with_alpha, "pendulum.mech").simulate()
+    assert res.status == "ok", res.messages
+    np.testing.assert_allclose(res["rod.alpha"], -G * np.cos(res["rod.phi"]) / length,
+                               rtol=0, atol=1e-8)
+    mech = mechdsl.loads(pendulum(length), "pendulum.mech")
+    kept = mech.simulate(rates=True)
+    assert kept.status == "ok", kept.messages
+    np.testing.assert_allclose(kept.rates[0, :len(kept["t"]), 1, 0, 2],
+                               -G * np.cos(kept["rod.phi"]) / length, rtol=0, atol=1e-8)
+    assert mech.simulate().rates is None

@@ -64,19 +64,25 @@ def test_the_grammar_is_read_as_expected():
     assert {"if", "then", "else", "and", "or", "not", "in", "to", "polygon"} <= WORDS
 
 
-def test_the_language_servers_completion_knows_every_statement_item_and_function():
+def test_the_language_servers_completion_knows_every_statement_item_and_function(registry):
+    """What the language server offers (lsp.completions at a cursor, as an editor asks),
+    against the grammar and the tables: every statement at a statement's start, every body
+    item inside a body, every function in an expression of an output, and the trace
+    functions in a trace statement."""
     from mechdsl import lsp
 
-    statements = {w for s in lsp._STATEMENTS for w in s.split()}
-    assert STATEMENTS - statements == set(), "statements missing from lsp._STATEMENTS"
-    assert ITEMS - set(lsp._ITEMS) == set(), "body items missing from lsp._ITEMS"
-    from mechdsl.grammar.model import TRACE_FUNCTIONS
+    def offered(text: str, kind: str) -> set[str]:
+        lines = text.split("\n")
+        found = lsp.completions(text, len(lines) - 1, len(lines[-1]), registry)
+        return {label for label, k, _ in found if k == kind}
 
-    offered = set(lsp._FUNCTIONS) | set(TRACE_FUNCTIONS)
-    from mechdsl.grammar.model import REDUCTIONS
-
-    offered |= set(REDUCTIONS)  # offered in outputs and objectives (test_lsp checks where)
-    assert _functions() - offered == set(), "functions the completion never offers"
+    statements = {w for s in offered("param a = 1\n", "keyword") for w in s.split()}
+    assert STATEMENTS - statements == set(), "statements the completion never offers"
+    assert ITEMS - offered("body b {\n  ", "keyword") == set(), \
+        "body items the completion never offers"
+    functions = offered("body b { }\noutput x = ", "function") | \
+        offered("body b { }\ntrace ", "function")
+    assert _functions() - functions == set(), "functions the completion never offers"
 
 
 def test_the_symbol_table_knows_every_statement_and_function():

@@ -225,7 +225,8 @@ def test_a_large_model_is_planned_with_its_banded_solver_not_a_dense_one():
     258 MiB peak) was refused as needing 4.1 GiB. Here a chain of 400 links, under a limit
     that the dense estimate exceeds, is accepted."""
     from mechdsl.errors import MechError
-    from mechdsl.memory import plan, resident_bytes
+    from mechdsl.memory import resident_bytes
+    from mechdsl.solve.memory import plan
     from mechdsl.solve.dynamic import DynamicRun
 
     system = mechdsl.loads(dm.chain_text(400, t1=0.01)).compile()

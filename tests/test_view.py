@@ -11,7 +11,7 @@ import pytest
 
 from closed_forms import slider_crank
 from conftest import EXAMPLES
-from mechdsl.view import payload
+from mechdsl.outputs import payload
 from mechdsl.view.server import MAX_MESSAGE, create_app
 from mechdsl.view.session import Session
 

@@ -22,7 +22,7 @@ from ..grammar.model import (
     BODY_QUANTITIES, DRIVE_QUANTITIES, ENERGY_QUANTITIES, GROUND, JOINT_QUANTITIES, ORIGIN, POINT_QUANTITIES, Body,
     CentrodeTrace, Drive, Force, Initial, Joint, Model, NamedOutput, ReducedOutput, Vector,
 )
-from ..memory import check_compile
+from ..memory import BYTES, resident_bytes, within
 from ..plugins.contract import REQUIRED, ArgError, ConstraintType
 from ..plugins.derived import EquationError
 from ..plugins.manager import PLUGIN_FAILURES
@@ -918,3 +918,10 @@ def _order(quantity: str) -> int:
         return 1
     return 2
 
+
+def check_compile(variants: int, values_per_variant: int, limit: int) -> None:
+    """Before a model is compiled for ``variants`` sweep variants: its arrays hold about
+    ``values_per_variant`` numbers per variant (points, arguments, guesses, params), built
+    through one temporary copy each."""
+    within({"the process so far": resident_bytes(),
+            "the compiled model": 2 * BYTES * variants * values_per_variant}, limit)

@@ -41,6 +41,10 @@ from .tables import PointList, make_table
 
 __all__ = ["parse", "parse_tree", "lex", "parse_expr", "parse_expr_list", "parse_reductions", "check_expr", "TIME", "MAX_DEPTH"]
 
+#: Memory that parsing can take per byte of a model file, at worst (a file of nothing but
+#: tiny expressions: about 480 MB per MB measured; ordinary models take 130).
+PARSE_BYTES_PER_BYTE = 500
+
 #: The options of an ``initial`` statement after its value
 INITIAL_OPTIONS = ("rate",)
 

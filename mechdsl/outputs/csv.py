@@ -4,7 +4,7 @@ One row per solved instant of each variant; the columns are the swept params, ``
 the outputs (:attr:`~mechdsl.results.Results.header`). A comment line under the header gives
 the units, when the results know them (:func:`units_line`). Every number is the shortest
 text that reads back to the same double, as Python's ``repr`` writes it. The rows are built
-and written a chunk at a time (:func:`row_blocks`), so that the memory stays bounded whatever
+and written a chunk at a time (:meth:`~mechdsl.results.Results.rows`), so that the memory stays bounded whatever
 the length of the run.
 """
 
@@ -19,42 +19,6 @@ from typing import IO, Iterator, Sequence
 import numpy as np
 
 from ..results import Results
-
-
-def row_blocks(results: Results, size: int | None = None) -> Iterator[np.ndarray]:
-    """The CSV's rows (one per solved instant of each variant, columns as
-    :attr:`~mechdsl.results.Results.header`) as arrays of at most ``size`` rows (None: a
-    variant's at once)."""
-    ncols = len(results.header)
-    if results.reduced:  # one row per variant: the swept params, then the reductions
-        step = size or results.n_variants
-        for start in range(0, results.n_variants, step):
-            stop = min(results.n_variants, start + step)
-            block = np.empty((stop - start, ncols))
-            for j, column in enumerate((*results.sweep.values(), *results.reduced.values())):
-                block[:, j] = np.asarray(column)[start:stop]
-            yield block
-        return
-    for v in range(results.n_variants):
-        k = int(results.n_solved[v])
-        step = size or max(k, 1)
-        for start in range(0, k, step):
-            stop = min(k, start + step)
-            block = np.empty((stop - start, ncols))
-            for j, s in enumerate(results.sweep):
-                block[:, j] = results.sweep[s][v]
-            j = len(results.sweep)
-            block[:, j] = results.times[start:stop]
-            for i, label in enumerate(results.data, start=j + 1):
-                block[:, i] = results.data[label][v, start:stop]
-            yield block
-
-
-def table(results: Results) -> tuple[list[str], np.ndarray]:
-    """The CSV's header and all its rows as one array (see :func:`row_blocks`)."""
-    blocks = list(row_blocks(results))
-    rows = np.concatenate(blocks) if blocks else np.empty((0, len(results.header)))
-    return results.header, rows
 
 
 #: Values formatted at a time by the CSV writer, and converted at a time by the reader: the
@@ -81,7 +45,7 @@ def write_csv(results: Results, target: str | os.PathLike | IO[str]) -> None:
 
 
 def write_rows(results: Results, f: IO[str]) -> None:
-    """The CSV of :func:`table` written into ``f`` a chunk of rows at a time.
+    """The CSV of :meth:`~mechdsl.results.Results.table` written into ``f`` a chunk of rows at a time.
 
     The header names the columns; when the results know a unit, a comment line
     (:func:`units_line`) follows it, and in a table of reductions a comment saying the rows
@@ -97,7 +61,7 @@ def write_rows(results: Results, f: IO[str]) -> None:
         f.write(f"# one row per variant; swept params: {', '.join(results.sweep)}\n")
     # '%r' of a Python float is its repr: the shortest round-tripping digits
     row_format = ",".join(["%r"] * len(header)) + "\n"
-    for block in row_blocks(results, max(1, CHUNK_VALUES // max(len(header), 1))):
+    for block in results.rows(max(1, CHUNK_VALUES // max(len(header), 1))):
         f.write((row_format * len(block)) % tuple(block.ravel().tolist()))
 
 

@@ -26,13 +26,48 @@ from ..compiled.system import Sketch, System
 from ..errors import MechError
 from ..results import Results
 from .centrodes import Centrode, centrodes, pieces, within_reach
-from .plot import literal, save_figure
+from .plot import figure_parts, literal, save_figure
 from .styles import decorate, variant_styles
 
 #: Frames of an animation at most (instants are sampled evenly when there are more).
 MAX_FRAMES = 100
 #: Frames per second of an animation.
 FPS = 25
+
+
+def snapshot_options(settings: dict, path: str) -> dict:
+    """The snapshot's keywords from the run's settings (:func:`mechdsl.outputs.settings`)."""
+    return {"at": settings["at"], "labels": settings["labels"]}
+
+
+def animation_options(settings: dict, path: str) -> dict:
+    """The animation's keywords: at most ``frames`` frames (default :data:`MAX_FRAMES`)."""
+    frames = settings["frames"]
+    return {"max_frames": MAX_FRAMES if frames is None else frames,
+            "labels": settings["labels"]}
+
+
+def drawing_bytes(system: System) -> int:
+    """The world coordinates of every drawn point of every variant at every instant (with
+    two temporary copies): what drawing the mechanism holds."""
+    sk = system.sketch
+    drawn = sum(o.shape[1] + 1 for o in sk.outlines) + sum(p.shape[1] for _, p in sk.pins)
+    drawn += len(sk.traces) + 2 * len(sk.centrodes) \
+        + sum(2 * e.shape[1] for e in sk.shapes if e is not None)
+    return 3 * 2 * 8 * system.n_variants * len(system.times) * drawn
+
+
+def snapshot_memory(system: System, path: str, settings: dict) -> dict[str, int]:
+    """What the snapshot adds to the run (:attr:`mechdsl.outputs.Format.memory`)."""
+    return {**figure_parts(), "the drawing": drawing_bytes(system)}
+
+
+def animation_memory(system: System, path: str, settings: dict) -> dict[str, int]:
+    """What the animation adds: its frames too, all of them for a GIF (kept until the file
+    is written), one for an MP4 (streamed)."""
+    frames = min(animation_options(settings, path)["max_frames"], len(system.times))
+    return {**figure_parts(frames if path.lower().endswith(".gif") else 1),
+            "the drawing": drawing_bytes(system)}
 #: Colour of a ground support shared by every variant (a variant's own are in its colour).
 SUPPORT_COLOR = "0.35"
 

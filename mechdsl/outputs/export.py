@@ -97,6 +97,33 @@ def written_files(path: str, n_solved, ks=None) -> list[list[str]]:
     return names
 
 
+def options(settings: dict, path: str) -> dict:
+    """The export's keywords from the run's settings (:func:`mechdsl.outputs.settings`): the
+    instants ``at``, else ``frames`` at most (default: the animation's for meshes, a
+    snapshot's six for a drawing, .dxf or .svg)."""
+    from .draw import MAX_FRAMES
+
+    frames = settings["frames"]
+    if frames is None and not path.lower().endswith((".dxf", ".svg")):
+        frames = MAX_FRAMES
+    return {"at": settings["at"], "max_frames": frames}
+
+
+def memory(system: System, path: str, settings: dict) -> dict[str, int]:
+    """What the export adds to the run: meshio, and the positions, velocities and
+    accelerations of every exported point at every instant of one variant (with one
+    temporary copy); for XDMF, whose XML meshio builds whole, about 25 characters per number
+    held four times over."""
+    sk = system.sketch
+    K = len(system.times)
+    points = sum(2 * o.shape[1] for o in sk.outlines)
+    points += sum(4 * e.shape[1] for e in sk.shapes if e is not None)
+    size = 2 * 9 * 8 * K * points
+    if path.lower().endswith(".xdmf"):
+        size += 4 * 25 * 9 * K * points
+    return {"meshio": 0, "the export": size}
+
+
 def export_instants(results: Results, path: str, at: list[float] | None = None,
                     max_frames: int | None = None) -> np.ndarray:
     """The instants an export writes (indices into the run's): those nearest the times

@@ -4,7 +4,7 @@ a colleague. It opens from the disk in any browser, offline, with no server: the
 the outputs' plots, and every variant of a sweep overlaid with its legend (the sweep's values
 were computed beforehand; nothing is solved in the browser).
 
-The run travels as the view's binary message (:mod:`mechdsl.view.payload`), base64 in a
+The run travels as the view's binary message (:mod:`mechdsl.outputs.payload`), base64 in a
 ``<script type="application/octet-stream">`` element: data, never run as script. Its JSON
 header is parsed by the page, and every name and message in it is shown as text. The page's
 script and style are the view's own files, inlined (a file opened from the disk cannot load
@@ -21,9 +21,24 @@ from pathlib import Path
 PAGE = Path(__file__).resolve().parents[1] / "view" / "page"
 
 
+def memory(system, path: str, settings: dict) -> dict[str, int]:
+    """What the page adds to the run (:attr:`mechdsl.outputs.Format.memory`): the drawing's
+    world coordinates, as a snapshot's (:func:`mechdsl.outputs.draw.snapshot_memory`)."""
+    from .draw import snapshot_memory
+
+    return snapshot_memory(system, path, settings)
+
+
+def summary(results, path: str) -> str:
+    """The line ``mechdsl run`` prints of the page written to ``path``."""
+    n = int(results.n_solved.max(initial=0))
+    variants = f", {results.n_variants} variants" if results.sweep else ""
+    return f"{path}: page of {n} instant{'s' if n != 1 else ''}{variants}"
+
+
 def write_page(results, system, path: str | os.PathLike) -> None:
     """Write the page of ``results`` (of ``system``, with poses) to ``path``, atomically."""
-    from ..view import payload
+    from . import payload
     from ..writing import write_text
 
     message = payload.run_message(system, results, (), file=os.path.basename(

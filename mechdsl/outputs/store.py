@@ -483,9 +483,9 @@ class StoredResults:
     def __init__(self, path, max_memory: int | None = None):
         self.path = os.fspath(path)
         if max_memory is None:
-            from ..solve.options import SolverOptions
+            from ..memory import DEFAULT_MAX_MEMORY
 
-            max_memory = SolverOptions().max_memory
+            max_memory = DEFAULT_MAX_MEMORY
         self.max_memory = max_memory
         with self._reading("opening it"):
             self._open()

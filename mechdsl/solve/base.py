@@ -11,7 +11,7 @@ the factorisations of :mod:`mechdsl.solve.linalg`). To add one:
    (options for the model's size, the time grid, the column scale D), checks that the method
    applies to the system (a MechError that names what is missing, as
    :func:`mechdsl.solve.mobility.count_check` does) and refuses a run whose memory would
-   exceed ``options.max_memory`` (:func:`mechdsl.memory.plan`), before anything the size of
+   exceed ``options.max_memory`` (:func:`mechdsl.solve.memory.plan`), before anything the size of
    the run is allocated. Nothing is solved yet.
 3. ``run()`` solves every instant of ``system.times`` for every variant and returns
    :meth:`results`. It raises nothing for what can happen while solving: a numerical failure

@@ -37,7 +37,7 @@ import numpy as np
 from ..compiled import equations as eq
 from ..compiled.system import System
 from ..errors import MechError
-from ..memory import plan
+from .memory import plan
 from ..results import Results
 from . import extrema
 from .assembly import gauss_newton

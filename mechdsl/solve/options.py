@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from numbers import Integral
 
+from ..memory import DEFAULT_MAX_MEMORY
+
 
 @dataclass(frozen=True)
 class SolverOptions:
@@ -172,7 +174,7 @@ class SolverOptions:
     max_batch_elements: int = 2**22
     #: Peak resident memory of the whole process, in bytes: a run estimated to need more
     #: is refused before it starts (:mod:`mechdsl.memory`).
-    max_memory: int = 4 * 2**30
+    max_memory: int = DEFAULT_MAX_MEMORY
     #: From this many coordinates (3 per moving body) on, a mechanism without redundant
     #: constraints is solved with sparse LU (SuperLU), one state at a time, instead of dense
     #: batched linear algebra; the scaling section of benchmarks/bench.py measures the cross-over.

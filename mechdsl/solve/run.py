@@ -39,7 +39,7 @@ from ..compiled.lu import THRESHOLD
 from ..compiled.sparse import LU_BATCH_STATES
 from ..compiled.system import ExprOutput, System
 from ..errors import MechError
-from ..memory import plan
+from .memory import plan
 from ..results import Results
 from .assembly import Assembly, assemble
 from .base import Progress, Run
@@ -889,7 +889,7 @@ def simulate(system: System, options: SolverOptions | None = None, *,
     ``rates`` their first and second time derivatives too (``Results.rates``). ``progress``
     is called as progress(instants_done, instants) as the run goes on. A run whose memory,
     with ``extra_memory`` bytes that the caller will add for its outputs, would exceed
-    ``options.max_memory`` is refused before it starts (:func:`mechdsl.memory.plan`).
+    ``options.max_memory`` is refused before it starts (:func:`mechdsl.solve.memory.plan`).
 
     Raises MechError if the model is not fully driven. Numerical failures do not raise: the
     failing variant stops, the instants solved before are kept, and ``Results.status`` is

@@ -12,8 +12,9 @@ import numpy as np
 from ..compiled.system import System
 from ..compiled.variants import Overrides, sweep_table
 from ..errors import MechError
-from ..memory import resident_bytes, results_bytes, within
+from ..memory import resident_bytes, within
 from ..results import Results
+from ..solve.memory import results_bytes
 from ..solve.options import SolverOptions
 from .chunks import CHUNK_VARIANTS, Study, default_chunk
 from .run import labels_and_units, run_study
@@ -23,16 +24,10 @@ __all__ = ["Study", "plan", "solve_sweep"]
 
 def study_of(mech, ov: Overrides, options: SolverOptions | None = None, *,
              poses: bool = False, rates: bool = False) -> Study:
-    """The :class:`Study` of a :class:`~mechdsl.api.Mechanism` with overrides: its plugins
-    by module name (a plugin given as an object cannot be sent to another process)."""
-    objects = [p for p in mech._plugins if not isinstance(p, str)]
-    if objects:
-        raise MechError(f"a plugin given as a Python object ({objects[0]!r}) cannot be sent "
-                        "to another process; give its module name")
-    study = Study(mech.model, ov, options, tuple(mech._plugins), tuple(mech._allowed),
-                  poses, rates)
-    study.__dict__["mechanism"] = mech  # here, its registry is built: not again (not pickled)
-    return study
+    """The :class:`Study` of a :class:`~mechdsl.api.Mechanism` with overrides: the
+    mechanism's portable form (:meth:`~mechdsl.api.Mechanism.portable`: the model and its
+    plugins by module name, as the workers build them) is what the study compiles with."""
+    return Study(mech.model, ov, options, mech.portable(), poses, rates)
 
 
 def plan(mech, ov: Overrides, chunk: int | None = None) -> tuple[System, int, int, dict]:

@@ -9,7 +9,6 @@ process or on any worker of a cluster, so the merged results are the same bit fo
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -30,36 +29,21 @@ CHUNK_BYTES = 2**27
 @dataclass(frozen=True)
 class Study:
     """A sweep to be solved chunk by chunk: the parsed model, the overrides (params, sweeps,
-    span), the solver options, and the plugins by module name (a worker imports them
-    itself; a plugin given as a Python object cannot be sent). ``poses``/``rates`` keep
-    the bodies' poses (drawings, exports)."""
+    span), the solver options, and ``compiler``, what compiles the model with its plugins in
+    whichever process solves a chunk (the API's :class:`~mechdsl.api.PortableModel`: it
+    pickles as the model and the plugins' module names, and each process builds its own
+    registry). ``poses``/``rates`` keep the bodies' poses (drawings, exports)."""
 
     model: Model
     overrides: Overrides
     options: SolverOptions | None = None
-    plugins: tuple[str, ...] = ()
-    allowed: tuple[str, ...] = ()
+    compiler: object = None
     poses: bool = False
     rates: bool = False
 
-    def __getstate__(self) -> dict:
-        # the registry is rebuilt where the study is unpickled, from that side's plugins
-        return {k: v for k, v in self.__dict__.items() if k != "mechanism"}
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
-
-    @functools.cached_property
-    def mechanism(self):
-        """The :class:`~mechdsl.api.Mechanism` of the model with its registry, built once in
-        each process that solves chunks of the study."""
-        from ..api import Mechanism
-
-        return Mechanism(self.model, plugins=self.plugins, allow_plugins=self.allowed)
-
     def system(self, start: int, stop: int) -> System:
         """The compiled model of variants ``start`` .. ``stop - 1``."""
-        return self.mechanism.compile(replace(self.overrides, variant_range=(start, stop)))
+        return self.compiler.compile(replace(self.overrides, variant_range=(start, stop)))
 
     def solve(self, start: int, stop: int, progress=None, system: System | None = None
               ) -> Results:

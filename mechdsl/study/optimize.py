@@ -81,6 +81,11 @@ class Optimum:
     failed: int = 0
     interrupted: int | None = None
 
+    @staticmethod
+    def holds(slack: float) -> bool:
+        """Whether a requirement of this slack holds (slack >= -REQUIRE_TOL)."""
+        return bool(slack >= -REQUIRE_TOL)
+
 
 class SearchInterrupted(BaseException):
     """A sweep of the search came back interrupted (the solver keeps what it solved and

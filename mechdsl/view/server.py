@@ -40,7 +40,7 @@ import socket
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import payload
+from ..outputs import payload
 from .session import Session
 
 #: The page's files, the only ones served (name -> media type).

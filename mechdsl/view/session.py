@@ -16,7 +16,7 @@ import threading
 from typing import Mapping
 
 from ..errors import MechError, format_error
-from . import payload
+from ..outputs import payload
 
 #: The largest number of sliders a page gets (a model with more params shows the first).
 MAX_SLIDERS = 64
@@ -121,17 +121,16 @@ class Session:
             return self._solve()
 
     def _solve(self) -> bytes:
-        from ..solve import simulate
-        from ..study import plan
-
         mech = self.mech
         try:
             ov = _overrides(mech, self.values)
-            system, total, size, _ = plan(mech, ov)
-            if total <= size:  # one run: the traced points' velocities and accelerations too
+            prepared = mech.prepare(ov)
+            system = prepared.system
+            if prepared.total <= prepared.chunk:
+                # one run: the traced points' velocities and accelerations too
                 sk = system.sketch
-                results = simulate(system, self.options, poses=True,
-                                   rates=bool(sk and (sk.traces or sk.centrodes)))
+                results = prepared.solve(self.options, poses=True,
+                                         rates=bool(sk and (sk.traces or sk.centrodes)))
             else:  # a sweep of many chunks: as the API solves it, without the vectors
                 results = mech.simulate(params=dict(self.values), poses=True,
                                         rates=bool(system.sketch and system.sketch.centrodes),

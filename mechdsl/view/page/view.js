@@ -1,4 +1,4 @@
-// mechdsl view: the page. It draws what the server sends (mechdsl/view/payload.py: a JSON
+// mechdsl view: the page. It draws what the server sends (mechdsl/outputs/payload.py: a JSON
 // header and float64 arrays in one binary message) and sends slider moves back. Every name
 // and message from the file is set as text (textContent, fillText), never as markup.
 "use strict";

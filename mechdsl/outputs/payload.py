@@ -26,8 +26,8 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from ..compiled.system import System
-from ..outputs.centrodes import within_reach
-from ..outputs.draw import frames, variant_labels
+from .centrodes import within_reach
+from .draw import frames, variant_labels
 from ..results import Results, summary
 
 MAGIC = b"MDV1"

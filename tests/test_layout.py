@@ -1,0 +1,163 @@
+"""The house's layout holds (docs/architecture.md): data flows one way through the stages, the
+command line reaches the solver only through the API, a new output format is one module and
+one registry entry.
+
+Every import of mechdsl's own modules is read from the source (those inside functions too,
+which is where the heavy ones are), so a lazy import back up fails here as a top-level one
+would."""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parent.parent / "mechdsl"
+
+#: The stages, lowest first: a module may import its own stage and those before it. A stage
+#: is a package under mechdsl/ or a flat module (by its name).
+STAGES = (
+    ("base", {"errors", "memory", "reading", "writing", "results"}),
+    ("grammar", {"grammar"}),
+    ("symbolic", {"symbolic"}),
+    ("plugins", {"plugins", "functions"}),
+    ("compiled", {"compiled"}),
+    ("solve", {"solve"}),
+    ("outputs", {"outputs"}),
+    ("study", {"study"}),
+    ("use cases", {"api", "diagnostics", "testing"}),
+    ("surfaces", {"commands", "cli", "lsp", "view", "__main__", "__init__"}),
+)
+LEVEL = {unit: k for k, (_, units) in enumerate(STAGES) for unit in units}
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _unit(module: str) -> str:
+    """The stage unit of a module: its package under mechdsl, or its flat module's name
+    (mechdsl itself: its __init__)."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "__init__"
+
+
+def imports(path: Path) -> list[tuple[str, int]]:
+    """The mechdsl modules that ``path`` imports, with the line, every import statement of
+    the file (inside functions too)."""
+    module = _module_name(path)
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[:len(package.split(".")) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            names = [f"{target}.{a.name}" for a in node.names]
+            # "from . import payload" names a module; "from .x import f" a module's name
+            targets = [n for n in names if (PACKAGE.parent / (n.replace(".", "/") + ".py")
+                                            ).exists() or (PACKAGE.parent / n.replace(".", "/")
+                                                           ).is_dir()] or [target]
+        elif isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        else:
+            continue
+        found += [(t, node.lineno) for t in targets if t == "mechdsl" or
+                  t.startswith("mechdsl.")]
+    return found
+
+
+def _sources() -> list[Path]:
+    return sorted(p for p in PACKAGE.rglob("*.py") if "__pycache__" not in p.parts)
+
+
+def test_every_module_belongs_to_a_stage():
+    units = {_unit(_module_name(p)) for p in _sources()}
+    assert units <= set(LEVEL), sorted(units - set(LEVEL))
+
+
+def test_no_stage_imports_a_later_one():
+    upward = []
+    for path in _sources():
+        here = _unit(_module_name(path))
+        for target, line in imports(path):
+            there = _unit(target)
+            if LEVEL[there] > LEVEL[here]:
+                upward.append(f"{path.relative_to(PACKAGE.parent)}:{line}: {here} "
+                              f"({STAGES[LEVEL[here]][0]}) imports {target} "
+                              f"({STAGES[LEVEL[there]][0]})")
+    assert not upward, "\n".join(upward)
+
+
+@pytest.mark.parametrize("surface", ["commands.py", "cli.py", "view/session.py",
+                                     "view/server.py", "lsp.py"])
+def test_the_command_line_and_the_editors_reach_the_solver_only_through_the_api(surface):
+    reached = [f"line {line}: {target}" for target, line in imports(PACKAGE / surface)
+               if _unit(target) in ("solve", "study")]
+    assert not reached, reached
+
+
+def test_the_checker_finds_a_lazy_import_back_up(tmp_path, monkeypatch):
+    # the checks above must see an import inside a function, relative or absolute
+    fake = PACKAGE / "compiled" / "_layout_probe.py"
+    monkeypatch.setattr(Path, "read_text", lambda self, encoding=None: (
+        "def f():\n    from ..solve import simulate\n    import mechdsl.api\n"
+        if self == fake else Path.open(self, encoding=encoding).read()))
+    assert imports(fake) == [("mechdsl.solve", 2), ("mechdsl.api", 3)]
+
+
+def test_the_page_format_is_one_module_and_one_registry_entry():
+    """``--html`` is written, sized for the memory plan, flagged on the command line and
+    summarised from its registry entry and its module alone: nothing else names it."""
+    from mechdsl.outputs import FORMATS
+
+    page = FORMATS["page"]
+    assert page.writer.startswith("html:") and page.memory.startswith("html:") \
+        and page.summary.startswith("html:")
+    for where in ("cli.py", "commands.py", "memory.py", "api.py", "solve/memory.py"):
+        text = (PACKAGE / where).read_text(encoding="utf-8")
+        assert not re.search(r"html|write_page", text), where
+
+
+def test_the_command_line_flags_are_the_registry():
+    """Every format's flag comes from its entry: its option, metavar and help."""
+    import subprocess
+    import sys
+
+    from mechdsl.outputs import FORMATS
+
+    help_text = subprocess.run([sys.executable, "-m", "mechdsl", "run", "--help"],
+                               capture_output=True, text=True, check=True).stdout
+    flat = " ".join(help_text.split())
+    for fmt in FORMATS.values():
+        assert f"{fmt.option} {fmt.metavar}" in flat, fmt.kind
+        assert " ".join(fmt.help.split()) in flat, fmt.kind
+
+
+def test_the_memory_plan_adds_each_formats_own_estimate(tmp_path, monkeypatch, capsys):
+    """The run's memory plan reads the page's estimate from its registry entry: an estimate
+    of a PiB refuses the run before it starts (exit 1, the figure named), and nothing is
+    written."""
+    from dataclasses import replace
+
+    from mechdsl import outputs
+    from mechdsl.cli import main
+    from mechdsl.outputs import html
+
+    monkeypatch.setattr(html, "probe_memory", lambda system, path, settings:
+                        {"the probe": 2**50}, raising=False)
+    monkeypatch.setitem(outputs.FORMATS, "page",
+                        replace(outputs.FORMATS["page"], memory="html:probe_memory"))
+    page = tmp_path / "page.html"
+    example = PACKAGE.parent / "examples" / "slider_crank.mech"
+    assert main(["run", str(example), "--html", str(page), "-q"]) == 1
+    err = capsys.readouterr().err
+    assert "drawings and exports 1024.0 TiB" in err and "more than the limit" in err, err
+    assert not page.exists()
+    monkeypatch.undo()
+    assert main(["run", str(example), "--html", str(page), "-q"]) == 0 and page.exists()
