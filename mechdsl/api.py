@@ -22,7 +22,8 @@ from .compiled.files import read_files, read_tables
 from .compiled.system import System
 from .compiled.variants import Overrides, known_param
 from .errors import MechError, NumericalError, Source, Span
-from .grammar import Model, normalise, parse, parse_expr, parse_expr_list, parse_reductions
+from .grammar import (Model, normalise, parse, parse_expr, parse_expr_list, parse_reductions,
+                      parse_traces)
 from .grammar.expr import to_text
 from .plugins.manager import allowed_plugins, build_registry
 from .plugins.registry import Registry
@@ -464,6 +465,7 @@ class Mechanism:
         poses: bool = False,
         rates: bool = False,
         reduce: str | Sequence[str] | None = None,
+        trace: str | Sequence[str] | None = None,
         client=None,
         chunk: int | None = None,
         store: str | os.PathLike | None = None,
@@ -481,7 +483,9 @@ class Mechanism:
         them for ``--export`` and for centrodes). ``reduce`` replaces
         the file's outputs by reductions, as ``mechdsl run --reduce`` (``"max(abs(slider.ax)),
         stroke = range(slider.x)"``, or a list of such texts): one value per variant, in
-        ``Results.reduced``.
+        ``Results.reduced``. ``trace`` adds traced points and centrodes to the model's
+        ``trace`` statements, as ``mechdsl run --trace`` (``"coupler.P"``, ``"ic(coupler,
+        ground)"``, or a list of such texts).
 
         A sweep is solved in chunks of ``chunk`` variants (by default chosen from the model's
         size, at most 1000), as ``mechdsl run`` does: on the cluster of the Dask ``client``
@@ -494,6 +498,7 @@ class Mechanism:
         """
         ov = self._overrides(span, step, sweep, {**(params or {}), **param_values}, options)
         mech = self.reducing(reduce) if reduce is not None else self
+        mech = mech.tracing(trace) if trace else mech
         prepared = mech.prepare(ov, chunk)
         if store is not None:
             from .outputs.store import open_store, store_kind
@@ -599,6 +604,26 @@ class Mechanism:
                 raise
             outputs.extend(found)
         return self.sharing(replace(self.model, outputs=tuple(outputs)))
+
+    def tracing(self, trace: str | Sequence[str]) -> "Mechanism":
+        """This mechanism with the traces of ``trace`` added to its ``trace`` statements (the
+        text of ``mechdsl run --trace``, or a list of such texts: ``"coupler.P"``,
+        ``"ic(coupler, ground)"``), sharing its plugins; a mistake in them is located in
+        their text."""
+        from dataclasses import replace
+
+        texts = [trace] if isinstance(trace, str) else list(trace)
+        self.check_names()  # the file's own mistakes, located in the file
+        traces = list(self.model.traces)
+        for text in texts:
+            found = parse_traces(text, "--trace")
+            try:  # what is left to find is in this text: locate it here
+                check_structure(replace(self.model, traces=(*traces, *found)), self.registry)
+            except MechError as err:
+                err.source = Source("--trace", normalise(text))
+                raise
+            traces.extend(found)
+        return self.sharing(replace(self.model, traces=tuple(traces)))
 
     def sharing(self, model: Model) -> "Mechanism":
         """``model``, this mechanism's model with other outputs or sweeps (the same plugin

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import re
 import signal
 import sys
 from typing import Iterator
@@ -293,36 +292,6 @@ class SearchStatus(ProgressBar):
                        f"{'s' if sweeps != 1 else ''}, {now - self.start:.0f} s ")
 
 
-def _trace_ref(model, ref: str):
-    """A --trace BODY.POINT (an OutputRef) or ic(A, B) (a CentrodeTrace), checked against the
-    model's bodies and points."""
-    from .grammar.model import TRACE_FUNCTIONS, CentrodeTrace, OutputRef
-
-    bodies = {b.name: b for b in (*model.bodies, model.ground)}
-    call = re.fullmatch(r"\s*(\w+)\s*\(\s*(\w+)\s*,\s*(\w+)\s*\)\s*", ref)
-    if call:
-        func, a, b = call.groups()
-        if func not in TRACE_FUNCTIONS:
-            raise MechError(f"--trace {ref}: '{func}' cannot be traced; expected BODY.POINT or "
-                            + " or ".join(f"{n}(A, B)" for n in TRACE_FUNCTIONS))
-        for name in (a, b):
-            if name not in bodies:
-                raise MechError(f"--trace {ref}: unknown body '{name}'" + suggest(name, bodies))
-        if a == b:
-            raise MechError(f"--trace {ref}: the centrodes of '{a}' relative to itself: name "
-                            "two bodies")
-        return CentrodeTrace(a, b, None)
-    parts = ref.split(".")
-    if not 1 <= len(parts) <= 2 or parts[0] not in bodies:
-        raise MechError(f"--trace {ref}: expected BODY.POINT with a body of the model, or "
-                        "ic(A, B)" + suggest(parts[0], bodies))
-    points = {"origin", *(p.name for p in bodies[parts[0]].points)}
-    if len(parts) == 2 and parts[1] not in points:
-        raise MechError(f"--trace {ref}: body '{parts[0]}' has no point '{parts[1]}'"
-                        + suggest(parts[1], points, f"{parts[0]}."))
-    return OutputRef(tuple(parts), None)
-
-
 def _frames(args) -> int:
     """--frames, or the animation's default."""
     from .outputs.draw import MAX_FRAMES
@@ -370,10 +339,7 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
     mech = load(args.file, plugins=args.plugin, allow_plugins=args.allow_plugin, check=False,
                 max_memory=_max_memory(args) or MAX_MEMORY)
     if args.trace:
-        from dataclasses import replace
-
-        extra = tuple(_trace_ref(mech.model, r) for r in args.trace)
-        mech.model = replace(mech.model, traces=mech.model.traces + extra)
+        mech = mech.tracing(args.trace)
     if getattr(args, "reduce", None):
         mech = mech.reducing(args.reduce)
     ov = _overrides(mech, args)

@@ -169,7 +169,7 @@ def test_centrodes_drawn_by_the_command_line(tmp_path):
     np.testing.assert_allclose(np.linalg.norm(fixed, axis=1), L, atol=1e-12)
 
     r = mechdsl("run", str(f), "-o", str(out), "--trace", "ic(rod,nobody)")
-    assert r.returncode == 1 and "--trace ic(rod,nobody): unknown body 'nobody'" in r.stderr
+    assert r.returncode == 1 and "--trace:1:1: error: unknown body 'nobody'" in r.stderr
     assert "Traceback" not in r.stderr
 
 
@@ -196,6 +196,28 @@ def test_a_sweep_draws_each_variants_centrodes(tmp_path):
                 str(tmp_path / "s.png"), "--export", str(tmp_path / "e.svg"), "--at", "0.5")
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "e_v0.svg").exists() and (tmp_path / "e_v1.svg").exists()
+
+
+def test_the_api_traces_what_the_command_line_traces(tmp_path):
+    """simulate(trace=...) takes --trace's text: the centrodes drawn by the API's snapshot
+    are the Cardan circles, and a mistake is located in the text given, as on the command
+    line."""
+    import mechdsl
+    from mechdsl.errors import MechError
+    from mechdsl.outputs import FORMATS
+    from mechdsl.outputs.draw import frames
+
+    mech = mechdsl.loads(TRAMMEL.replace("trace ic(rod, ground), rod.A", ""), "trammel.mech")
+    res = mech.simulate(trace=["ic(rod, ground)", "rod.A"], poses=True, rates=True)
+    system = mech.tracing(["ic(rod, ground)", "rod.A"]).compile()
+    (c,) = frames(res, system).centrodes
+    np.testing.assert_allclose(np.linalg.norm(c.fixed[0], axis=-1), L, atol=1e-12)
+    FORMATS["snapshot"].write(res, system, str(tmp_path / "s.png"))
+    assert (tmp_path / "s.png").stat().st_size > 0
+    with pytest.raises(MechError) as err:
+        mech.simulate(trace="rod.A, ic(rod, nobody)")
+    assert err.value.source.name == "--trace" and err.value.span.column == 8
+    assert "unknown body 'nobody'" in str(err.value)
 
 
 def test_a_body_that_only_translates_has_no_centrode_drawn(loads):

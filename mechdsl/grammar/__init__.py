@@ -8,6 +8,8 @@ named, and read by :mod:`mechdsl.compiled`) and imports nothing from the later s
 """
 
 from .model import Model
-from .parser import normalise, parse, parse_expr, parse_expr_list, parse_reductions
+from .parser import (normalise, parse, parse_expr, parse_expr_list, parse_reductions,
+                     parse_traces)
 
-__all__ = ["Model", "normalise", "parse", "parse_expr", "parse_expr_list", "parse_reductions"]
+__all__ = ["Model", "normalise", "parse", "parse_expr", "parse_expr_list", "parse_reductions",
+           "parse_traces"]

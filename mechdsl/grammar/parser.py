@@ -39,7 +39,8 @@ from .model import (
 )
 from .tables import PointList, make_table
 
-__all__ = ["parse", "parse_tree", "lex", "parse_expr", "parse_expr_list", "parse_reductions", "check_expr", "TIME", "MAX_DEPTH"]
+__all__ = ["parse", "parse_tree", "lex", "parse_expr", "parse_expr_list", "parse_reductions",
+           "parse_traces", "check_expr", "TIME", "MAX_DEPTH"]
 
 #: Memory that parsing can take per byte of a model file, at worst (a file of nothing but
 #: tiny expressions: about 480 MB per MB measured; ordinary models take 130).
@@ -53,7 +54,8 @@ INITIAL_OPTIONS = ("rate",)
 #: an expression beyond it is an error located where it goes too deep.
 MAX_DEPTH = 10_000
 
-_OPTIONS = dict(parser="lalr", start=["start", "expr_only", "expr_list", "output_list"],
+_OPTIONS = dict(parser="lalr", start=["start", "expr_only", "expr_list", "output_list",
+                                      "trace_list"],
                 propagate_positions=True, maybe_placeholders=False)
 
 
@@ -328,6 +330,9 @@ class _ToModel(Transformer_NonRecursive):
 
     def output_list(self, meta, items):
         return list(items)
+
+    def trace_list(self, meta, items):
+        return tuple(items)
 
     # -- statements ----------------------------------------------------------------------------
     def param(self, meta, items):
@@ -622,6 +627,16 @@ def parse_expr_list(text: str, name: str, params: Iterable[str]) -> list[E.Expr]
             check_expr(e, set(params), name)
     except MechError as err:
         raise err.with_source(source) from None
+    return items
+
+
+def parse_traces(text: str, name: str) -> tuple:
+    """Parse what the command line asks to trace (``--trace "coupler.P, ic(coupler,
+    ground)"``), as the ``trace`` statement reads it: points (OutputRef) and centrodes
+    (CentrodeTrace), located in ``text``; their bodies and points are checked against the
+    model where it is compiled."""
+    source = Source(name, normalise(text))
+    items, _ = _lark_parse(source, "trace_list")
     return items
 
 
