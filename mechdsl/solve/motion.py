@@ -98,6 +98,11 @@ from ..symbolic.codegen import first_floats
 from .options import SolverOptions
 from .triplets import Triplets
 
+#: A projection's last Newton step at most this fraction of ``newton_tol`` is round-off: the
+#: velocities are projected with the factorisation of the step's start (Phi_q moved by
+#: round-off), not a new one
+ROUNDOFF_STEP = 1e-3
+
 
 class Motion:
     """The equations of motion of one variant of a mechanism (the
@@ -398,15 +403,18 @@ class Motion:
         zero = np.zeros(n)
         for _ in range(o.max_iterations):
             phi, jv = self._phi_jac_values(t, q)
-            dq, _, _ = self.saddle(self.factor(self._entries(q, jv)), zero, -phi)
+            fac = self.factor(self._entries(q, jv))
+            dq, _, _ = self.saddle(fac, zero, -phi)
             q += dq
             step = float(np.abs(dq / self.D).max())
             if not math.isfinite(step):
                 break
             if step <= o.newton_tol:
-                # Phi_q at the corrected q (a step of newton_tol leaves Phi of its square)
-                _, jv = self._phi_jac_values(t, q)
-                fac = self.factor(self._entries(q, jv))
+                if step > ROUNDOFF_STEP * o.newton_tol:
+                    # Phi_q at the corrected q (a step of newton_tol leaves Phi of its
+                    # square); a last step at round-off moved Phi_q by round-off only
+                    _, jv = self._phi_jac_values(t, q)
+                    fac = self.factor(self._entries(q, jv))
                 qd, _, _ = self.saddle(fac, fac.m_times(qd), self.nu(t))
                 return np.concatenate((q, qd))
         raise np.linalg.LinAlgError("the position constraints cannot be closed there (a "

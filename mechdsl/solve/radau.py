@@ -209,11 +209,13 @@ class RadauStepper(Stepper):
         self.nfev += 1
         return np.asarray(self.equations.accelerations(t, y[:self.n], y[self.n:])[1], float)
 
-    def _F(self, t: float, y: np.ndarray, lam: np.ndarray) -> np.ndarray:
-        """F(t, z) = (v, Q - Phi_q^T lambda, Phi)."""
+    def _F(self, t: float, y: np.ndarray, lam: np.ndarray, phi_jac: tuple | None = None
+           ) -> np.ndarray:
+        """F(t, z) = (v, Q - Phi_q^T lambda, Phi); ``phi_jac``: (Phi, Phi_q) at (t, q) where
+        the caller has them."""
         eq, n = self.equations, self.n
         q, v = y[:n], y[n:2 * n]
-        phi, G = eq.phi_jac(t, q)
+        phi, G = phi_jac if phi_jac is not None else eq.phi_jac(t, q)
         self.nfev += 1
         return np.concatenate((v, eq.loads(t, q, v) - G.T @ lam, phi))
 
@@ -540,13 +542,18 @@ class RadauStepper(Stepper):
         if not recompute and factor < self.keep_ratio and not self._stagewise:
             factor = 1.0
         self.t_old, self.y_old = t, y
-        Z[:, 2 * n:] = self._range_part(t + h, y_new, Z[:, 2 * n:].T).T
+        # Phi and Phi_q at the step's end, once: the multipliers' range parts (the stages'
+        # and the step's start's, in one solve) and F there
+        phi_jac = self.equations.phi_jac(t + h, y_new[:n]) if self.m else None
+        ranged = self._range_part(t + h, y_new, np.column_stack((Z[:, 2 * n:].T, self.lam)),
+                                  phi_jac)
+        Z[:, 2 * n:] = ranged[:, :3].T
         self.t, self.y = t + h, y_new
-        self.lam = self._range_part(t + h, y_new, self.lam) + Z[2, 2 * n:]
+        self.lam = ranged[:, 3] + Z[2, 2 * n:]
         self._Z, self._h_prev, self._err_prev = Z, h, err_norm
         self.h_abs = h * factor
         self.naccepted += 1
-        self._F0 = self._F(self.t, self.y, self.lam)
+        self._F0 = self._F(self.t, self.y, self.lam, phi_jac)
         self._jac_current = False
         if self._stagewise:
             self._stagewise_steps += 1
@@ -557,7 +564,8 @@ class RadauStepper(Stepper):
             self._jac_current = True
         return None
 
-    def _range_part(self, t: float, y: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    def _range_part(self, t: float, y: np.ndarray, lam: np.ndarray,
+                    phi_jac: tuple | None = None) -> np.ndarray:
         """lambda's component in the range of Phi_q (lam (m,) or (m, k)),
         (G G^T + eps I)^-1 G G^T lam with G = Phi_q at (t, y) and eps = ``regularization`` |G|^2: the part along redundant directions (G^T l = 0),
         which the equations leave free and the regularised Newton lets drift (it divides the
@@ -566,7 +574,7 @@ class RadauStepper(Stepper):
         ``regularization``."""
         if not self.m:
             return lam
-        G = self.equations.phi_jac(t, y[:self.n])[1]
+        G = (phi_jac if phi_jac is not None else self.equations.phi_jac(t, y[:self.n]))[1]
         eps = self.regularization * max(_amax(G), 1e-300) ** 2
         rhs = G @ (G.T @ lam)
         if self.m <= _DENSE_RANGE:  # a few equations: dense, no sparse bookkeeping

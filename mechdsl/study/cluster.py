@@ -322,8 +322,10 @@ def _short(err: BaseException) -> str:
 
 
 def close(client) -> None:
-    """Close ``client``, and the local cluster it started (not a remote one), quietly."""
-    with quiet_dask():
+    """Close ``client``, and the local cluster it started (not a remote one), in silence:
+    closing has nothing to tell (after an interrupt, the scheduler logged at CRITICAL, with
+    a traceback, each cancelled chunk it could no longer report to the closed client)."""
+    with quiet_dask(logging.CRITICAL + 1):
         cluster = client.cluster
         client.close()
         if cluster is not None and type(cluster).__name__ == "LocalCluster":
@@ -331,9 +333,10 @@ def close(client) -> None:
 
 
 @contextmanager
-def quiet_dask() -> Iterator[None]:
-    """Dask's loggers silent but for CRITICAL while this lasts: an interrupt, a closed
-    connection or a lost worker is reported by the run in one line, not by tracebacks."""
+def quiet_dask(level: int = logging.CRITICAL) -> Iterator[None]:
+    """Dask's loggers silent below ``level`` (CRITICAL) while this lasts: an interrupt, a
+    closed connection or a lost worker is reported by the run in one line, not by
+    tracebacks."""
     # distributed's configuration gives some of its loggers levels of their own
     # (distributed.client: warning): each one under the names is set, not only the roots
     names = [n for n in list(logging.root.manager.loggerDict)
@@ -341,7 +344,7 @@ def quiet_dask() -> Iterator[None]:
     loggers = [logging.getLogger(name) for name in {*DASK_LOGGERS, *names}]
     levels = [lg.level for lg in loggers]
     for lg in loggers:
-        lg.setLevel(logging.CRITICAL)
+        lg.setLevel(level)
     try:
         yield
     finally:
