@@ -7,6 +7,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 from conftest import EXAMPLES, ROOT
 
 
@@ -191,6 +193,54 @@ def test_a_plugin_declaring_another_contract_is_not_loaded_and_the_current_one_i
     model = EXAMPLES / "plugins" / "curve_slot" / "curve_slot.mech"
     r = mechdsl(site, "run", model, "-o", tmp_path / "o.csv", "-q")
     assert r.returncode == 0, r.stderr
+
+
+@pytest.mark.parametrize("source, reason", [
+    (OLD_IMPORT, "it imports what mechdsl no longer has"),
+    (OLD_CONTRACT.replace("    import numpy as np", "    import numpy as np\n    MECHDSL_CONTRACT = 1"),
+     "it was written for plugin contract 1 (MECHDSL_CONTRACT = 1)"),
+])
+def test_a_plugin_loaded_by_name_of_another_contract_gets_the_contract_error(tmp_path, source,
+                                                                           reason):
+    # --plugin MODULE, a model's plugin line (located) and plugins=[...]: no entry point
+    # says which types it gives, and the load itself fails with the contract's message
+    (tmp_path / "old_slot.py").write_text(textwrap.dedent(source))
+    (tmp_path / "slot.mech").write_text(SLOT_MODEL)
+    (tmp_path / "line.mech").write_text('plugin "old_slot"\n' + SLOT_MODEL)
+    contract = ("mechdsl implements plugin contract 2: the contract changed (migration "
+                "notes: docs/plugins.md#contract-versions-and-migration)")
+    for args, where in (((tmp_path / "slot.mech", "--plugin", "old_slot"), "slot.mech: "),
+                        ((tmp_path / "line.mech", "--allow-plugin", "old_slot"),
+                         "line.mech:1:8: ")):
+        r = mechdsl(tmp_path, "run", *args)
+        assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+        first = r.stderr.splitlines()[0]
+        assert first.startswith(f"{tmp_path / where.split(':')[0].rstrip(': ')}") and \
+            f"{where}error: cannot load the plugin 'old_slot': {reason}" in first, first
+        assert contract in first, first
+    r = subprocess.run([sys.executable, "-c", "import mechdsl, sys\ntry:\n    mechdsl.loads("
+                        f"open(sys.argv[1]).read(), plugins=['old_slot'])\nexcept "
+                        "mechdsl.MechError as e:\n    print(e)", tmp_path / "slot.mech"],
+                       capture_output=True, text=True, cwd=ROOT, timeout=120,
+                       env={**os.environ, "PYTHONPATH": str(tmp_path)})
+    assert f"cannot load the plugin 'old_slot': {reason}" in r.stdout and contract in r.stdout, \
+        r.stdout + r.stderr
+
+
+def test_a_broken_module_behind_several_entry_points_is_listed_once(tmp_path):
+    fake_distribution(tmp_path, "mechdsl-broken", "mechdsl_broken",
+                      "raise ImportError('needs libgears.so')\n", ["gear_a", "gear_b"])
+    r = mechdsl(tmp_path, "plugins")
+    assert r.returncode == 0
+    assert r.stdout.count("mechdsl_broken (mechdsl-broken 0.1): ImportError") == 1, r.stdout
+    # with the old contract's import, either type's model line gets the contract error
+    fake = tmp_path / "old"
+    fake.mkdir()
+    fake_distribution(fake, "mechdsl-circle-slot", "mechdsl_circle_slot", OLD_IMPORT,
+                      ["other_slot", "circle_slot"])
+    (tmp_path / "slot.mech").write_text(SLOT_MODEL)
+    r = mechdsl(fake, "run", tmp_path / "slot.mech")
+    assert "'circle_slot' comes from the plugin mechdsl_circle_slot" in r.stderr, r.stderr
 
 
 def test_every_plugin_of_the_library_declares_the_current_contract():

@@ -19,6 +19,7 @@ variable ``MECHDSL_ALLOW_PLUGINS=mod1,mod2``). A file opened is data, not code.
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from importlib import import_module
 from typing import Collection, Iterable
 
@@ -153,6 +154,13 @@ def _load_entry_points(pm, registry: Registry, eps: list, providers: dict[str, P
         module_name = ep.value.split(":")[0].strip()
         provider = Provider(module_name, ep.dist_name, ep.dist_version)
         if module_name in providers or pm.has_plugin(module_name):
+            continue
+        # a module behind several entry points (a type each) that failed once: listed once,
+        # with all the types it would have given
+        k = next((k for k, b in enumerate(registry.broken) if b.provider == provider), None)
+        if k is not None:
+            old = registry.broken[k]
+            registry.broken[k] = replace(old, types=(*old.types, ep.name))
             continue
         try:
             plugin = ep.load()
