@@ -676,22 +676,27 @@ class PortableModel:
 
     def __init__(self, model: Model, plugins: tuple[str, ...], allowed: tuple[str, ...],
                  mechanism: Mechanism | None = None) -> None:
+        import threading
+
         self.model, self.plugins, self.allowed = model, plugins, allowed
         self._mechanism = mechanism
+        self._lock = threading.Lock()  # a worker's threads build one Mechanism, not several
 
     def __getstate__(self) -> dict:
         # the registry is rebuilt where it is unpickled, from that side's plugins
         return {"model": self.model, "plugins": self.plugins, "allowed": self.allowed}
 
     def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state, _mechanism=None)
+        self.__init__(state["model"], state["plugins"], state["allowed"])
 
     def compile(self, overrides: Overrides) -> System:
         """:meth:`Mechanism.compile` of the model with these overrides."""
-        if self._mechanism is None:
-            self._mechanism = Mechanism(self.model, plugins=self.plugins,
-                                        allow_plugins=self.allowed)
-        return self._mechanism.compile(overrides)
+        with self._lock:
+            if self._mechanism is None:
+                self._mechanism = Mechanism(self.model, plugins=self.plugins,
+                                            allow_plugins=self.allowed)
+            mechanism = self._mechanism
+        return mechanism.compile(overrides)
 
 
 def local_cluster(workers: int, timeout: float):

@@ -76,9 +76,11 @@ def _parser() -> argparse.ArgumentParser:
                               "or --at)")
         run.add_argument("--labels", action="store_true",
                          help="name the bodies and joints in --snapshot and --animate")
-        run.add_argument("--trace", metavar="BODY.POINT", action="append", default=[],
+        run.add_argument("--trace", metavar="BODY.POINT|ic(A,B)", action="append",
+                         default=[],
                          help="draw the path of this point, or with ic(A,B) the centrodes of "
-                              "body A relative to B (repeatable; adds to 'trace' lines)")
+                              "body A relative to B (several separated by commas, or "
+                              "repeated; adds to 'trace' lines)")
         run.add_argument("--t0", type=float, help="start time (overrides the file)")
         run.add_argument("--t1", type=float, help="end time (overrides the file)")
         run.add_argument("--step", type=float, help="time step (overrides the file)")

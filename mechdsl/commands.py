@@ -292,13 +292,6 @@ class SearchStatus(ProgressBar):
                        f"{'s' if sweeps != 1 else ''}, {now - self.start:.0f} s ")
 
 
-def _frames(args) -> int:
-    """--frames, or the animation's default."""
-    from .outputs.draw import MAX_FRAMES
-
-    return args.frames if args.frames is not None else MAX_FRAMES
-
-
 def _settings(args, at: list[float] | None) -> dict:
     """The run's settings that the output formats read (:func:`mechdsl.outputs.settings`):
     the plot's title (the file's name, and the params set), --at, --labels, --frames."""
@@ -648,48 +641,13 @@ def _written_lines(args, results, written: list[str]) -> list[str]:
     elif args.output in written and args.output != "-":
         rows = results.n_variants if results.reduced else int(results.n_solved.sum())
         lines.append(f"{args.output}: {rows} rows ({results.solve_time * 1e3:.1f} ms)")
-    if args.plot in written:
-        n = len(results.labels)
-        lines.append(f"{args.plot}: plot of {n} quantit{'ies' if n != 1 else 'y'}")
-    if args.snapshot in written:
-        from .outputs.draw import snapshot_instants
-
-        ks = snapshot_instants(results, _instants_option(args.at))
-        lines.append(f"{args.snapshot}: snapshot at t = "
-                     + ", ".join(f"{results.times[k]:g}" for k in ks))
-    if args.animate in written:
-        from .outputs.draw import frame_count
-
-        n = frame_count(results, _frames(args))
-        lines.append(f"{args.animate}: animation of {n} frame{'s' if n != 1 else ''}")
-    if args.export in written:
-        from .outputs.export import written_files
-
-        from .outputs.export import export_instants
-
-        ks = export_instants(results, args.export, **FORMATS["export"].options_of(
-            _settings(args, _instants_option(args.at)), args.export))
-        per_variant = [f for f in written_files(args.export, results.n_solved, ks) if f]
-        count = sum(len(f) for f in per_variant)
-        names = "; ".join(_file_range(f) for f in per_variant)
-        instants = int(sum(int((ks < k).sum()) for k in results.n_solved))
-        what = (f"{len(per_variant)} variants ({instants} instants)" if results.sweep
-                else f"{instants} instants")
-        lines.append(f"{args.export}: export of {what} in {count} file"
-                     f"{'s' if count != 1 else ''}" + ("" if names == args.export else
-                                                        f": {names}"))
-    for fmt in FORMATS.values():  # the formats that say what they wrote themselves
+    run_settings = _settings(args, _instants_option(args.at))
+    for fmt in FORMATS.values():  # each format says what it wrote
         path = getattr(args, fmt.arg)
-        if fmt.summary is not None and path in written:
-            lines.append(fmt.summary_of(results, path))
+        line = fmt.summary_of(results, path, run_settings) if path in written else None
+        if line is not None:
+            lines.append(line)
     return lines
-
-
-def _file_range(names: list[str]) -> str:
-    """'a_0000.vtu .. a_0100.vtu and a.pvd' for a .vtu series, the name of a lone file."""
-    if len(names) <= 2:
-        return " and ".join(names)
-    return f"{names[0]} .. {names[-2]} and {names[-1]}"
 
 
 def _interrupted_text(args, results, written: list[str], signum: int) -> str:

@@ -332,3 +332,10 @@ def test_the_parser_positions_are_larks():
     for text in texts:
         assert positions(fast.parse(text, start="start")) == \
             positions(lark_own.parse(text, start="start"))
+    # the start points of the command line's values (--set, --sweep, --reduce, --trace)
+    for start, text in (("expr_only", "-(2 * (l + 1))^2"), ("expr_list", "(1), 2 * (3 + r)"),
+                        ("output_list", "peak = max(abs((slider.ax))), range(s.x)"),
+                        ("trace_list", "coupler.P, ic(coupler, ground)")):
+        tree = fast.parse(text, start=start)
+        assert positions(tree) == positions(lark_own.parse(text, start=start))
+        assert tree.meta.end_column == len(text) + 1, start

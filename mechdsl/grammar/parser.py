@@ -113,25 +113,10 @@ class _Positions:
             return res
         if not isinstance(res, Tree):
             return res
-        first = last = None
-        for c in children:
-            if isinstance(c, Token):
-                first = (c.line, c.column, c.start_pos)
-                break
-            if isinstance(c, Tree) and not c.meta.empty:
-                m = c.meta
-                first = (m.container_line, m.container_column, m.container_start_pos)
-                break
+        first = _edge(children, True)
         if first is None:
             return res
-        for c in reversed(children):
-            if isinstance(c, Token):
-                last = (c.end_line, c.end_column, c.end_pos)
-                break
-            if isinstance(c, Tree) and not c.meta.empty:
-                m = c.meta
-                last = (m.container_end_line, m.container_end_column, m.container_end_pos)
-                break
+        last = _edge(reversed(children), False)
         meta = res.meta
         if not hasattr(meta, "line"):
             meta.line, meta.column, meta.start_pos = first
@@ -141,6 +126,20 @@ class _Positions:
         meta.container_line, meta.container_column, meta.container_start_pos = first
         meta.container_end_line, meta.container_end_column, meta.container_end_pos = last
         return res
+
+
+def _edge(children, start: bool) -> tuple[int, int, int] | None:
+    """(line, column, offset) where the first positioned of ``children`` starts (its
+    container's start for a tree), or with ``start`` False where it ends; None if none is."""
+    for c in children:
+        if isinstance(c, Token):
+            return (c.line, c.column, c.start_pos) if start else \
+                (c.end_line, c.end_column, c.end_pos)
+        if isinstance(c, Tree) and not c.meta.empty:
+            m = c.meta
+            return (m.container_line, m.container_column, m.container_start_pos) if start \
+                else (m.container_end_line, m.container_end_column, m.container_end_pos)
+    return None
 
 
 def _fast_positions(parser: Lark) -> Lark:

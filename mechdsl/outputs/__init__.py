@@ -58,13 +58,13 @@ class Format:
     #: run's settings (:func:`settings`); None: the writer takes none
     options: str | None = None
     #: ``module:name`` of ``memory(system, path, settings) -> {part: bytes}``: what writing
-    #: it adds to the run (a library's import keyed by its name in
-    #: :data:`mechdsl.memory.IMPORT_BYTES`); parts of the same name are shared between
+    #: it adds to the run (a library's import as the part ``"import NAME"``, NAME a key of
+    #: :data:`mechdsl.memory.IMPORT_BYTES`, its value ignored); parts of the same name are shared between
     #: formats (matplotlib is imported once): :func:`outputs_bytes` takes each part's
     #: largest value
     memory: str | None = None
-    #: ``module:name`` of ``summary(results, path) -> str``: the line ``mechdsl run``
-    #: prints of what it wrote (None: the command line says it)
+    #: ``module:name`` of ``summary(results, path, settings) -> str``: the line ``mechdsl
+    #: run`` prints of what it wrote (None: it prints none)
     summary: str | None = None
 
     def check(self, path: str, option: str | None = None) -> None:
@@ -95,9 +95,11 @@ class Format:
         """The writer's keywords from the run's ``settings`` for ``path``."""
         return {} if self.options is None else _function(self.options)(settings, path)
 
-    def summary_of(self, results, path: str) -> str:
-        """The line that says what was written to ``path``."""
-        return _function(self.summary)(results, path)
+    def summary_of(self, results, path: str, settings: dict) -> str | None:
+        """The line that says what was written to ``path`` (None where the format has
+        none)."""
+        return None if self.summary is None else _function(self.summary)(results, path,
+                                                                          settings)
 
     def memory_parts(self, system, path: str, settings: dict) -> dict[str, int]:
         """What writing ``path`` adds to the run of ``system``, by part (bytes)."""
@@ -130,7 +132,8 @@ def outputs_bytes(system, asked: dict[str, str], run_settings: dict) -> int:
     for kind, path in asked.items():
         for part, size in FORMATS[kind].memory_parts(system, path, run_settings).items():
             parts[part] = max(parts.get(part, 0), size)
-    return sum(IMPORT_BYTES.get(part, size) for part, size in parts.items())
+    return sum(IMPORT_BYTES[part[7:]] if part.startswith("import ") else size
+               for part, size in parts.items())
 
 
 _IMAGE = "unknown image format '{suffix}'; use one of {choices}"
@@ -140,15 +143,18 @@ FORMATS: dict[str, Format] = {f.kind: f for f in (
     Format("csv", "-o", "output", None, "", "csv:write_csv", aliases=("--output",),
            metavar="OUT.csv", help="write the results as CSV ('-' for standard output)"),
     Format("plot", "--plot", "plot", IMAGES, _IMAGE, "plot:plot_results", metavar="OUT.png",
-           help="draw the time histories", options="plot:options", memory="plot:memory"),
+           help="draw the time histories", options="plot:options", memory="plot:memory",
+           summary="plot:summary"),
     Format("snapshot", "--snapshot", "snapshot", IMAGES, _IMAGE, "draw:snapshot",
            mechanism=True, metavar="OUT.png",
            help="draw the mechanism at a few instants over the traced paths",
-           options="draw:snapshot_options", memory="draw:snapshot_memory"),
+           options="draw:snapshot_options", memory="draw:snapshot_memory",
+           summary="draw:snapshot_summary"),
     Format("animation", "--animate", "animate", frozenset({"gif", "mp4"}),
            "an animation is a .gif or an .mp4", "draw:animate", mechanism=True,
            metavar="OUT.gif", help="write an animation of the motion (.gif; .mp4 with ffmpeg)",
-           options="draw:animation_options", memory="draw:animation_memory"),
+           options="draw:animation_options", memory="draw:animation_memory",
+           summary="draw:animation_summary"),
     Format("export", "--export", "export", frozenset({"xdmf", "vtu", "dxf", "svg"}),
            "use .xdmf (one time series) or .vtu (one file per instant, with a .pvd index) "
            "for ParaView, .dxf or .svg for a drawing", "export:export", mechanism=True,
@@ -156,7 +162,7 @@ FORMATS: dict[str, Format] = {f.kind: f for f in (
            metavar="OUT.xdmf",
            help="write the motion as meshes for ParaView: .xdmf (a time series) or .vtu (a "
                 "file per instant and a .pvd index)",
-           options="export:options", memory="export:memory"),
+           options="export:options", memory="export:memory", summary="export:summary"),
     Format("page", "--html", "html", frozenset({"html", "htm"}),
            "a page is an .html file", "html:write_page", mechanism=True, rates=True,
            metavar="OUT.html",

@@ -47,6 +47,18 @@ def animation_options(settings: dict, path: str) -> dict:
             "labels": settings["labels"]}
 
 
+def snapshot_summary(results: Results, path: str, settings: dict) -> str:
+    """The line ``mechdsl run`` prints of the snapshot written to ``path``: its instants."""
+    ks = snapshot_instants(results, settings["at"])
+    return f"{path}: snapshot at t = " + ", ".join(f"{results.times[k]:g}" for k in ks)
+
+
+def animation_summary(results: Results, path: str, settings: dict) -> str:
+    """The line ``mechdsl run`` prints of the animation written to ``path``: its frames."""
+    n = frame_count(results, animation_options(settings, path)["max_frames"])
+    return f"{path}: animation of {n} frame{'s' if n != 1 else ''}"
+
+
 def drawing_bytes(system: System) -> int:
     """The world coordinates of every drawn point of every variant at every instant (with
     two temporary copies): what drawing the mechanism holds."""

@@ -121,7 +121,28 @@ def memory(system: System, path: str, settings: dict) -> dict[str, int]:
     size = 2 * 9 * 8 * K * points
     if path.lower().endswith(".xdmf"):
         size += 4 * 25 * 9 * K * points
-    return {"meshio": 0, "the export": size}
+    return {"import meshio": 0, "the export": size}
+
+
+def summary(results: Results, path: str, settings: dict) -> str:
+    """The line ``mechdsl run`` prints of the export written to ``path``: its instants and
+    files."""
+    ks = export_instants(results, path, **options(settings, path))
+    per_variant = [f for f in written_files(path, results.n_solved, ks) if f]
+    count = sum(len(f) for f in per_variant)
+    names = "; ".join(_file_range(f) for f in per_variant)
+    instants = int(sum(int((ks < k).sum()) for k in results.n_solved))
+    what = (f"{len(per_variant)} variants ({instants} instants)" if results.sweep
+            else f"{instants} instants")
+    return (f"{path}: export of {what} in {count} file{'s' if count != 1 else ''}"
+            + ("" if names == path else f": {names}"))
+
+
+def _file_range(names: list[str]) -> str:
+    """'a_0000.vtu .. a_0100.vtu and a.pvd' for a .vtu series, the name of a lone file."""
+    if len(names) <= 2:
+        return " and ".join(names)
+    return f"{names[0]} .. {names[-2]} and {names[-1]}"
 
 
 def export_instants(results: Results, path: str, at: list[float] | None = None,

@@ -29,7 +29,7 @@ def memory(system, path: str, settings: dict) -> dict[str, int]:
     return snapshot_memory(system, path, settings)
 
 
-def summary(results, path: str) -> str:
+def summary(results, path: str, settings: dict) -> str:
     """The line ``mechdsl run`` prints of the page written to ``path``."""
     n = int(results.n_solved.max(initial=0))
     variants = f", {results.n_variants} variants" if results.sweep else ""

@@ -29,12 +29,18 @@ def options(settings: dict, path: str) -> dict:
 
 def figure_parts(frames: int = 1) -> dict[str, int]:
     """What a figure adds to a run: matplotlib, a figure drawn and ``frames`` frames kept."""
-    return {"matplotlib": 0, "a figure": FIGURE_BYTES + FRAME_BYTES * frames}
+    return {"import matplotlib": 0, "a figure": FIGURE_BYTES + FRAME_BYTES * frames}
 
 
 def memory(system, path: str, settings: dict) -> dict[str, int]:
     """What the plot adds to the run (:attr:`mechdsl.outputs.Format.memory`)."""
     return figure_parts()
+
+
+def summary(results: Results, path: str, settings: dict) -> str:
+    """The line ``mechdsl run`` prints of the plot written to ``path``."""
+    n = len(results.labels)
+    return f"{path}: plot of {n} quantit{'ies' if n != 1 else 'y'}"
 
 def _constant_range(ax, values) -> None:
     """A quantity constant up to round-off is drawn flat, not as magnified noise."""

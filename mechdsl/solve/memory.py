@@ -1,6 +1,22 @@
-"""The memory a run's solver will need, estimated before it starts (what :func:`plan` adds up
-is listed in :mod:`mechdsl.memory`, whose budget, ``within``, it uses): the results, the
-solver's work arrays, the libraries it loads, and what the caller's outputs add."""
+"""The memory a run's solver will need, estimated before it starts, within the limit of
+``SolverOptions.max_memory`` (``--max-memory``: the peak resident memory of the whole
+process; the budget and the sum are :mod:`mechdsl.memory`'s). :func:`plan` adds up what the
+run will hold at its peak:
+
+* what the process already holds (its resident size now: interpreter, libraries, the model);
+* the results: every output quantity of every variant at every instant, and the poses and
+  rates that drawings and exports need (8 bytes each);
+* the solver's work arrays: a batched dense Newton step keeps about ``DENSE_WORK_ARRAYS``
+  arrays of the size of the batched Jacobian (V variants x b instants x m x n) alive at once
+  (measured with tracemalloc: 6.3 for the assembly, 6 to 7.8 for the march, and RSS up to 9),
+  with a margin; a sparse one about ``SPARSE_BYTES_PER_NONZERO`` per non-zero of Phi_q
+  (SuperLU's factors included);
+* libraries imported later (scipy.sparse, numba) and what the caller adds for its outputs
+  (``extra``: :func:`mechdsl.outputs.outputs_bytes`, the formats' own estimates);
+
+and refuses the run, with the figures, when even one instant of all variants at a time does
+not fit; otherwise it chooses the largest batch of instants that fits.
+"""
 
 from __future__ import annotations
 

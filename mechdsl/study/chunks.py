@@ -41,6 +41,10 @@ class Study:
     poses: bool = False
     rates: bool = False
 
+    def __post_init__(self) -> None:
+        if not callable(getattr(self.compiler, "compile", None)):
+            raise TypeError("a Study needs the compiler its API hands it (Mechanism.portable())")
+
     def system(self, start: int, stop: int) -> System:
         """The compiled model of variants ``start`` .. ``stop - 1``."""
         return self.compiler.compile(replace(self.overrides, variant_range=(start, stop)))
