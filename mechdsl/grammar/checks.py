@@ -10,6 +10,7 @@ from __future__ import annotations
 from ..errors import MechError, Source, Span, cut, suggest
 from . import expr as E
 from . import motion_functions
+from . import statements as S
 from .model import (
     BODY_QUANTITIES, GROUND, ORIGIN, REDUCTIONS, Body, Drive, Force, Initial, Joint, Model, NamedOutput,
     Optimization, OutputRef, Param, Reduction, ReducedOutput,
@@ -111,13 +112,13 @@ class _Names:
         self.seen[name] = span
 
 
-def _once(current, item: tuple, what: str, body: str, refused: str | None):
+def _once(current, item: S.BodyItem, what: str, body: str, refused: str | None):
     """The value of a body item that may be given once, and (``refused`` None) here at all."""
     if refused is not None:
-        raise MechError(refused, item[2])
+        raise MechError(refused, item.span)
     if current is not None:
-        raise MechError(f"body '{cut(body)}' has two {what}", item[2])
-    return item[1]
+        raise MechError(f"body '{cut(body)}' has two {what}", item.span)
+    return item.value
 
 
 def _build_body(name: str, name_span: Span, items: list, span: Span, is_ground: bool,
@@ -127,7 +128,7 @@ def _build_body(name: str, name_span: Span, items: list, span: Span, is_ground: 
     guess = shape = density = None
     dyn: dict[str, object] = {}
     for item in items:
-        kind = item[0] if isinstance(item, tuple) and item else None
+        kind = item.kind if isinstance(item, S.BodyItem) else None
         if kind == "shape":
             shape = _once(shape, item, "shapes", name, None)
             if isinstance(shape, Polygon):
@@ -156,8 +157,8 @@ def _build_body(name: str, name_span: Span, items: list, span: Span, is_ground: 
                           "the ground is fixed at (0, 0, 0); it takes no guess" if is_ground
                           else None)
             _check_vector(guess, 3, "a guess (x, y, phi)", params)
-        elif isinstance(item, tuple):
-            point, pspan = item
+        elif isinstance(item, S.PointItem):
+            point, pspan = item.point, item.name_span
             if point.name == ORIGIN:
                 raise MechError("'origin' is implicit: every body has the point origin = (0, 0)",
                                 pspan)
@@ -206,110 +207,104 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
     forces: list[Force] = []
     initials: list[Initial] = []
     gravity: Vector | None = None
-    optimizing: dict[str, tuple] = {}
+    optimizing: dict[type, object] = {}
 
     for st in statements:
-        if isinstance(st, tuple) and isinstance(st[0], Param):
-            p, nspan = st
-            if p.name in RESERVED:
-                raise MechError(f"'{cut(p.name)}' is reserved and cannot name a param", nspan)
-            param_names.add(p.name, nspan)
-            check_expr(p.value, defined, f"param '{cut(p.name)}'")
-            if p.range is not None:
-                for bound in p.range:
-                    check_expr(bound, defined, f"the range of param '{cut(p.name)}'")
-            defined.add(p.name)
-            params.append(p)
-        elif isinstance(st, tuple) and st[0] == "ground":
-            _, items, span = st
-            if ground is not None:
-                raise MechError("the ground is declared twice", span,
-                                notes=[f"first declared at line {ground.span.line}"])
-            ground = _build_body(GROUND, span, items, span, True, defined)
-        elif isinstance(st, tuple) and st[0] == "body":
-            _, (name, nspan), items, span = st
-            if name == GROUND:
-                raise MechError("the ground is declared with 'ground { ... }'", nspan)
-            body_names.add(name, nspan)
-            bodies.append(_build_body(name, nspan, items, span, False, defined))
-        elif isinstance(st, tuple) and isinstance(st[0], (Joint, Drive)):
-            c, nspan = st
-            constraint_names.add(c.name, nspan)
-            _keywords_once(c.name, c.args)
-            if isinstance(c, Drive):
-                # t joins the params for this check only (a copy per drive would be
-                # quadratic in a model of many params and drives); t is never a param
-                defined.add(TIME)
-                try:
-                    check_expr(c.function, defined, f"the function of drive '{cut(c.name)}'")
-                finally:
-                    defined.discard(TIME)
-                drives.append(c)
-            else:
-                joints.append(c)
-        elif isinstance(st, tuple) and isinstance(st[0], Initial):
-            c, nspan = st
-            # one namespace with the joints and drives: messages name the statement
-            constraint_names.add(c.name, nspan)
-            _keywords_once(c.name, c.args)
-            # a value at t0: params only (time 't' is refused, located, by check_expr)
-            check_expr(c.value, defined, f"the value of initial '{cut(c.name)}'")
-            if c.rate is not None:
-                check_expr(c.rate, defined, f"the rate of initial '{cut(c.name)}'")
-            initials.append(c)
-        elif isinstance(st, tuple) and isinstance(st[0], Force):
-            f, nspan = st
-            constraint_names.add(f.name, nspan)
-            _keywords_once(f.name, f.args)
-            forces.append(f)
-        elif isinstance(st, tuple) and st[0] == "gravity":
-            _, vec, span = st
-            if gravity is not None:
-                raise MechError("gravity is given twice", span,
-                                notes=[f"first given at line {gravity.span.line}"])
-            _check_vector(vec, 2, "gravity (gx, gy)", defined)
-            gravity = vec
-        elif isinstance(st, Simulate):
-            if simulate is not None:
-                raise MechError("a second 'simulate' statement", st.span,
-                                notes=[f"the first is at line {simulate.span.line}"])
-            for e in (st.t0, st.t1, st.step):
-                check_expr(e, defined, "the simulated span")
-            for name, e, _ in st.options:
-                check_expr(e, defined, f"the option {name} of simulate")
-            simulate = st
-        elif isinstance(st, tuple) and st[0] == "plugin":
-            _, module, span = st
-            if not all(part.isidentifier() for part in module.split(".")):
-                raise MechError(f"'{cut(module)}' is not a module name", span)
-            plugins.append((module, span))
-        elif isinstance(st, tuple) and st[0] == "output":
-            for item in st[1]:
-                if isinstance(item, NamedOutput):
-                    item = named_output(item, defined)
-                outputs.append(item)
-        elif isinstance(st, tuple) and st[0] == "trace":
-            traces.extend(st[1])
-        elif isinstance(st, tuple) and st[0] in ("optimize", "objective", "requirement"):
-            if st[0] in optimizing:
-                first = optimizing[st[0]][-1]
-                raise MechError(f"a second '{_OPT_WORDS[st[0]]}' statement; give all in one",
-                                st[-1], notes=[f"the first is at line {first.line}"])
-            optimizing[st[0]] = st
-        elif isinstance(st, tuple) and st[0] == "units":
-            for dim, text, span in st[1]:
-                if dim in units:
-                    raise MechError(f"the unit of {dim} is given twice", span)
-                units[dim] = text
-        elif isinstance(st, tuple) and isinstance(st[0], Sweep):
-            sw, nspan = st
-            sweep_names.add(sw.name, nspan)
-            pending_sweeps.append((sw, nspan))
-            for e in _sweep_exprs(sw):
-                check_expr(e, defined, f"the sweep of '{cut(sw.name)}'")
-            sweeps.append(sw)
-        else:  # pragma: no cover - the transformer returns only the kinds above
-            raise TypeError(f"unexpected statement {st!r}")
+        match st:
+            case S.Declared(Param() as p, nspan):
+                if p.name in RESERVED:
+                    raise MechError(f"'{cut(p.name)}' is reserved and cannot name a param",
+                                    nspan)
+                param_names.add(p.name, nspan)
+                check_expr(p.value, defined, f"param '{cut(p.name)}'")
+                if p.range is not None:
+                    for bound in p.range:
+                        check_expr(bound, defined, f"the range of param '{cut(p.name)}'")
+                defined.add(p.name)
+                params.append(p)
+            case S.GroundDecl(items, span):
+                if ground is not None:
+                    raise MechError("the ground is declared twice", span,
+                                    notes=[f"first declared at line {ground.span.line}"])
+                ground = _build_body(GROUND, span, items, span, True, defined)
+            case S.BodyDecl(name, nspan, items, span):
+                if name == GROUND:
+                    raise MechError("the ground is declared with 'ground { ... }'", nspan)
+                body_names.add(name, nspan)
+                bodies.append(_build_body(name, nspan, items, span, False, defined))
+            case S.Declared(Joint() | Drive() as c, nspan):
+                constraint_names.add(c.name, nspan)
+                _keywords_once(c.name, c.args)
+                if isinstance(c, Drive):
+                    # t joins the params for this check only (a copy per drive would be
+                    # quadratic in a model of many params and drives); t is never a param
+                    defined.add(TIME)
+                    try:
+                        check_expr(c.function, defined,
+                                   f"the function of drive '{cut(c.name)}'")
+                    finally:
+                        defined.discard(TIME)
+                    drives.append(c)
+                else:
+                    joints.append(c)
+            case S.Declared(Initial() as c, nspan):
+                # one namespace with the joints and drives: messages name the statement
+                constraint_names.add(c.name, nspan)
+                _keywords_once(c.name, c.args)
+                # a value at t0: params only (time 't' is refused, located, by check_expr)
+                check_expr(c.value, defined, f"the value of initial '{cut(c.name)}'")
+                if c.rate is not None:
+                    check_expr(c.rate, defined, f"the rate of initial '{cut(c.name)}'")
+                initials.append(c)
+            case S.Declared(Force() as f, nspan):
+                constraint_names.add(f.name, nspan)
+                _keywords_once(f.name, f.args)
+                forces.append(f)
+            case S.GravityDecl(vec, span):
+                if gravity is not None:
+                    raise MechError("gravity is given twice", span,
+                                    notes=[f"first given at line {gravity.span.line}"])
+                _check_vector(vec, 2, "gravity (gx, gy)", defined)
+                gravity = vec
+            case Simulate():
+                if simulate is not None:
+                    raise MechError("a second 'simulate' statement", st.span,
+                                    notes=[f"the first is at line {simulate.span.line}"])
+                for e in (st.t0, st.t1, st.step):
+                    check_expr(e, defined, "the simulated span")
+                for name, e, _ in st.options:
+                    check_expr(e, defined, f"the option {name} of simulate")
+                simulate = st
+            case S.PluginLine(module, span):
+                if not all(part.isidentifier() for part in module.split(".")):
+                    raise MechError(f"'{cut(module)}' is not a module name", span)
+                plugins.append((module, span))
+            case S.OutputList(items):
+                for item in items:
+                    if isinstance(item, NamedOutput):
+                        item = named_output(item, defined)
+                    outputs.append(item)
+            case S.TraceList(items):
+                traces.extend(items)
+            case S.OptimizeDecl() | S.ObjectiveDecl() | S.RequirementDecl():
+                first = optimizing.get(type(st))
+                if first is not None:
+                    raise MechError(f"a second '{st.word}' statement; give all in one",
+                                    st.span, notes=[f"the first is at line {first.span.line}"])
+                optimizing[type(st)] = st
+            case S.UnitsDecl(given, _):
+                for dim, text, span in given:
+                    if dim in units:
+                        raise MechError(f"the unit of {dim} is given twice", span)
+                    units[dim] = text
+            case S.Declared(Sweep() as sw, nspan):
+                sweep_names.add(sw.name, nspan)
+                pending_sweeps.append((sw, nspan))
+                for e in _sweep_exprs(sw):
+                    check_expr(e, defined, f"the sweep of '{cut(sw.name)}'")
+                sweeps.append(sw)
+            case _:  # pragma: no cover - the transformer returns only the kinds above
+                raise TypeError(f"unexpected statement {st!r}")
 
     for sw, nspan in pending_sweeps:
         if sw.name not in param_names.seen:
@@ -324,22 +319,20 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
                  tuple(initials))
 
 
-_OPT_WORDS = {"optimize": "optimize", "objective": "minimize/maximize",
-              "requirement": "subject to"}
 _SLACK = {">=": lambda a, b: E.sub(a, b), ">": lambda a, b: E.sub(a, b),
           "<=": lambda a, b: E.sub(b, a), "<": lambda a, b: E.sub(b, a)}
 
 
-def _optimization(found: dict[str, tuple], params: set[str]) -> Optimization:
+def _optimization(found: dict[type, object], params: set[str]) -> Optimization:
     """The ``optimize``, ``minimize``/``maximize`` and ``subject to`` statements, checked:
     the varied names are params, each once, with bounds of the params; the objective and each
     requirement's slack are reductions."""
-    if "optimize" not in found:
-        st = found.get("objective") or found["requirement"]
-        raise MechError(f"'{_OPT_WORDS[st[0]]}' without an 'optimize' statement naming the "
-                        "params to vary (optimize l in 2.5 .. 4)", st[-1])
-    _, ranges, span = found["optimize"]
-    if "objective" not in found:
+    if S.OptimizeDecl not in found:
+        st = found.get(S.ObjectiveDecl) or found[S.RequirementDecl]
+        raise MechError(f"'{st.word}' without an 'optimize' statement naming the "
+                        "params to vary (optimize l in 2.5 .. 4)", st.span)
+    ranges, span = found[S.OptimizeDecl].ranges, found[S.OptimizeDecl].span
+    if S.ObjectiveDecl not in found:
         raise MechError("'optimize' without an objective: add 'minimize EXPR' (or "
                         "'maximize'), EXPR a reduction such as max(abs(slider.ax))", span)
     seen: set[str] = set()
@@ -353,7 +346,8 @@ def _optimization(found: dict[str, tuple], params: set[str]) -> Optimization:
         seen.add(name)
         for e in (lo, hi):  # fixed while the params vary
             check_expr(e, params - varied, f"the bounds of '{cut(name)}'")
-    _, sense, expr, ospan = found["objective"]
+    wanted = found[S.ObjectiveDecl]
+    sense, expr, ospan = wanted.sense, wanted.expr, wanted.span
     objective = named_output(NamedOutput("objective", expr, ospan, ospan), params)
     if not isinstance(objective, ReducedOutput):
         if any(isinstance(n, E.Name) and ("." in n.id or n.id == TIME)
@@ -365,11 +359,12 @@ def _optimization(found: dict[str, tuple], params: set[str]) -> Optimization:
         # a design, its performance in the requirements
         objective = ReducedOutput(objective.name, objective.expr, (), ospan, ospan)
     requirements = []
-    if "requirement" in found:
-        for k, e in enumerate(found["requirement"][1], start=1):
+    if S.RequirementDecl in found:
+        given = found[S.RequirementDecl]
+        for k, e in enumerate(given.exprs, start=1):
             if not isinstance(e, E.Compare) or e.op not in _SLACK:
                 raise MechError("a requirement is a comparison with >=, >, <= or <, such as "
-                                "range(slider.x) >= 4", e.span or found["requirement"][-1])
+                                "range(slider.x) >= 4", e.span or given.span)
             slack = _SLACK[e.op](e.left, e.right)
             out = named_output(NamedOutput(f"requirement_{k}", slack, e.span, e.span), params)
             if not isinstance(out, ReducedOutput):  # of the params alone

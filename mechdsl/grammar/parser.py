@@ -30,6 +30,7 @@ from lark.tree import SlottedTree
 
 from ..errors import MechError, Source, Span, cut
 from . import expr as E
+from . import statements as S
 from .cache import cached_tables
 from .checks import TIME, build_model, check_expr
 from .model import ANGLE_UNITS, SIMULATE_OPTIONS, TRACE_FUNCTIONS, UNIT_NAMES
@@ -280,7 +281,7 @@ class _ToModel(Transformer_NonRecursive):
 
     def plugin(self, meta, items):
         (tok,) = items
-        return ("plugin", str(tok)[1:-1], _tspan(tok))
+        return S.PluginLine(str(tok)[1:-1], _tspan(tok))
 
     def _binary(op):  # noqa: N805 - a factory used in the class body
         def method(self, meta, items):
@@ -336,50 +337,52 @@ class _ToModel(Transformer_NonRecursive):
     # -- statements ----------------------------------------------------------------------------
     def param(self, meta, items):
         name, value, *bounds = items
-        return Param(str(name), value, _span(meta), tuple(bounds) or None), _tspan(name)
+        return S.Declared(Param(str(name), value, _span(meta), tuple(bounds) or None),
+                          _tspan(name))
 
     def point(self, meta, items):
         name, coords = items
-        return Point(str(name), coords, _span(meta)), _tspan(name)
+        return S.PointItem(Point(str(name), coords, _span(meta)), _tspan(name))
 
     def guess(self, meta, items):
-        return ("guess", items[0], _span(meta))
+        return S.BodyItem("guess", items[0], _span(meta))
 
     def shape(self, meta, items):
         (value,) = items
         if isinstance(value, Token):  # a mesh file: its errors will point at the file name
             self._name_file(str(value)[1:-1], _tspan(value))
-            return ("shape", MeshFile(str(value)[1:-1], self.base_dir, _tspan(value)),
-                    _span(meta))
-        return ("shape", value, _span(meta))
+            return S.BodyItem("shape", MeshFile(str(value)[1:-1], self.base_dir,
+                                                _tspan(value)), _span(meta))
+        return S.BodyItem("shape", value, _span(meta))
 
     def polygon(self, meta, items):
         return Polygon(tuple(items), _span(meta))
 
     def density(self, meta, items):
-        return ("density", items[0], _span(meta))
+        return S.BodyItem("density", items[0], _span(meta))
 
     def mass(self, meta, items):
-        return ("mass", items[0], _span(meta))
+        return S.BodyItem("mass", items[0], _span(meta))
 
     def inertia(self, meta, items):
-        return ("inertia", items[0], _span(meta))
+        return S.BodyItem("inertia", items[0], _span(meta))
 
     def centroid(self, meta, items):
-        return ("centroid", items[0], _span(meta))
+        return S.BodyItem("centroid", items[0], _span(meta))
 
     def v0(self, meta, items):
-        return ("v0", items[0], _span(meta))
+        return S.BodyItem("v0", items[0], _span(meta))
 
     def gravity(self, meta, items):
-        return ("gravity", items[0], _span(meta))
+        return S.GravityDecl(items[0], _span(meta))
 
     def ground(self, meta, items):
-        return ("ground", items, _span(meta))
+        return S.GroundDecl(tuple(i for i in items if not isinstance(i, Token)), _span(meta))
 
     def body(self, meta, items):
         name, *rest = items
-        return ("body", (str(name), _tspan(name)), rest, _span(meta))
+        return S.BodyDecl(str(name), _tspan(name),
+                          tuple(i for i in rest if not isinstance(i, Token)), _span(meta))
 
     def arg(self, meta, items):
         return Arg(None, items[0], _span(meta))
@@ -390,13 +393,13 @@ class _ToModel(Transformer_NonRecursive):
 
     def joint(self, meta, items):
         name, type_name, *args = items
-        return (Joint(str(name), str(type_name), tuple(args), _span(meta), _tspan(type_name)),
-                _tspan(name))
+        return S.Declared(Joint(str(name), str(type_name), tuple(args), _span(meta),
+                                _tspan(type_name)), _tspan(name))
 
     def drive(self, meta, items):
         name, type_name, *args, function = items
-        return (Drive(str(name), str(type_name), tuple(args), function, _span(meta),
-                      _tspan(type_name)), _tspan(name))
+        return S.Declared(Drive(str(name), str(type_name), tuple(args), function, _span(meta),
+                                _tspan(type_name)), _tspan(name))
 
     def initial_option(self, meta, items):
         name, value = items
@@ -415,13 +418,13 @@ class _ToModel(Transformer_NonRecursive):
             if rate is not None:
                 raise MechError(f"option '{opt}' is given twice", span)
             rate = e
-        return (Initial(str(name), str(type_name), tuple(args), value, rate, _span(meta),
-                        _tspan(type_name)), _tspan(name))
+        return S.Declared(Initial(str(name), str(type_name), tuple(args), value, rate,
+                                  _span(meta), _tspan(type_name)), _tspan(name))
 
     def force(self, meta, items):
         name, type_name, *args = items
-        return (Force(str(name), str(type_name), tuple(args), _span(meta), _tspan(type_name)),
-                _tspan(name))
+        return S.Declared(Force(str(name), str(type_name), tuple(args), _span(meta),
+                                _tspan(type_name)), _tspan(name))
 
     def sim_option(self, meta, items):
         name, value = items
@@ -455,10 +458,10 @@ class _ToModel(Transformer_NonRecursive):
         return NamedOutput(E.to_text(call), call, _span(meta), _span(meta))
 
     def output(self, meta, items):
-        return ("output", tuple(items))
+        return S.OutputList(tuple(items))
 
     def trace(self, meta, items):
-        return ("trace", tuple(items))
+        return S.TraceList(tuple(items))
 
     def trace_call(self, meta, items):
         func, a, b = items
@@ -487,19 +490,19 @@ class _ToModel(Transformer_NonRecursive):
         return str(name), lo, hi, _tspan(name)
 
     def optimize(self, meta, items):
-        return ("optimize", tuple(items), _span(meta))
+        return S.OptimizeDecl(tuple(items), _span(meta))
 
     def minimize(self, meta, items):
-        return ("objective", "minimize", items[0], _span(meta))
+        return S.ObjectiveDecl("minimize", items[0], _span(meta))
 
     def maximize(self, meta, items):
-        return ("objective", "maximize", items[0], _span(meta))
+        return S.ObjectiveDecl("maximize", items[0], _span(meta))
 
     def requirement(self, meta, items):
-        return ("requirement", tuple(items), _span(meta))
+        return S.RequirementDecl(tuple(items), _span(meta))
 
     def units(self, meta, items):
-        return ("units", tuple(items), _span(meta))
+        return S.UnitsDecl(tuple(items), _span(meta))
 
     def sweep_list(self, meta, items):
         return ("list", tuple(items))
@@ -511,10 +514,12 @@ class _ToModel(Transformer_NonRecursive):
     def sweep(self, meta, items):
         name, spec = items
         if spec[0] == "list":
-            return Sweep(str(name), spec[1], None, None, None, None, _span(meta)), _tspan(name)
+            return S.Declared(Sweep(str(name), spec[1], None, None, None, None, _span(meta)),
+                              _tspan(name))
         _, start, stop, kind, value = spec
         step, count = (value, None) if kind == "step" else (None, value)
-        return Sweep(str(name), None, start, stop, step, count, _span(meta)), _tspan(name)
+        return S.Declared(Sweep(str(name), None, start, stop, step, count, _span(meta)),
+                          _tspan(name))
 
 
 # ---------------------------------------------------------------------------------------------
