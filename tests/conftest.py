@@ -80,19 +80,18 @@ def model_meaning(obj):
     return obj
 
 
-#: The longest tests (about 15 to 45 s each, most of it in subprocesses: a wheel installed
-#: in a fresh venv, a cluster started and interrupted, numba compiling, an optimisation),
-#: started first: the parallel workers (-n auto) then end together instead of one of them
-#: running a long test alone at the end.
+#: The longest tests (about 10 to 50 s each, most of it in subprocesses: a wheel installed
+#: in a fresh venv, a cluster started and interrupted, numba compiling), started first: the
+#: parallel workers (-n auto) then end together instead of one of them running a long test
+#: alone at the end. (Tests that share a module's fixture stay in their order: moved apart,
+#: two workers would each build it.)
 SLOW_FIRST = (
     "test_packaging.py::test_the_core_wheel_alone",
     "test_cluster_trust.py::test_ctrl_c_at_a_terminal",
     "test_stress_fuzz.py::",
     "test_native.py::test_the_compiled_model_is_cached_on_disk",
-    "test_optimize.py::test_the_optimiser_recovers_the_design",
     "test_view.py::test_a_page_that_does_not_read",
     "test_dynamics_budget.py::test_a_run_on_a_terminal",
-    "test_optimize.py::test_the_api_method_is_the_command",
     "test_cluster.py::",
 )
 
