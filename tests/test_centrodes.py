@@ -109,12 +109,13 @@ def test_the_rod_of_the_slider_crank_relative_to_the_crank_turns_about_their_pin
                                atol=1e-9)
 
 
-@pytest.mark.parametrize("trace, message", [
-    ("ic(rod, nobody)", "unknown body 'nobody'"),
-    ("centre(rod, ground)", "'centre' cannot be traced; trace body.P (a point's path) or ic(A, B)"),
-    ("ic(rod, rod)", "the centrodes of 'rod' relative to itself"),
+@pytest.mark.parametrize("trace, message, at", [
+    ("ic(rod, nobody)", "unknown body 'nobody'", len("ic(rod, ")),  # at the name
+    ("centre(rod, ground)", "'centre' cannot be traced; trace body.P (a point's path) or "
+                            "ic(A, B)", 0),
+    ("ic(rod, rod)", "the centrodes of 'rod' relative to itself", 0),
 ])
-def test_a_wrong_centrode_is_a_located_error(loads, trace, message):
+def test_a_wrong_centrode_is_a_located_error(loads, trace, message, at):
     from mechdsl.errors import MechError
 
     text = TRAMMEL.replace("trace ic(rod, ground), rod.A", f"trace rod.A, {trace}")
@@ -123,7 +124,7 @@ def test_a_wrong_centrode_is_a_located_error(loads, trace, message):
     assert message in str(err.value)
     line = text.splitlines().index(f"trace rod.A, {trace}") + 1
     assert err.value.span is not None and err.value.span.line == line
-    assert err.value.span.column == len("trace rod.A, ") + 1
+    assert err.value.span.column == len("trace rod.A, ") + 1 + at
 
 
 def test_centrodes_drawn_by_the_command_line(tmp_path):
@@ -169,7 +170,7 @@ def test_centrodes_drawn_by_the_command_line(tmp_path):
     np.testing.assert_allclose(np.linalg.norm(fixed, axis=1), L, atol=1e-12)
 
     r = mechdsl("run", str(f), "-o", str(out), "--trace", "ic(rod,nobody)")
-    assert r.returncode == 1 and "--trace:1:1: error: unknown body 'nobody'" in r.stderr
+    assert r.returncode == 1 and "--trace:1:8: error: unknown body 'nobody'" in r.stderr
     assert "Traceback" not in r.stderr
 
 
@@ -216,7 +217,8 @@ def test_the_api_traces_what_the_command_line_traces(tmp_path):
     assert (tmp_path / "s.png").stat().st_size > 0
     with pytest.raises(MechError) as err:
         mech.simulate(trace="rod.A, ic(rod, nobody)")
-    assert err.value.source.name == "--trace" and err.value.span.column == 8
+    # located at the unknown name, not the whole call
+    assert err.value.source.name == "--trace" and err.value.span.column == 16
     assert "unknown body 'nobody'" in str(err.value)
 
 

@@ -688,8 +688,8 @@ class _Compiler:
         traces, centrodes = [], []
         for r in self.model.traces:
             if isinstance(r, CentrodeTrace):
-                centrodes.append((r.label, self._body_ref(r.a, r.span),
-                                   self._body_ref(r.b, r.span)))
+                centrodes.append((r.label, self._body_ref(r.a, r.a_span or r.span),
+                                   self._body_ref(r.b, r.b_span or r.span)))
                 continue
             body = r.parts[0]
             i = self._body_ref(body, r.span)

@@ -200,6 +200,9 @@ class CentrodeTrace:
     a: str
     b: str
     span: Span
+    #: where the names of A and B are written (None: where the span says)
+    a_span: Span | None = None
+    b_span: Span | None = None
 
     @property
     def label(self) -> str:

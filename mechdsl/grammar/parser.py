@@ -472,7 +472,7 @@ class _ToModel(Transformer_NonRecursive):
         if str(a) == str(b):
             raise MechError(f"the centrodes of '{cut(a)}' relative to itself: name two bodies",
                             _span(meta))
-        return CentrodeTrace(str(a), str(b), _span(meta))
+        return CentrodeTrace(str(a), str(b), _span(meta), _tspan(a), _tspan(b))
 
     def unit(self, meta, items):
         name, text = items
