@@ -350,9 +350,9 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
         drawing and system.sketch is not None and bool(system.sketch.centrodes))
     from .outputs import outputs_bytes
 
-    extra = outputs_bytes(system, {f.kind: getattr(args, f.arg) for f in FORMATS.values()
-                                   if f.kind != "csv" and getattr(args, f.arg)},
-                          _settings(args, at))
+    run_settings = _settings(args, at)
+    extra = outputs_bytes(system, {f.kind: getattr(args, f.arg) for f in asked
+                                   if f.kind != "csv"}, run_settings)
     bar = ProgressBar(sys.stderr) if not args.quiet else None
     options = _options(args)
     placed: list[str] = []  # where the store went: beside -o if an interrupt kept the old one
@@ -367,12 +367,12 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
         if client is not None:
             _close(client)
     if store is not None:
-        return _report(args, results, placed[-1:] or [store], None, signals)
+        return _report(args, results, placed[-1:] or [store], None, signals, run_settings)
     if total > system.n_variants and drawing:
         # the drawings and exports need every variant's geometry, not the first chunk's
         system = mech.compile(ov)
-    written, stop = _write_outputs(args, system, results, at, signals)
-    return _report(args, results, written, stop, signals)
+    written, stop = _write_outputs(args, system, results, run_settings, signals)
+    return _report(args, results, written, stop, signals, run_settings)
 
 
 def _store(args) -> str | None:
@@ -549,7 +549,7 @@ def _writing(option: str, path: str) -> Iterator[None]:
         raise MechError(f"cannot write {path} ({option}): {err.strerror or err}") from None
 
 
-def _write_outputs(args, system: System, results, at: list[float] | None,
+def _write_outputs(args, system: System, results, run_settings: dict,
                    signals: SignalGuard) -> tuple[list[str], KeyboardInterrupt | None]:
     """Write every output asked for (:data:`mechdsl.outputs.FORMATS`), the CSV first and
     whole: a signal from the end of the solve until the CSV is complete is held back until
@@ -557,7 +557,6 @@ def _write_outputs(args, system: System, results, at: list[float] | None,
     (their temporary files are removed as it goes up)."""
     written: list[str] = []
     solved = results.n_solved.max(initial=0) > 0
-    run_settings = _settings(args, at)
     try:
         csv = FORMATS["csv"]
         if args.output:
@@ -595,9 +594,9 @@ def _solved_text(results) -> str:
 
 
 def _report(args, results, written: list[str], stop: KeyboardInterrupt | None,
-            signals: SignalGuard) -> int:
-    """Print the warnings, what stopped the run and where its instants are; return the
-    exit status."""
+            signals: SignalGuard, run_settings: dict) -> int:
+    """Print the warnings, what stopped the run and where its instants are (each output
+    written, by its format with the run's ``run_settings``); return the exit status."""
     in_file = args.output in written and args.output != "-"
     if not args.quiet:
         for w in results.warnings:
@@ -620,13 +619,13 @@ def _report(args, results, written: list[str], stop: KeyboardInterrupt | None,
         if not args.quiet and not args.output:
             emit(summary(results))
         if not args.quiet:
-            for line in _written_lines(args, results, written):
+            for line in _written_lines(args, results, written, run_settings):
                 print(line, file=sys.stderr)
         return 0
     return 2
 
 
-def _written_lines(args, results, written: list[str]) -> list[str]:
+def _written_lines(args, results, written: list[str], run_settings: dict) -> list[str]:
     """One line per output written, in the order written: the CSV's rows (unless it went to
     standard output), the plot, the snapshot's instants, the animation's frames, the files
     of the export."""
@@ -641,7 +640,6 @@ def _written_lines(args, results, written: list[str]) -> list[str]:
     elif args.output in written and args.output != "-":
         rows = results.n_variants if results.reduced else int(results.n_solved.sum())
         lines.append(f"{args.output}: {rows} rows ({results.solve_time * 1e3:.1f} ms)")
-    run_settings = _settings(args, _instants_option(args.at))
     for fmt in FORMATS.values():  # each format says what it wrote
         path = getattr(args, fmt.arg)
         line = fmt.summary_of(results, path, run_settings) if path in written else None

@@ -157,8 +157,8 @@ def _build_body(name: str, name_span: Span, items: list, span: Span, is_ground: 
                           "the ground is fixed at (0, 0, 0); it takes no guess" if is_ground
                           else None)
             _check_vector(guess, 3, "a guess (x, y, phi)", params)
-        elif isinstance(item, S.PointItem):
-            point, pspan = item.point, item.name_span
+        elif isinstance(item, S.Declared):  # a point
+            point, pspan = item.node, item.name_span
             if point.name == ORIGIN:
                 raise MechError("'origin' is implicit: every body has the point origin = (0, 0)",
                                 pspan)

@@ -342,7 +342,7 @@ class _ToModel(Transformer_NonRecursive):
 
     def point(self, meta, items):
         name, coords = items
-        return S.PointItem(Point(str(name), coords, _span(meta)), _tspan(name))
+        return S.Declared(Point(str(name), coords, _span(meta)), _tspan(name))
 
     def guess(self, meta, items):
         return S.BodyItem("guess", items[0], _span(meta))

@@ -13,17 +13,10 @@ from ..errors import Span
 
 @dataclass(frozen=True)
 class Declared:
-    """A param, joint, drive, initial, force or sweep (``node``) and its name's span."""
+    """A param, joint, drive, initial, force, sweep or a body's point (``node``) and its
+    name's span."""
 
     node: object
-    name_span: Span
-
-
-@dataclass(frozen=True)
-class PointItem:
-    """``point P = (x, y)`` in a body: the point and its name's span."""
-
-    point: object
     name_span: Span
 
 

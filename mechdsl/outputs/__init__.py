@@ -59,9 +59,9 @@ class Format:
     options: str | None = None
     #: ``module:name`` of ``memory(system, path, settings) -> {part: bytes}``: what writing
     #: it adds to the run (a library's import as the part ``"import NAME"``, NAME a key of
-    #: :data:`mechdsl.memory.IMPORT_BYTES`, its value ignored); parts of the same name are shared between
-    #: formats (matplotlib is imported once): :func:`outputs_bytes` takes each part's
-    #: largest value
+    #: :data:`mechdsl.memory.IMPORT_BYTES`, its value ignored); parts of the same name are
+    #: shared between formats (matplotlib is imported once): :func:`outputs_bytes` takes
+    #: each part's largest value
     memory: str | None = None
     #: ``module:name`` of ``summary(results, path, settings) -> str``: the line ``mechdsl
     #: run`` prints of what it wrote (None: it prints none)

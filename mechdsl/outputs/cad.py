@@ -60,7 +60,8 @@ def drawing(fr, results: Results, system: System, v: int, ks) -> dict:
     """What variant v's drawing holds, from the run's frames ``fr``
     (:func:`mechdsl.outputs.draw.frames`), in world coordinates: per instant k of ``ks`` its
     bodies (name, points (P, 2)), pins (J, 2), rails ((2, 2) each) and centrodes that move
-    (label, piece (M, 2)); the ground's pivots (G, 2); each traced point's path (label,
+    (label, piece (M, 2), whether it is a moving centrode: SVG dots those and dashes the
+    fixed ones); the ground's pivots (G, 2); each traced point's path (label,
     (K, 2)); the pieces of each fixed centrode whose frame is the ground (``centrodes``,
     label and piece); the instant centres drawn (``centres``, for the extent)."""
     names = list(system.body_names)
@@ -74,9 +75,9 @@ def drawing(fr, results: Results, system: System, v: int, ks) -> dict:
         curves = []
         for c in fr.centrodes:
             fixed, moving = c.at(v, k)
-            curves += [(f"moving centrode of {c.label}", p) for p in pieces(moving)]
+            curves += [(f"moving centrode of {c.label}", p, True) for p in pieces(moving)]
             if c.b < nb:
-                curves += [(f"fixed centrode of {c.label}", p) for p in pieces(fixed)]
+                curves += [(f"fixed centrode of {c.label}", p, False) for p in pieces(fixed)]
             out["centres"].append(c.centre[v, k])
         out["instants"].append((float(results.times[k]), bodies, pins, rails, curves))
     n = int(results.n_solved[v])
@@ -147,7 +148,7 @@ def write_dxf(d: dict, path: str) -> None:
         for rail in rails:
             if np.isfinite(rail).all():
                 msp.add_line(tuple(rail[0]), tuple(rail[1]), dxfattribs=attrs)
-        for label, p in curves:
+        for label, p, _ in curves:
             msp.add_lwpolyline([tuple(q) for q in p], dxfattribs=attrs).set_xdata(
                 "MECHDSL", [(1000, label)])
     doc.appids.add("MECHDSL")
@@ -183,9 +184,13 @@ def write_svg(d: dict, path: str) -> None:
     for label, p in d["paths"]:
         good = p[np.isfinite(p).all(axis=1)]
         lines.append(f'<polyline data-path={quoteattr(label)} points="{points(good)}"/>')
-    lines += [f'<polyline data-centrode={quoteattr(label)} points="{points(p)}" '
-              f'stroke-dasharray="{dash} {gap}"/>'
-              for label, p in d["centrodes"]]
+
+    def centrode(label: str, p: np.ndarray, moving: bool) -> str:
+        # the fixed centrodes dashed, the moving ones dotted (as the pictures draw them)
+        return (f'<polyline data-centrode={quoteattr(label)} points="{points(p)}" '
+                f'stroke="gray" stroke-dasharray="{gap if moving else dash} {gap}"/>')
+
+    lines += [centrode(label, p, False) for label, p in d["centrodes"]]
     lines.append('</g>')
     for t, bodies, pins, rails, curves in d["instants"]:
         lines.append(f'<g id={quoteattr(f"t_{float(t):g}")} data-t="{_num(t)}">')
@@ -203,9 +208,7 @@ def write_svg(d: dict, path: str) -> None:
                   for x, y in pins if math.isfinite(x) and math.isfinite(y)]
         lines += [f'<polyline data-rail="" points="{points(r)}" stroke="gray"/>'
                   for r in rails if np.isfinite(r).all()]
-        lines += [f'<polyline data-centrode={quoteattr(label)} points="{points(p)}" '
-                  f'stroke="gray" stroke-dasharray="{gap if label.startswith("moving") else dash} {gap}"/>'
-                  for label, p in curves]
+        lines += [centrode(label, p, moving) for label, p, moving in curves]
         lines.append('</g>')
     lines += ['</g>', f'<title>{escape(os.path.basename(path))}</title>', '</svg>']
     write_text(path, lambda f: f.write("\n".join(lines) + "\n"))
