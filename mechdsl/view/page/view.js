@@ -539,6 +539,7 @@
       if (k !== view.k) { view.k = k; view.draw(); }
     }
     last = now;
+    view.frameTime = now;  // the frame the simulated time stands at (for the tests' clocks)
     requestAnimationFrame(tick);
   }
 
