@@ -71,10 +71,10 @@ def run_a02(N: int = 40, t_end: float = 20.0, rtol: float = 1e-10, atol: float =
     from scipy.integrate import DOP853
 
     start = time.perf_counter()
-    system = mechdsl.loads(a02_text(N, t_end), "a02.mech").compile()
-    motion = Motion(system)
+    kernels = mechdsl.loads(a02_text(N, t_end), "a02.mech").compile()
+    motion = Motion(kernels)
     set_up = time.perf_counter() - start
-    n = system.n
+    n = kernels.system.n
     calls = [0]
 
     def rhs(t: float, y: np.ndarray) -> np.ndarray:
@@ -140,15 +140,15 @@ def chain_costs(sizes=(50, 100, 200, 400)) -> list[dict]:
     """One evaluation of Motion.rhs (and its parts) for chains of N links."""
     rows = []
     for N in sizes:
-        system = mechdsl.loads(chain_text(N), "chain.mech").compile()
-        motion = Motion(system)
+        kernels = mechdsl.loads(chain_text(N), "chain.mech").compile()
+        motion = Motion(kernels)
         rng = np.random.default_rng(0)
-        q = system.guess[0] + 1e-3 * rng.normal(size=system.n)
-        y = motion.project(0.0, np.concatenate((q, rng.normal(size=system.n))))
-        q, qd = y[:system.n], y[system.n:]
+        q = kernels.system.guess[0] + 1e-3 * rng.normal(size=kernels.system.n)
+        y = motion.project(0.0, np.concatenate((q, rng.normal(size=kernels.system.n))))
+        q, qd = y[:kernels.system.n], y[kernels.system.n:]
         entries, load, gamma = motion._terms(0.0, q, qd)
         fac = motion.factor(entries)
-        rows.append({"N": N, "n": system.n, "kd": motion.plan.kd,
+        rows.append({"N": N, "n": kernels.system.n, "kd": motion.plan.kd,
                      "rhs_us": 1e6 * cpu_time_per_call(lambda: motion.rhs(0.0, y)),
                      "terms_us": 1e6 * cpu_time_per_call(lambda: motion._terms(0.0, q, qd)),
                      "factor_us": 1e6 * cpu_time_per_call(lambda: motion.factor(entries)),

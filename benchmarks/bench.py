@@ -214,14 +214,14 @@ def work_precision(rep: Report, quick: bool) -> None:
                 if not res.ok:
                     continue
                 pts.append((t, *errors(res)))
-                rows.append([name, f"{system.times[1] - system.times[0]:g}", str(order),
+                rows.append([name, f"{system.system.times[1] - system.system.times[0]:g}", str(order),
                              f"{tol:g}", f"{1e3 * t:.1f}",
                              *(f"{e:.1e}" for e in pts[-1][1:])])
             pts = np.array(pts)
             for k, what in enumerate(("position", "velocity", "acceleration")):
                 ax = axes[ci, k]
                 ax.loglog(pts[:, 0], np.maximum(pts[:, 1 + k], 1e-17), "o-",
-                          label=f"step {system.times[1] - system.times[0]:g}, predictor {order}")
+                          label=f"step {system.system.times[1] - system.system.times[0]:g}, predictor {order}")
                 ax.set_title(f"{name}: {what}")
                 # less than a decade of run time: minor tick labels would overlap
                 ax.xaxis.set_minor_formatter(NullFormatter())
@@ -309,14 +309,14 @@ def sweep(rep: Report, quick: bool) -> None:
     variants = 100 if quick else 1000
     mech = mechdsl.load(ROOT / "examples" / "slider_crank.mech")
     rods = np.linspace(2.5, 5.0, variants)
-    system = mech.compile(Overrides(sweeps={"l": list(rods)}))
+    kernels = mech.compile(Overrides(sweeps={"l": list(rods)}))
     alone = slider_crank_system()
     t1, _ = median_time(lambda: simulate(alone, NUMPY), 5)
     rows = []
     for name, opts in (("numpy", NUMPY), ("compiled (numba)", COMPILED)):
         if opts is COMPILED and not have_numba():
             continue
-        t, res = median_time(lambda: simulate(system, opts), 1 if quick else 3)
+        t, res = median_time(lambda: simulate(kernels, opts), 1 if quick else 3)
         ex = models.slider_crank_exact(res["t"][None, :], l=rods[:, None])
         err = max(float((np.abs(res[k] - e).max(axis=1) / np.abs(e).max(axis=1)).max())
                   for k, e in zip(("slider.x", "slider.vx", "slider.ax"), ex))
@@ -370,7 +370,7 @@ def api_again(rep: Report, quick: bool) -> None:
 
     repeat = 7 if quick else 21
     mech = mechdsl.load(ROOT / "examples" / "slider_crank.mech")
-    system = mech.compile()
+    kernels = mech.compile()
     # new values of l beside the file's 3.5: the same motion, within 0.3 %, as the solve
     # compared (a rod near 3 takes twice the solver's work: l = 3.0 takes 8.3 ms, folded or
     # not, where 3.5 takes 4.2); each new value's model also compiled beforehand, on its own
@@ -390,7 +390,7 @@ def api_again(rep: Report, quick: bool) -> None:
     # what a user of a loaded model does (a slider, an optimiser): the calls compared in
     # turn, so that a drift of the machine hits them alike; a fresh mechanism's load and
     # compilation, whose allocations would wake the garbage collector in the others, apart
-    calls = [lambda: simulate(system), lambda: mech.simulate(), new_value,
+    calls = [lambda: simulate(kernels), lambda: mech.simulate(), new_value,
              lambda: simulate(before[at[0]])]
     for call in calls:  # warm: the first new value compiles the template
         call()
@@ -424,13 +424,13 @@ def animation(rep: Report, quick: bool) -> None:
 
     n_loops = 50
     text = models.chain_text(n_loops, t1=9.99, step=0.01) + f"trace coupler{n_loops - 1}\n"
-    system = mechdsl.loads(text).compile()
+    kernels = mechdsl.loads(text).compile()
     start = time.perf_counter()
-    res = simulate(system, poses=True)
+    res = simulate(kernels, poses=True)
     solved = time.perf_counter() - start
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
-        animate(res, system, str(Path(tmp) / "chain.gif"))
+        animate(res, kernels.system, str(Path(tmp) / "chain.gif"))
         drawn = time.perf_counter() - start
         size = (Path(tmp) / "chain.gif").stat().st_size
     rep.table("Animation: row of 101 bodies, 1000 instants, 100 frames (GIF)",
@@ -464,9 +464,9 @@ def levers(rep: Report, quick: bool) -> None:
         # one instant at a time is ~100 times slower: measured on the 1001 instants only
         chosen = [(n, o) for n, o in settings
                   if step == 1e-3 or isinstance(o, str) or o.max_block > 1]
-        plain = fuse(list(system.groups), system.n_bodies, system.m, force="group")
+        plain = fuse(list(system.system.groups), system.system.n_bodies, system.system.m, force="group")
         unfused = dataclasses.replace(system, fused=plain, pattern=Pattern.from_entries(
-            plain.rows, plain.cols, (system.m, system.n)))
+            plain.rows, plain.cols, (system.system.m, system.system.n)))
         for _ in range(repeat + 1):  # the first round warms up
             for name, opts in chosen:
                 run_system, run_opts = system, opts
@@ -483,7 +483,7 @@ def levers(rep: Report, quick: bool) -> None:
         base = statistics.median(times["default (numpy)"][1:])
         for name, _ in chosen:
             t = statistics.median(times[name][1:])
-            rows.append([f"{len(system.times)}", name, f"{1e3 * t:.1f}", f"{t / base:.2f}",
+            rows.append([f"{len(system.system.times)}", name, f"{1e3 * t:.1f}", f"{t / base:.2f}",
                          f"{errs[name]:.1e}"])
     rep.table("Levers: the slider-crank with one speed lever off at a time",
               ["instants", "setting", "ms", "x default", "max err (x, vx, ax)"], rows)
@@ -570,14 +570,14 @@ def andrews(rep: Report, quick: bool) -> None:
            "-o", "-", "-q"]
     t_run, _ = median_time(lambda: subprocess.run(cmd, check=True, env=peers.user_env(),
                                                   stdout=subprocess.DEVNULL), repeat)
-    system = mech.compile()
-    t_solve, full = median_time(lambda: simulate(system, NUMPY), repeat)
+    kernels = mech.compile()
+    t_solve, full = median_time(lambda: simulate(kernels, NUMPY), repeat)
     err = ref.relative_error(np.array([full[n][-1] for n in names]))
     t_in, _ = median_time(lambda: mech.simulate(), repeat)
     table = [["error of the angles at t = 0.03", f"{err:.1e}"],
              ["solve, in-process, numpy (model compiled)", f"{1e3 * t_solve:.1f} ms"]]
     if have_numba():
-        t_fast, _ = median_time(lambda: simulate(system, COMPILED), repeat)
+        t_fast, _ = median_time(lambda: simulate(kernels, COMPILED), repeat)
         table.append(["solve, in-process, compiled", f"{1e3 * t_fast:.1f} ms"])
     table += [["compile and solve, in-process, numpy", f"{1e3 * t_in:.1f} ms"],
               ["mechdsl run examples/andrews.mech, whole process", f"{1e3 * t_run:.0f} ms"]]

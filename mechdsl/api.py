@@ -19,6 +19,7 @@ import numpy as np
 from .compiled import equations as eq
 from .compiled.compile import check_structure, compile_model
 from .compiled.files import read_files, read_tables
+from .compiled.kernels import Kernels
 from .compiled.system import System
 from .compiled.variants import Overrides, known_param
 from .errors import MechError, NumericalError, Source, Span
@@ -63,17 +64,17 @@ class _Compiled:
         if key is None:
             return None
         with self._lock:
-            system = self._systems.pop(key, None)
-            if system is not None:
-                self._systems[key] = system  # the most recently used last
-            return system
+            kernels = self._systems.pop(key, None)
+            if kernels is not None:
+                self._systems[key] = kernels  # the most recently used last
+            return kernels
 
-    def put(self, key: tuple, system: System, generation: int) -> None:
+    def put(self, key: tuple, kernels: Kernels, generation: int) -> None:
         with self._lock:
             if generation != self.generation:
                 return  # compiled from a model replaced meanwhile
             self._systems.pop(key, None)
-            self._systems[key] = system
+            self._systems[key] = kernels
             while len(self._systems) > KEEP_COMPILED:
                 del self._systems[next(iter(self._systems))]
 
@@ -83,12 +84,12 @@ class _Compiled:
         with self._lock:
             return family in self._families
 
-    def template(self, family: tuple) -> System | None:
+    def template(self, family: tuple) -> Kernels | None:
         """The family's model compiled without folded values, if one was."""
         with self._lock:
             return self._families.get(family)
 
-    def note(self, family: tuple, template: System | None, generation: int) -> None:
+    def note(self, family: tuple, template: Kernels | None, generation: int) -> None:
         with self._lock:
             if generation != self.generation:
                 return
@@ -304,9 +305,10 @@ class Mechanism:
         of the Jacobian there. A model that cannot be compiled raises its MechError; a
         mechanism that does not assemble, is not fully driven or is singular at t0 gives a
         report whose ``error`` says so."""
-        system = self.compile(overrides, need_times=self.model.simulate is not None)
+        kernels = self.compile(overrides, need_times=self.model.simulate is not None)
+        system = kernels.system
         drives = len(system.drive_rows)
-        lines = _structure(self.model, system)
+        lines = _structure(self.model, kernels)
         t0 = float(system.times[0]) if system.times is not None else 0.0
 
         def done(**found) -> CheckReport:
@@ -317,10 +319,10 @@ class Mechanism:
                                lines=tuple(lines), **found)
 
         opts = SolverOptions().for_size(system.n_bodies)
-        if system.m < system.n and system.dynamics is not None:
-            return self._check_dynamic(system, lines, done, opts)
+        if system.m < system.n and kernels.dynamics is not None:
+            return self._check_dynamic(kernels, lines, done, opts)
         try:
-            asm = assemble(system, t0, opts)
+            asm = assemble(kernels, t0, opts)
         except MechError as err:  # not fully driven, a plugin's defect
             return done(error=err)
         if not asm.ok.all():
@@ -332,7 +334,7 @@ class Mechanism:
                          zip(asm.q[0, 3 * i : 3 * i + 3], (system.scale[0], system.scale[0], 1)))
             lines.append(f"  {b:<{width}}  x = {x:< 12.6g} y = {y:< 12.6g} phi = {phi:.6g}")
         D = col_scale(system)
-        mobility, rank, redundant = report(one_variant(system, 0), asm.q[0], D[0, 0])
+        mobility, rank, redundant = report(one_variant(kernels, 0), asm.q[0], D[0, 0])
         equations = system.m - drives
         extra = f", {equations - rank} redundant" if equations > rank else ""
         lines.append(f"mobility {mobility} = {system.n} coordinates - {rank} independent joint "
@@ -345,12 +347,12 @@ class Mechanism:
         if warning:
             found["warnings"] = (warning,)
         rows = asm.mobility.rows
-        jac = eq.solver_jacobian(system, asm.q[:, None], rows, use_sparse(system, opts, rows))
+        jac = eq.solver_jacobian(kernels, asm.q[:, None], rows, use_sparse(system, opts, rows))
         rcond = factor(jac, D).rcond[:, 0]
         bad = np.flatnonzero(~(rcond >= opts.singular_rcond))
         if bad.size:
             v = int(bad[0])
-            cond, names = singularity(system, asm.q[v], v)
+            cond, names = singularity(kernels, asm.q[v], v)
             return done(**found, error=NumericalError(
                 f"the Jacobian is singular at the assembled configuration (condition number "
                 f"{cond:.3g}); dependent equations involve {names}", source=system.source))
@@ -359,12 +361,13 @@ class Mechanism:
                     verdict=f"ok: assembles at t = {t0:g}{variants}; scaled Jacobian "
                             f"condition number {1 / rcond.min():.3g}")
 
-    def _check_dynamic(self, system: System, lines: list[str], done, opts) -> "CheckReport":
+    def _check_dynamic(self, kernels: Kernels, lines: list[str], done, opts) -> "CheckReport":
         """:meth:`check` of a mechanism with free degrees of freedom and masses: its
         assembly, its mobility, and whether its equations of motion can be solved at t0."""
+        system = kernels.system
         from .solve.dynamic import DynamicRun
 
-        run = DynamicRun(system, opts)
+        run = DynamicRun(kernels, opts)
         q0, trouble = run.initial_state()
         if q0 is None:
             return done(error=NumericalError(trouble, source=system.source))
@@ -375,17 +378,17 @@ class Mechanism:
             x, y, phi = q0[3 * i : 3 * i + 3]
             lines.append(f"  {b:<{width}}  x = {x:< 12.6g} y = {y:< 12.6g} phi = {phi:.6g}")
         D = col_scale(system)
-        mobility, rank, redundant = report(one_variant(system, 0), q0, D[0, 0])
+        mobility, rank, redundant = report(one_variant(kernels, 0), q0, D[0, 0])
         # the drives fix some of the joints' degrees of freedom: n - rank of the joints' and
         # drives' equations together are left
-        dof = freedom(one_variant(system, 0), q0, D[0, 0])
+        dof = freedom(one_variant(kernels, 0), q0, D[0, 0])
         lines.append(_freedom_line(dof))
         found = dict(mobility=mobility, rank=rank, redundant=redundant, free=dof.free)
         warnings = list(run.warnings)
         if trouble is None:  # the velocities it starts with, stated
             from .solve.initial import velocities
 
-            warnings += velocities(system, 0, t0, q0, D[0, 0], opts)[1]
+            warnings += velocities(kernels, 0, t0, q0, D[0, 0], opts)[1]
         if warnings:
             found["warnings"] = tuple(warnings)
         if trouble is not None:
@@ -393,14 +396,15 @@ class Mechanism:
         return done(**found, verdict=f"ok: assembles at t = {t0:g}; the equations of motion "
                                      "are regular there")
 
-    def compile(self, overrides: Overrides | None = None, *, need_times: bool = True) -> System:
+    def compile(self, overrides: Overrides | None = None, *, need_times: bool = True
+                ) -> Kernels:
         """Resolve the model against the registry (see
-        :func:`mechdsl.compiled.compile.compile_model`).
+        :func:`mechdsl.compiled.compile.compile_model`): the compiled model's data
+        (``.system``, plain and read-only) and the code generated for it.
 
-        The compiled model is plain, read-only data, and the solvers keep their state apart
-        from it: the mechanism keeps the last few it compiled (of at most
-        :data:`KEEP_VARIANTS` variants: a single run or a small sweep, not a study's chunks),
-        each with the plans and generated code its first solve made, and gives the same
+        The solvers keep their state apart from both. The mechanism keeps the last few it
+        compiled (of at most :data:`KEEP_VARIANTS` variants: a single run or a small sweep,
+        not a study's chunks), each with the plans its first solve made, and gives the same
         object again for the same overrides (numbers compared by their bits, expressions by
         identity), so that solving a model again costs the solve alone. New values of params
         alone run code traced once for them all (:meth:`_template`)."""
@@ -412,8 +416,8 @@ class Mechanism:
         family = _family_key(overrides, need_times)
         if family is None or not self._compiled.seen(family):
             # the first values of these overrides (or a sweep): the code for them, folded
-            system = compile_model(self.model, self.registry, overrides, need_times=need_times,
-                                   memo=self._compiled.memo)
+            kernels = compile_model(self.model, self.registry, overrides, need_times=need_times,
+                                    memo=self._compiled.memo)
             if family is not None:
                 self._compiled.note(family, None, generation)
         else:
@@ -423,13 +427,13 @@ class Mechanism:
             if template is None:
                 template = self._template(overrides, need_times)
                 self._compiled.note(family, template, generation)
-            system = compile_model(self.model, self.registry, overrides, need_times=need_times,
-                                   reuse=template, memo=self._compiled.memo)
-        if key is not None and system.n_variants <= KEEP_VARIANTS:
-            self._compiled.put(key, system, generation)
-        return system
+            kernels = compile_model(self.model, self.registry, overrides, need_times=need_times,
+                                    reuse=template, memo=self._compiled.memo)
+        if key is not None and kernels.system.n_variants <= KEEP_VARIANTS:
+            self._compiled.put(key, kernels, generation)
+        return kernels
 
-    def _template(self, overrides: Overrides | None, need_times: bool) -> System:
+    def _template(self, overrides: Overrides | None, need_times: bool) -> Kernels:
         """The model compiled to serve other values of its params: for two variants, these
         values and every param moved a little (each by its own small fraction), so that the
         traced code holds as constants only the values no param changes; where that cannot
@@ -519,8 +523,8 @@ class Mechanism:
         from .study import plan
 
         ov = overrides or Overrides()
-        system, total, size, sweep = plan(self, ov, chunk)
-        return PreparedRun(self, ov, system, total, size, sweep)
+        kernels, total, size, sweep = plan(self, ov, chunk)
+        return PreparedRun(self, ov, kernels, total, size, sweep)
 
     def search(self, overrides: Overrides | None = None, options: SolverOptions | None = None,
                **kwargs):
@@ -639,16 +643,21 @@ class Mechanism:
 class PreparedRun:
     """A run compiled and cut into chunks, not yet solved: the one use case behind both
     :meth:`Mechanism.simulate` and ``mechdsl run`` (which reads ``system`` to check its
-    outputs and estimate its drawings before it solves). ``system`` is the compiled model of
-    the first chunk (of the whole run without a sweep), ``total`` the number of variants,
+    outputs and estimate its drawings before it solves). ``kernels`` is the compiled model
+    of the first chunk (of the whole run without a sweep), ``total`` the number of variants,
     ``chunk`` the variants per chunk, ``sweep`` the whole sweep table."""
 
     mechanism: Mechanism
     overrides: Overrides
-    system: System
+    kernels: Kernels
     total: int
     chunk: int
     sweep: dict
+
+    @property
+    def system(self) -> System:
+        """The compiled model's data (of the first chunk)."""
+        return self.kernels.system
 
     def solve(self, options: SolverOptions | None = None, *, client=None,
               store: str | None = None, poses: bool = False, rates: bool = False,
@@ -659,13 +668,13 @@ class PreparedRun:
         ``progress(done, total)`` follows it; ``extra_memory`` is what the caller's outputs
         will add (the run is refused before it starts where the sum exceeds the limit)."""
         if store is None and client is None and self.total <= self.chunk:
-            return simulate(self.system, options, poses=poses, rates=rates, progress=progress,
+            return simulate(self.kernels, options, poses=poses, rates=rates, progress=progress,
                             extra_memory=extra_memory)
         from .study import solve_sweep
 
         return solve_sweep(self.mechanism, self.overrides, options, client=client, store=store,
                            poses=poses, rates=rates, progress=progress,
-                           planned=(self.system, self.total, self.chunk, self.sweep),
+                           planned=(self.kernels, self.total, self.chunk, self.sweep),
                            extra_memory=extra_memory, placed=placed)
 
 
@@ -689,7 +698,7 @@ class PortableModel:
     def __setstate__(self, state: dict) -> None:
         self.__init__(state["model"], state["plugins"], state["allowed"])
 
-    def compile(self, overrides: Overrides) -> System:
+    def compile(self, overrides: Overrides) -> Kernels:
         """:meth:`Mechanism.compile` of the model with these overrides."""
         with self._lock:
             if self._mechanism is None:
@@ -802,9 +811,10 @@ def _count(k: int, what: str, plural: str | None = None) -> str:
     return f"{k} {what if k == 1 else plural or what + 's'}"
 
 
-def _structure(model: Model, system: System) -> list[str]:
+def _structure(model: Model, kernels: Kernels) -> list[str]:
     """The lines of what the model declares; the mobility, which needs the rank at the
     assembled configuration, is reported once, after the assembly."""
+    system = kernels.system
     drives = len(system.drive_rows)
     joints = len(system.constraints) - drives
     bodies = _count(len(system.body_names), "moving body", "moving bodies")
@@ -838,7 +848,7 @@ def _structure(model: Model, system: System) -> list[str]:
             centroid = np.where(np.abs(mp.centroid[0]) < 1e-12 * size, 0.0, mp.centroid[0])
             lines.append(f"  {name:<12} area {mp.area[0]:.6g}  centroid {_fmt(centroid)}  "
                          f"J {mp.polar[0]:.6g}{mass}")
-    d = system.dynamics
+    d = kernels.dynamics
     if d is not None:
         lines.append("masses (inertia about the centre of mass; centroid in the body frame):")
         for i, name in enumerate(system.body_names):

@@ -370,7 +370,7 @@ def run_command(args, signals: SignalGuard | None = None) -> int:
         return _report(args, results, placed[-1:] or [store], None, signals, run_settings)
     if total > system.n_variants and drawing:
         # the drawings and exports need every variant's geometry, not the first chunk's
-        system = mech.compile(ov)
+        system = mech.compile(ov).system
     written, stop = _write_outputs(args, system, results, run_settings, signals)
     return _report(args, results, written, stop, signals, run_settings)
 

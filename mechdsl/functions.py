@@ -9,6 +9,7 @@ conformance kit's case).
 
 from __future__ import annotations
 
+import functools
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -27,11 +28,20 @@ class ExprFunction:
         self.var = var
         self.env = dict(env)
         self.elementwise = elementwise
-        self._fns = []
+
+    @functools.cached_property
+    def _fns(self) -> list:
+        """Per expression, f, f' and f'' compiled: made where first evaluated, so that the
+        value itself is its expressions (what a compiled model holds, and what pickles)."""
+        fns = []
         for e in self.exprs:
-            d1 = derivative(e, var)
-            self._fns.append((E.compile_expr(e), E.compile_expr(d1),
-                              E.compile_expr(derivative(d1, var))))
+            d1 = derivative(e, self.var)
+            fns.append((E.compile_expr(e), E.compile_expr(d1),
+                        E.compile_expr(derivative(d1, self.var))))
+        return fns
+
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k != "_fns"}
 
     @classmethod
     def of(cls, text: str, var: str, **params: float) -> "ExprFunction":

@@ -112,7 +112,7 @@ def test_the_same_overrides_give_the_compiled_model_kept():
     assert mech.compile(Overrides(params={"l": other})) is not \
         mech.compile(Overrides(params={"l": e}))
     deep = mechdsl.api.parse_expr("0*2" + "^1" * 3000, "l", ["r"])
-    assert mech.compile(Overrides(params={"omega": deep})).n_variants == 1
+    assert mech.compile(Overrides(params={"omega": deep})).system.n_variants == 1
 
 
 def test_solving_again_gives_each_values_own_closed_form():
@@ -203,7 +203,7 @@ def test_the_seeds_new_values_share_code_and_plans():
     assert systems[2].fused.graph is systems[1].fused.graph is systems[3].fused.graph
     twin = systems[1].template  # traced for two variants: what a param changes is a param
     assert twin is not None and systems[2].template is twin and systems[3].template is twin
-    assert twin.n_variants == 2 and systems[3].n_variants == 1
+    assert twin.system.n_variants == 2 and systems[3].system.n_variants == 1
     assert systems[3].lu is systems[1].lu is twin.lu
     assert systems[0].template is None  # the file's values: their own folded code
     assert systems[3].one_state.phi_jac is systems[1].one_state.phi_jac

@@ -21,8 +21,8 @@ def _crank_states(system, lengths, t, noise=1e-6, seed=3):
     """The closed-form states of slider-cranks with rods ``lengths`` at ``t``, perturbed."""
     th = np.pi / 4 + 4 * np.pi * t
     V, b = len(lengths), len(t)
-    q = np.zeros((V, b, system.n))
-    names = system.body_names
+    q = np.zeros((V, b, system.system.n))
+    names = system.system.body_names
     for v, l in enumerate(lengths):
         x, _, _ = slider_crank(2.0, l, th, 4 * np.pi, 0.0)
         c, s = np.cos(th), np.sin(th)
@@ -49,9 +49,9 @@ def test_settled_states_are_the_closed_form(sweep):
     t = np.linspace(0.0, 0.5, 40)
     pred, th = _crank_states(system, lengths, t)
     T = np.broadcast_to(t, (len(lengths), len(t)))
-    out = batch.settle(system, pred, T, col_scale(system), np.ones(3, bool), OPTS, rates=True)
+    out = batch.settle(system, pred, T, col_scale(system.system), np.ones(3, bool), OPTS, rates=True)
     assert out is not None and out.converged.all()
-    k = system.body_names.index("slider")
+    k = system.system.body_names.index("slider")
     for v, l in enumerate(lengths):
         x, vx, ax = slider_crank(2.0, l, th, 4 * np.pi, 0.0)
         np.testing.assert_allclose(out.q[v, :, 3 * k], x, rtol=1e-14, atol=1e-14)
@@ -64,10 +64,10 @@ def test_settle_agrees_with_the_step_by_step_path(sweep):
     t = np.linspace(0.1, 0.4, 30)
     pred, _ = _crank_states(system, lengths, t, seed=8)
     T = np.broadcast_to(t, (len(lengths), len(t)))
-    D, active = col_scale(system), np.ones(3, bool)
+    D, active = col_scale(system.system), np.ones(3, bool)
     out = batch.settle(system, pred, T, D, active, OPTS, rates=True)
-    q, ok, _ = newton(system, pred, T, D, active, OPTS, np.arange(system.m))
-    fac = factor(eq.solver_jacobian(system, q, np.arange(system.m), False), D)
+    q, ok, _ = newton(system, pred, T, D, active, OPTS, np.arange(system.system.m))
+    fac = factor(eq.solver_jacobian(system, q, np.arange(system.system.m), False), D)
     assert ok.all()
     np.testing.assert_allclose(out.q, q, atol=1e-14)
     np.testing.assert_allclose(out.fac.rcond, fac.rcond, rtol=1e-9)
@@ -82,7 +82,7 @@ def test_without_rates_only_the_factorisation_comes_back(sweep):
     t = np.linspace(0.0, 0.3, 30)
     pred, _ = _crank_states(system, lengths, t)
     T = np.broadcast_to(t, (3, len(t)))
-    out = batch.settle(system, pred, T, col_scale(system), np.ones(3, bool), OPTS, rates=False)
+    out = batch.settle(system, pred, T, col_scale(system.system), np.ones(3, bool), OPTS, rates=False)
     assert out.qd is None and out.qdd is None and out.converged.all()
 
 
@@ -92,7 +92,7 @@ def test_an_inactive_variant_is_left_as_it_is(sweep):
     pred, _ = _crank_states(system, lengths, t)
     T = np.broadcast_to(t, (3, len(t)))
     active = np.array([True, False, True])
-    out = batch.settle(system, pred, T, col_scale(system), active, OPTS, rates=True)
+    out = batch.settle(system, pred, T, col_scale(system.system), active, OPTS, rates=True)
     np.testing.assert_array_equal(out.q[1], pred[1])
     assert out.converged.all()
 
@@ -102,13 +102,13 @@ def test_a_small_batch_or_a_lost_pivot_goes_to_the_general_path(sweep):
     t = np.linspace(0.0, 0.3, 10)  # 3 x 10 states: below the generated LU's batch
     pred, _ = _crank_states(system, lengths, t)
     T = np.broadcast_to(t, (3, len(t)))
-    assert batch.settle(system, pred, T, col_scale(system), np.ones(3, bool), OPTS,
+    assert batch.settle(system, pred, T, col_scale(system.system), np.ones(3, bool), OPTS,
                         rates=True) is None
     t = np.linspace(0.0, 0.3, 40)
     pred, _ = _crank_states(system, lengths, t)
     pred[0, 5] = np.nan  # a state the fixed pivot order cannot take
     T = np.broadcast_to(t, (3, len(t)))
-    assert batch.settle(system, pred, T, col_scale(system), np.ones(3, bool), OPTS,
+    assert batch.settle(system, pred, T, col_scale(system.system), np.ones(3, bool), OPTS,
                         rates=True) is None
 
 
@@ -122,7 +122,7 @@ def test_the_residual_and_correction_ratio_are_measured_where_the_run_measures_t
     pred, _ = _crank_states(system, lengths, t, noise=1e-5)
     before, _ = _crank_states(system, lengths, np.array([0.09]), noise=0.0)
     T = np.broadcast_to(t, (len(lengths), len(t)))
-    D = col_scale(system)
+    D = col_scale(system.system)
     out = batch.settle(system, pred, T, D, np.ones(3, bool), OPTS, rates=False,
                        before=before[:, 0], floor=1e-5)
     assert out is not None and out.converged.all()

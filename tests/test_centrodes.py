@@ -38,9 +38,9 @@ def _run(loads, text: str):
     from mechdsl.outputs.draw import frames
     from mechdsl.solve import simulate
 
-    system = loads(text).compile()
-    res = simulate(system, poses=True, rates=True)
-    return system, res, frames(res, system)
+    kernels = loads(text).compile()
+    res = simulate(kernels, poses=True, rates=True)
+    return kernels, res, frames(res, kernels.system)
 
 
 def test_the_trammels_centrodes_are_the_cardan_circles(loads):
@@ -73,8 +73,8 @@ def test_the_four_bars_instant_centre_is_where_crank_and_rocker_lines_meet(loads
 
     system, res, fr = _run(loads, FOURBAR)
     (c,) = fr.centrodes
-    names = list(system.body_names)
-    sk = system.sketch
+    names = list(system.system.body_names)
+    sk = system.system.sketch
     crank_a = world(res.poses, names.index("crank"), sk.outlines[names.index("crank")][:, 1])
     rocker_b = world(res.poses, names.index("rocker"), sk.outlines[names.index("rocker")][:, 0])
     o2, o4 = np.array([0.0, 0.0]), np.array([4.0, 0.0])
@@ -178,9 +178,9 @@ def test_the_view_message_carries_the_centrodes(loads):
     from mechdsl.solve import simulate
     from mechdsl.outputs.payload import decode, run_message
 
-    system = loads(TRAMMEL).compile()
-    res = simulate(system, poses=True, rates=True)
-    header, data = decode(run_message(system, res, [], file="t.mech"))
+    kernels = loads(TRAMMEL).compile()
+    res = simulate(kernels, poses=True, rates=True)
+    header, data = decode(run_message(kernels.system, res, [], file="t.mech"))
     (item,) = [i for i in header["items"] if i["kind"] == "centrode"]
     assert item["ground"] and item["m"] == len(res.times)
     fixed = data[item["fixed"]: item["fixed"] + 2 * item["m"]].reshape(-1, 2)
@@ -210,10 +210,10 @@ def test_the_api_traces_what_the_command_line_traces(tmp_path):
 
     mech = mechdsl.loads(TRAMMEL.replace("trace ic(rod, ground), rod.A", ""), "trammel.mech")
     res = mech.simulate(trace=["ic(rod, ground)", "rod.A"], poses=True, rates=True)
-    system = mech.tracing(["ic(rod, ground)", "rod.A"]).compile()
-    (c,) = frames(res, system).centrodes
+    kernels = mech.tracing(["ic(rod, ground)", "rod.A"]).compile()
+    (c,) = frames(res, kernels.system).centrodes
     np.testing.assert_allclose(np.linalg.norm(c.fixed[0], axis=-1), L, atol=1e-12)
-    FORMATS["snapshot"].write(res, system, str(tmp_path / "s.png"))
+    FORMATS["snapshot"].write(res, kernels.system, str(tmp_path / "s.png"))
     assert (tmp_path / "s.png").stat().st_size > 0
     with pytest.raises(MechError) as err:
         mech.simulate(trace="rod.A, ic(rod, nobody)")
@@ -230,10 +230,10 @@ def test_a_body_that_only_translates_has_no_centrode_drawn(loads):
     from mechdsl.solve import simulate
 
     text = (EXAMPLES / "parallelogram.mech").read_text() + "\ntrace ic(coupler, ground)\n"
-    system = loads(text).compile(Overrides(t1=0.2))
-    res = simulate(system, poses=True, rates=True)
-    (c,) = frames(res, system).centrodes
-    assert np.abs(res.rates[0, :, 0, system.body_names.index("coupler"), 2]).max() < 1e-9
+    kernels = loads(text).compile(Overrides(t1=0.2))
+    res = simulate(kernels, poses=True, rates=True)
+    (c,) = frames(res, kernels.system).centrodes
+    assert np.abs(res.rates[0, :, 0, kernels.system.body_names.index("coupler"), 2]).max() < 1e-9
     assert not np.isfinite(c.centre).any() and not np.isfinite(c.fixed).any()
 
 
@@ -248,11 +248,11 @@ def test_the_drawn_instant_centre_is_the_ic_output(loads):
     text = (EXAMPLES / "fourbar.mech").read_text() + (
         "\noutput gx = ic_x(coupler, ground), gy = ic_y(coupler, ground), "
         "cx = ic_x(coupler, crank), cy = ic_y(coupler, crank)\n")
-    system = loads(text).compile()
+    kernels = loads(text).compile()
     from mechdsl.solve import simulate
 
-    res = simulate(system, poses=True, rates=True)
-    names = system.body_names
+    res = simulate(kernels, poses=True, rates=True)
+    names = kernels.system.body_names
     for other, (x, y) in (("ground", ("gx", "gy")), ("crank", ("cx", "cy"))):
         b = len(names) if other == "ground" else names.index(other)
         centre, _ = instant_centre(res.poses, res.rates, names.index("coupler"), b)

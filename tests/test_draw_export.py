@@ -35,9 +35,9 @@ def test_traced_path_is_the_coupler_curve(loads):
     from mechdsl.solve import simulate
 
     text = FOURBAR.read_text() + "\ntrace rocker\n"  # the file itself traces coupler.P
-    system = loads(text).compile()
-    res = simulate(system, poses=True)
-    traced = paths(res, system.sketch)
+    kernels = loads(text).compile()
+    res = simulate(kernels, poses=True)
+    traced = paths(res, kernels.system.sketch)
     assert set(traced) == {"coupler.P", "rocker"}
     np.testing.assert_allclose(traced["coupler.P"][0], coupler_point(res["t"])[0], atol=1e-13)
     # the rocker's origin, the middle of B-O4, stays at c/2 = 1.5 from O4 = (4, 0)
@@ -97,8 +97,8 @@ def test_mp4_needs_ffmpeg(tmp_path):
 def _coupler_p_index(system) -> int:
     from mechdsl.outputs.export import _layout
 
-    owners, _, _ = _layout(system)
-    coupler = system.body_names.index("coupler")
+    owners, _, _ = _layout(system.system)
+    coupler = system.system.body_names.index("coupler")
     return next(j for j, (body, s) in enumerate(owners)
                 if body == coupler and np.allclose(s[0], [0.0, 1.0]))
 
@@ -108,8 +108,8 @@ def test_xdmf_time_series_reads_back(tmp_path, load_example):
 
     r = mechdsl("run", FOURBAR, "--step", "0.05", "--export", tmp_path / "fb.xdmf", "-q")
     assert r.returncode == 0, r.stderr
-    system = load_example("fourbar.mech").compile()
-    j = _coupler_p_index(system)
+    kernels = load_example("fourbar.mech").compile()
+    j = _coupler_p_index(kernels)
     t = np.arange(21) * 0.05
     pos, vel, acc = coupler_point(t)
     with meshio.xdmf.TimeSeriesReader(str(tmp_path / "fb.xdmf")) as reader:
@@ -133,8 +133,8 @@ def test_vtu_files_and_pvd_index(tmp_path, load_example):
 
     r = mechdsl("run", FOURBAR, "--step", "0.25", "--export", tmp_path / "fb.vtu", "-q")
     assert r.returncode == 0, r.stderr
-    system = load_example("fourbar.mech").compile()
-    j = _coupler_p_index(system)
+    kernels = load_example("fourbar.mech").compile()
+    j = _coupler_p_index(kernels)
     entries = ET.parse(tmp_path / "fb.pvd").getroot().findall(".//DataSet")
     assert [float(e.get("timestep")) for e in entries] == pytest.approx([0, 0.25, 0.5, 0.75, 1])
     pos, vel, _ = coupler_point(np.array([0, 0.25, 0.5, 0.75, 1.0]))
@@ -162,11 +162,11 @@ def test_progress_bar_only_on_a_terminal_and_only_for_long_runs(load_example):
     from mechdsl.commands import ProgressBar
     from mechdsl.solve import simulate
 
-    system = load_example("slider_crank.mech").compile()
+    kernels = load_example("slider_crank.mech").compile()
     tty, pipe, short = _Tty(True), _Tty(False), _Tty(True)
     for stream, delay in ((tty, 0.0), (pipe, 0.0), (short, 3600.0)):
         bar = ProgressBar(stream, delay=delay, rate=1e9)
-        assert simulate(system, progress=bar).ok
+        assert simulate(kernels, progress=bar).ok
         bar.close()
     assert "%" in tty.text and "instants" in tty.text and tty.text.endswith("\r")
     assert pipe.text == "" and short.text == ""

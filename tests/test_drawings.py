@@ -70,8 +70,8 @@ def solve(loads, text: str, **sweeps):
     from mechdsl.solve import simulate
     from mechdsl.compiled.variants import Overrides
 
-    system = loads(text).compile(Overrides(sweeps=sweeps))
-    return system, simulate(system, poses=True, rates=True)
+    kernels = loads(text).compile(Overrides(sweeps=sweeps))
+    return kernels, simulate(kernels, poses=True, rates=True)
 
 
 def segments(ax) -> list[np.ndarray]:
@@ -134,7 +134,7 @@ def test_bodies_pinned_at_their_origin_are_drawn_through_it_in_a_snapshot(loads,
 
     system, res = solve(loads, PINNED)
     assert res.ok
-    snapshot(res, system, str(tmp_path / "s.png"), at=[0.3])
+    snapshot(res, system.system, str(tmp_path / "s.png"), at=[0.3])
     (fig,) = figures
     check_pinned_drawing(fig.axes[0], 0.3)
     # one instant, drawn once: no other bar, plate or support
@@ -146,7 +146,7 @@ def test_bodies_pinned_at_their_origin_are_drawn_through_it_in_an_animation(load
     from mechdsl.outputs.draw import animate
 
     system, res = solve(loads, PINNED)
-    animate(res, system, str(tmp_path / "a.gif"), max_frames=5)
+    animate(res, system.system, str(tmp_path / "a.gif"), max_frames=5)
     (fig,) = figures
     check_pinned_drawing(fig.axes[0], 1.0)  # the artists hold the last frame, t = 1
 
@@ -154,8 +154,8 @@ def test_bodies_pinned_at_their_origin_are_drawn_through_it_in_an_animation(load
 def test_outlines_put_attached_points_first_then_the_declared_ones(loads):
     from mechdsl.outputs.draw import outlines
 
-    system = loads(PINNED).compile()
-    drawn = dict(zip((*system.body_names, "ground"), outlines(system.sketch)))
+    kernels = loads(PINNED).compile()
+    drawn = dict(zip((*kernels.system.body_names, "ground"), outlines(kernels.system.sketch)))
     np.testing.assert_array_equal(drawn["crank"][0], [[0, 0], [R, 0]])
     np.testing.assert_array_equal(drawn["rod"][0], [[-L / 2, 0], [L / 2, 0]])
     np.testing.assert_array_equal(drawn["slider"][0], [[0, 0]])
@@ -164,7 +164,7 @@ def test_outlines_put_attached_points_first_then_the_declared_ones(loads):
     # a point declared at the origin stands for it: not drawn twice
     text = PINNED.replace("point B = (r, 0) }", "point O = (0, 0)  point B = (r, 0) }")
     text = text.replace("crank.origin)", "crank.O)")
-    crank = outlines(loads(text).compile().sketch)[0]
+    crank = outlines(loads(text).compile().system.sketch)[0]
     np.testing.assert_array_equal(crank[0], [[0, 0], [R, 0]])
 
 
@@ -173,7 +173,7 @@ def test_exported_cells_join_the_origin_and_none_has_zero_length(loads, tmp_path
     from mechdsl.outputs.export import export
 
     system, res = solve(loads, PINNED)
-    export(res, system, str(tmp_path / f"e{ext}"))
+    export(res, system.system, str(tmp_path / f"e{ext}"))
     k = 7
     t = res["t"][k]
     if ext == ".vtu":
@@ -188,7 +188,7 @@ def test_exported_cells_join_the_origin_and_none_has_zero_length(loads, tmp_path
     lines = points[cells["line"]]  # (cells, 2, 2)
     assert (np.linalg.norm(lines[:, 1] - lines[:, 0], axis=-1) > 1e-9).all()
     exact = pose(t)
-    index = {name: i for i, name in enumerate(system.body_names)} | {"ground": -1}
+    index = {name: i for i, name in enumerate(system.system.body_names)} | {"ground": -1}
     by_body = {name: [lines[j] for j in np.flatnonzero(body["line"] == i)]
                for name, i in index.items()}
     assert len(by_body["crank"]) == 1 and has(by_body["crank"], exact["crank"], 1e-11)
@@ -201,7 +201,7 @@ def test_exported_cells_join_the_origin_and_none_has_zero_length(loads, tmp_path
     # the slider, a body of one point, is a vertex cell where the rod's end is
     (vertex,) = cells["vertex"]
     np.testing.assert_allclose(points[vertex[0]], exact["slider"], atol=1e-11)
-    assert list(body["vertex"]) == [system.body_names.index("slider")]
+    assert list(body["vertex"]) == [system.system.body_names.index("slider")]
 
 
 def read_xdmf(path, k: int):
@@ -248,12 +248,12 @@ def test_a_pivot_at_the_ground_origin_has_its_support_beside_the_declared_ones(
     text = (EXAMPLES / "fourbar.mech").read_text()
     text = text.replace("    point O2 = (0, 0)\n", "").replace("ground.O2", "ground.origin")
     assert "O2 =" not in text and "ground.origin" in text
-    system = loads(text).compile()
-    res = simulate(system, poses=True, rates=True)
-    snapshot(res, system, str(tmp_path / "s.png"))
+    kernels = loads(text).compile()
+    res = simulate(kernels, poses=True, rates=True)
+    snapshot(res, kernels.system, str(tmp_path / "s.png"))
     apexes = [a for a, _ in supports(figures[0].axes[0])]
     assert len(apexes) == 2 and has(apexes, np.zeros(2)) and has(apexes, np.array([4.0, 0]))
-    export(res, system, str(tmp_path / "e.vtu"))
+    export(res, kernels.system, str(tmp_path / "e.vtu"))
     mesh = meshio.read(tmp_path / "e_0000.vtu")
     (lines,) = [c.data for c in mesh.cells if c.type == "line"]
     ground = lines[mesh.cell_data["body"][0] == -1]
@@ -272,11 +272,11 @@ def test_a_sweep_snapshot_names_its_variants_and_draws_their_supports(load_examp
     from mechdsl.solve import simulate
     from mechdsl.compiled.variants import Overrides
 
-    system = load_example("fourbar.mech").compile(Overrides(sweeps={"d": [3.8, 4.2]}))
-    res = simulate(system, poses=True)
+    kernels = load_example("fourbar.mech").compile(Overrides(sweeps={"d": [3.8, 4.2]}))
+    res = simulate(kernels, poses=True)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        snapshot(res, system, str(tmp_path / "s.png"), at=[0, 0.5])
+        snapshot(res, kernels.system, str(tmp_path / "s.png"), at=[0, 0.5])
     (fig,) = figures
     ax = fig.axes[0]
     assert legend_texts(ax) == ["d = 3.8", "d = 4.2", "path of coupler.P"]
@@ -299,11 +299,11 @@ def test_a_sweep_without_traces_has_a_legend_and_no_warning(loads, figures, tmp_
     system, res = solve(loads, PINNED, l=[3.5, 4.0])
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        snapshot(res, system, str(tmp_path / "s.png"))
-        animate(res, system, str(tmp_path / "a.gif"), max_frames=3)
+        snapshot(res, system.system, str(tmp_path / "s.png"))
+        animate(res, system.system, str(tmp_path / "a.gif"), max_frames=3)
         # without a sweep or a trace there is nothing to name: no legend (and no warning)
         system1, res1 = solve(loads, PINNED)
-        snapshot(res1, system1, str(tmp_path / "s1.png"))
+        snapshot(res1, system1.system, str(tmp_path / "s1.png"))
     snap, anim, single = figures
     for fig in (snap, anim):
         assert legend_texts(fig.axes[0]) == ["l = 3.5", "l = 4"]
@@ -343,10 +343,10 @@ def test_an_animation_draws_its_fixed_parts_once_and_keeps_palette_frames(
         return original_save(self, fp, format, **params)
 
     monkeypatch.setattr(Image.Image, "save", save)
-    system = load_example("fourbar.mech").compile()
-    res = simulate(system, poses=True)
+    kernels = load_example("fourbar.mech").compile()
+    res = simulate(kernels, poses=True)
     gif = tmp_path / "a.gif"
-    animate(res, system, str(gif), max_frames=12)
+    animate(res, kernels.system, str(gif), max_frames=12)
     (fig,) = figures
     assert len(draws) == 1  # the fixed parts; the moving ones are drawn over a copy
     (frames,) = saved
@@ -382,7 +382,7 @@ def test_a_guide_is_a_rail_over_the_sliders_travel_and_its_reference_no_pivot(lo
     text = text.replace("prismatic(ground.origin,", "prismatic(ground.G,")
     text += 'units length = "m", time = "s"\n'
     system, res = solve(loads, text)
-    snapshot(res, system, str(tmp_path / "s.png"), at=[0.3])
+    snapshot(res, system.system, str(tmp_path / "s.png"), at=[0.3])
     ax = figures[0].axes[0]
     sides = rails(ax)
     assert len(sides) == 2
@@ -401,7 +401,7 @@ def test_a_snapshots_instants_are_told_apart_by_a_colour_bar_of_time(loads, figu
     from mechdsl.outputs.draw import snapshot
 
     system, res = solve(loads, PINNED + 'units length = "m", time = "s"\n')
-    snapshot(res, system, str(tmp_path / "s.png"), at=[0, 0.5, 1])
+    snapshot(res, system.system, str(tmp_path / "s.png"), at=[0, 0.5, 1])
     fig = figures[0]
     ax, bar = fig.axes
     assert bar.get_ylabel() == "t [s]"
@@ -415,8 +415,8 @@ def test_labels_name_the_bodies_and_the_joints(loads, figures, tmp_path):
     from mechdsl.outputs.draw import animate, snapshot
 
     system, res = solve(loads, PINNED)
-    snapshot(res, system, str(tmp_path / "s.png"), at=[0.3], labels=True)
-    animate(res, system, str(tmp_path / "a.gif"), max_frames=3, labels=True)
+    snapshot(res, system.system, str(tmp_path / "s.png"), at=[0.3], labels=True)
+    animate(res, system.system, str(tmp_path / "a.gif"), max_frames=3, labels=True)
     for fig, t in zip(figures, (0.3, 1.0)):
         texts = {a.get_text(): np.asarray(a.xy) for a in fig.axes[0].texts
                  if hasattr(a, "xy")}

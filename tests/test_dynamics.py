@@ -100,8 +100,8 @@ def test_the_compiled_backend_integrates_the_same_motion():
     from mechdsl.solve import SolverOptions
 
     mech = mechdsl.load(EXAMPLES / "andrews.mech")
-    system = mech.compile()
-    assert native.load_dynamics(system) is not None
+    kernels = mech.compile()
+    assert native.load_dynamics(kernels) is not None
     fast = mech.simulate(options=SolverOptions(backend="compiled"))
     slow = mech.simulate(options=SolverOptions(backend="numpy"))
     assert fast.status == slow.status == "ok" and not fast.warnings
@@ -146,14 +146,14 @@ def test_a_pendulum_on_a_cart_driven_at_constant_speed_swings_as_on_a_fixed_pivo
 
 
 def test_an_interrupt_keeps_the_instants_integrated_before_it():
-    system = mechdsl.loads(pendulum(1.0), "p.mech").compile()
+    kernels = mechdsl.loads(pendulum(1.0), "p.mech").compile()
     from mechdsl.solve import simulate
 
     def progress(done, total):
         if done == 12:
             raise KeyboardInterrupt
 
-    res = simulate(system, progress=progress)
+    res = simulate(kernels, progress=progress)
     assert res.status == "interrupted"
     k = int(res.n_solved[0])
     assert k == 12
@@ -211,9 +211,9 @@ def test_andrews_keeps_its_energy_balance():
 def test_a_spring_is_drawn_between_its_points():
     from mechdsl.outputs.draw import zigzag
 
-    system = mechdsl.load(EXAMPLES / "andrews.mech").compile()
-    ((b1, xy1, b2, xy2),) = system.sketch.links
-    assert system.body_names[b1] == "triangle" and b2 == system.n_bodies  # to the ground
+    kernels = mechdsl.load(EXAMPLES / "andrews.mech").compile()
+    ((b1, xy1, b2, xy2),) = kernels.system.sketch.links
+    assert kernels.system.body_names[b1] == "triangle" and b2 == kernels.system.n_bodies  # to the ground
     np.testing.assert_allclose(xy1[0], [0.02, -0.018])
     np.testing.assert_allclose(xy2[0], [0.014, 0.072])
     p, q = np.array([1.0, 2.0]), np.array([4.0, 6.0])
@@ -244,10 +244,10 @@ def _andrews_run(rtol: float = 1e-8):
     from mechdsl.solve.dynamic import DynamicRun, _Evaluator
     from mechdsl.solve.options import SolverOptions
 
-    system = mechdsl.load(EXAMPLES / "andrews.mech").compile()
-    run = DynamicRun(system, SolverOptions(rtol=rtol, atol=rtol * 1e-2))
+    kernels = mechdsl.load(EXAMPLES / "andrews.mech").compile()
+    run = DynamicRun(kernels, SolverOptions(rtol=rtol, atol=rtol * 1e-2))
     q0 = run._initial_positions()[0]
-    run.ev = _Evaluator(system, run.D[0, 0])
+    run.ev = _Evaluator(kernels, run.D[0, 0])
     return run, q0
 
 
@@ -286,12 +286,12 @@ def test_a_drift_beyond_the_tolerance_gets_the_full_projection():
 def test_the_integrator_is_chosen_by_the_tolerance_unless_named():
     from mechdsl.solve.dynamic import DynamicRun
 
-    system = mechdsl.loads(pendulum(1.0), "p.mech").compile()
-    assert DynamicRun(system).method == "vern9"  # the file's rtol, 1e-12
+    kernels = mechdsl.loads(pendulum(1.0), "p.mech").compile()
+    assert DynamicRun(kernels).method == "vern9"  # the file's rtol, 1e-12
     for rtol, method, chosen in ((1e-3, "auto", "dopri5"), (1e-4, "auto", "dopri5"),
                                  (9e-5, "auto", "vern9"), (1e-3, "dop853", "dop853"),
                                  (1e-9, "dopri5", "dopri5"), (1e-2, "vern9", "vern9")):
-        run = DynamicRun(system, SolverOptions(rtol=rtol, method=method))
+        run = DynamicRun(kernels, SolverOptions(rtol=rtol, method=method))
         assert run.method == chosen, (rtol, method)
         # the reason, for the run's summary: the tolerance against the threshold, or named
         assert (f"rtol {rtol:g}" if method == "auto" else "as the options name it") \

@@ -45,8 +45,8 @@ MODELS = EXAMPLE_FILES + ["chain5", "chain20"]
 def _states(system, seed: int, b: int = 4, spread: float = 0.05):
     """q (V, b, n) near the guess and qd (V, b, n) of order one."""
     rng = np.random.default_rng(seed)
-    V, n = system.n_variants, system.n
-    q = system.guess[:, None, :] + spread * rng.normal(size=(V, b, n))
+    V, n = system.system.n_variants, system.system.n
+    q = system.system.guess[:, None, :] + spread * rng.normal(size=(V, b, n))
     qd = rng.normal(size=(V, b, n))
     return q, qd
 
@@ -55,7 +55,7 @@ def test_layouts_chosen_by_size(compiled):
     assert compiled["slider_crank.mech"].fused.layout == "member"
     assert compiled["chain5"].fused.layout == "member"
     big = compiled["chain20"]
-    assert len(big.constraints) > MEMBER_LIMIT
+    assert len(big.system.constraints) > MEMBER_LIMIT
     assert big.fused.layout == "group"
 
 
@@ -67,9 +67,9 @@ def test_jacobian_is_the_derivative_of_phi(compiled, name):
     values = f.evaluate_jac(q)
     assert values.shape == q.shape[:-1] + (len(f.rows),)
     jac = f.dense(values)
-    assert jac.shape == q.shape[:-1] + (system.m, system.n)
+    assert jac.shape == q.shape[:-1] + (system.system.m, system.system.n)
     fd = np.empty_like(jac)
-    for k in range(system.n):
+    for k in range(system.system.n):
         h = 1e-6 * max(1.0, float(np.abs(q[..., k]).max()))
         qp, qm = q.copy(), q.copy()
         qp[..., k] += h
@@ -78,7 +78,7 @@ def test_jacobian_is_the_derivative_of_phi(compiled, name):
     # the whole dense matrix: the entries outside the pattern are zero in the differences too
     np.testing.assert_allclose(jac, fd, rtol=1e-6, atol=1e-7)
     # the pattern is sorted by (row, column), without repeats
-    keys = f.rows * system.n + f.cols
+    keys = f.rows * system.system.n + f.cols
     assert (np.diff(keys) > 0).all()
 
 
@@ -110,7 +110,7 @@ def _gamma_states(system, name: str, seed: int):
     q, qd = _states(system, seed)
     if name != "cam_roller.mech":
         return q, qd
-    assert system.body_names == ("cam", "follower")
+    assert system.system.body_names == ("cam", "follower")
     rng = np.random.default_rng(seed + 100)
     psi0 = np.arctan2(q[..., 4] - q[..., 1], q[..., 3] - q[..., 0])
     q[..., 2] = psi0 - (rng.integers(0, 180, size=psi0.shape) + 0.5) * KNOT
@@ -131,7 +131,7 @@ def test_gamma_is_minus_the_second_derivative_along_the_motion(compiled, name):
         assert (np.abs(_psi(q + h * qd) - _psi(q)) < 0.4 * KNOT).all()
         assert (np.abs(_psi(q - h * qd) - _psi(q)) < 0.4 * KNOT).all()
     gamma = f.evaluate_gamma(q, qd)
-    assert gamma.shape == q.shape[:-1] + (system.m,)
+    assert gamma.shape == q.shape[:-1] + (system.system.m,)
     want = -_second_derivative_along(f.evaluate_phi, q, qd, h)
     np.testing.assert_allclose(gamma, want, rtol=1e-6, atol=1e-6)
     # and gamma is not identically zero (the check has something to compare)
@@ -155,8 +155,8 @@ def test_gamma_is_minus_the_jacobians_derivative_along_qd(compiled, name):
 
 
 def _both_layouts(system):
-    member = fuse(list(system.groups), system.n_bodies, system.m, force="member")
-    group = fuse(list(system.groups), system.n_bodies, system.m, force="group")
+    member = fuse(list(system.system.groups), system.system.n_bodies, system.system.m, force="member")
+    group = fuse(list(system.system.groups), system.system.n_bodies, system.system.m, force="group")
     assert (member.layout, group.layout) == ("member", "group")
     return member, group
 
@@ -185,18 +185,18 @@ def test_a_body_attached_twice_gets_the_derivative_of_phi(compiled):
     layout. (Revolute derives its Jacobian: the gradient in the shared variables is already
     the total derivative, for either slot.)"""
     system = compiled["slider_crank.mech"]
-    groups = list(system.groups)
+    groups = list(system.system.groups)
     revolute = next(g for g in groups if g.ctype.name == "revolute")
     slots = np.array(revolute.slots)
     slots[1] = [0, 0]  # joint B: the crank to itself
     groups[groups.index(revolute)] = replace(revolute, slots=slots)
     q, _ = _states(system, 11)
     for force in ("member", "group"):
-        f = fuse(groups, system.n_bodies, system.m, force=force)
+        f = fuse(groups, system.system.n_bodies, system.system.m, force=force)
         assert f.layout == "member"
         jac = f.dense(f.evaluate_jac(q))
         fd = np.empty_like(jac)
-        for k in range(system.n):
+        for k in range(system.system.n):
             qp, qm = q.copy(), q.copy()
             qp[..., k] += 1e-6
             qm[..., k] -= 1e-6
@@ -214,12 +214,12 @@ def test_a_drive_of_one_body_twice_with_supplied_terms(loads):
         "drive crank_angle: angle(crank) = pi/4 + omega*t\n"
         "drive span: distance(crank.A, rod.B) = 2\n"
         "drive both: distance(crank.A, crank.B) = 2")
-    system = loads(text).compile(need_times=False)
-    f = system.fused
-    q, _ = _states(system, 12)
+    kernels = loads(text).compile(need_times=False)
+    f = kernels.fused
+    q, _ = _states(kernels, 12)
     jac = f.dense(f.evaluate_jac(q))
     fd = np.empty_like(jac)
-    for k in range(system.n):
+    for k in range(kernels.system.n):
         qp, qm = q.copy(), q.copy()
         qp[..., k] += 1e-6
         qm[..., k] -= 1e-6
@@ -239,12 +239,12 @@ SWEEPS = [("slider_crank.mech", "l", [3.0, 3.5, 4.0]),
 def test_each_variant_is_the_model_with_that_value(registry, example, param, values):
     mech = mechdsl.load(EXAMPLES / example, registry=registry)
     swept = mech.compile(Overrides(sweeps={param: values}))
-    assert swept.n_variants == len(values)
+    assert swept.system.n_variants == len(values)
     rng = np.random.default_rng(5)
     # one set of states for every variant: the differences come from the param alone
-    q = swept.guess[:1, None, :] + 0.05 * rng.normal(size=(1, 4, swept.n))
+    q = swept.system.guess[:1, None, :] + 0.05 * rng.normal(size=(1, 4, swept.system.n))
     q = np.repeat(q, len(values), axis=0)
-    qd = np.repeat(rng.normal(size=(1, 4, swept.n)), len(values), axis=0)
+    qd = np.repeat(rng.normal(size=(1, 4, swept.system.n)), len(values), axis=0)
     layouts = {"default": swept.fused, **dict(zip(("member", "group"), _both_layouts(swept)))}
     phis = {}
     for v, value in enumerate(values):
@@ -289,14 +289,14 @@ def long_chain(registry):
 
 def test_band_plan_of_a_long_chain_is_narrow(long_chain):
     system = long_chain
-    p = band_plan(system.pattern.rows, system.pattern.cols, system.n)
-    assert p is not None and p.n == system.n == 363
+    p = band_plan(system.system.pattern.rows, system.system.pattern.cols, system.system.n)
+    assert p is not None and p.n == system.system.n == 363
     assert p.kl <= 6 and p.ku <= 6
     # prow, pcol are permutations, and every entry lies inside the band after them
-    assert sorted(p.prow) == list(range(system.n)) and sorted(p.pcol) == list(range(system.n))
+    assert sorted(p.prow) == list(range(system.system.n)) and sorted(p.pcol) == list(range(system.system.n))
     rank_r = np.argsort(p.prow)
     rank_c = np.argsort(p.pcol)
-    d = rank_c[system.pattern.cols] - rank_r[system.pattern.rows]
+    d = rank_c[system.system.pattern.cols] - rank_r[system.system.pattern.rows]
     assert d.min() >= -p.kl and d.max() <= p.ku
 
 
@@ -317,13 +317,13 @@ def _check_band(p, values, A, b):
 def test_band_lu_on_the_chains_jacobian(long_chain):
     system = long_chain
     f = system.fused
-    p = band_plan(system.pattern.rows, system.pattern.cols, system.n)
+    p = band_plan(system.system.pattern.rows, system.system.pattern.cols, system.system.n)
     q, _ = _states(system, 7, b=3)
     values = f.evaluate_jac(q)[0]
     rng = np.random.default_rng(8)
     for i in range(values.shape[0]):
         A = f.dense(values[i])
-        _check_band(p, values[i], A, rng.normal(size=system.n))
+        _check_band(p, values[i], A, rng.normal(size=system.system.n))
 
 
 def test_band_lu_on_random_values_of_the_pattern():
@@ -359,7 +359,7 @@ def test_band_lu_on_random_values_of_the_pattern():
 def test_band_plan_refuses_wide_and_structurally_singular_patterns(registry):
     short = mechdsl.loads(models.chain_text(3), "chain3.mech", registry=registry).compile()
     # 21 coordinates: a band of 9 is not narrow
-    assert band_plan(short.pattern.rows, short.pattern.cols, short.n) is None
+    assert band_plan(short.system.pattern.rows, short.system.pattern.cols, short.system.n) is None
     # a column without entries: no zero-free diagonal
     n = 100
     rows = np.concatenate((np.arange(n), np.arange(n - 1)))

@@ -114,6 +114,6 @@ def test_library_examples_pass_check(name, registry):
     import mechdsl
     from mechdsl.solve import assemble
 
-    system = mechdsl.load(EXAMPLES / name, registry=registry).compile()
-    asm = assemble(system, system.times[0])
-    assert asm.ok.all() and asm.mobility.rows.size == system.n
+    kernels = mechdsl.load(EXAMPLES / name, registry=registry).compile()
+    asm = assemble(kernels, kernels.system.times[0])
+    assert asm.ok.all() and asm.mobility.rows.size == kernels.system.n

@@ -12,6 +12,7 @@ import ast
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 PACKAGE = Path(__file__).resolve().parent.parent / "mechdsl"
@@ -163,3 +164,75 @@ def test_the_memory_plan_adds_each_formats_own_estimate(tmp_path, monkeypatch, c
     assert not page.exists()
     monkeypatch.undo()
     assert main(["run", str(example), "--html", str(page), "-q"]) == 0 and page.exists()
+
+
+def _code_in(obj, path: str = "system", seen: set | None = None) -> list[str]:
+    """Where ``obj`` (a compiled model) holds code: functions, code objects, generated
+    kernels, anything callable but a plugin's type and a function-valued argument (its
+    expressions), recursing through dataclasses, mappings and sequences."""
+    import dataclasses
+    import types
+    from collections.abc import Mapping
+
+    import numpy as np
+
+    from mechdsl.functions import ExprFunction
+    from mechdsl.plugins.contract import ConstraintType
+
+    seen = set() if seen is None else seen
+    if id(obj) in seen or isinstance(obj, (str, bytes, int, float, bool, type(None),
+                                            np.ndarray, np.generic)):
+        return []
+    seen.add(id(obj))
+    if isinstance(obj, (ConstraintType, ExprFunction)):
+        return []
+    if isinstance(obj, (types.FunctionType, types.MethodType, types.CodeType,
+                        types.BuiltinFunctionType, types.ModuleType)) or (
+            callable(obj) and not dataclasses.is_dataclass(obj)):
+        return [f"{path}: {type(obj).__name__}"]
+    found = []
+    if dataclasses.is_dataclass(obj):
+        for f in dataclasses.fields(obj):
+            found += _code_in(getattr(obj, f.name), f"{path}.{f.name}", seen)
+        found += [f"{path}.{k}: cached {type(v).__name__}" for k, v in vars(obj).items()
+                  if k not in {f.name for f in dataclasses.fields(obj)}
+                  and not isinstance(v, (np.ndarray, list, int))]
+    elif isinstance(obj, Mapping):
+        for k, v in obj.items():
+            found += _code_in(v, f"{path}[{k!r}]", seen)
+    elif isinstance(obj, (tuple, list)):
+        for k, v in enumerate(obj):
+            found += _code_in(v, f"{path}[{k}]", seen)
+    return found
+
+
+@pytest.mark.parametrize("name", ["slider_crank.mech", "cam_roller.mech", "rod_sweep.mech",
+                                  "andrews.mech", "start_from_rest.mech", "offset_stroke.mech"])
+def test_the_compiled_models_data_holds_no_generated_code(name):
+    """The compiled model is plain data; its code is held apart by its Kernels (the
+    architecture page). Solved first, so that every plan a run makes on first use exists,
+    and then checked: nothing callable in the System, and it pickles whole (a function-valued
+    argument as its expressions)."""
+    import pickle
+
+    import mechdsl
+    from mechdsl.compiled.kernels import Kernels
+    from mechdsl.solve import simulate
+
+    kernels = mechdsl.load(Path(__file__).resolve().parent.parent / "examples" / name).compile()
+    assert isinstance(kernels, Kernels) and kernels.fused is not None
+    assert simulate(kernels).ok
+    system = kernels.system
+    assert _code_in(system) == []
+    again = pickle.loads(pickle.dumps(system))
+    assert again.body_names == system.body_names and again.n == system.n
+    assert np.array_equal(again.guess, system.guess)
+
+
+def test_the_code_finder_finds_code_in_a_system(load_example):
+    """The check above can fail: a System with a generated function in it is found."""
+    from dataclasses import replace
+
+    kernels = load_example("slider_crank.mech").compile()
+    planted = replace(kernels.system, env={"f": kernels.drive_functions[0].f})
+    assert _code_in(planted) == ["system.env['f']: function"]

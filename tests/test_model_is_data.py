@@ -253,10 +253,10 @@ def test_a_wrong_jacobian_is_named_when_newton_fails_mid_run(registry):
 def test_a_correct_jacobian_is_not_called_wrong(load_example):
     from mechdsl.solve.diagnose import jacobian_defects
 
-    system = load_example("fourbar.mech").compile()
+    kernels = load_example("fourbar.mech").compile()
     res = load_example("fourbar.mech").simulate(poses=True)
     q = res.poses[0, 37].ravel()
-    assert jacobian_defects(system, q, float(res["t"][37]), 0) is None
+    assert jacobian_defects(kernels, q, float(res["t"][37]), 0) is None
 
 
 # -- memory ---------------------------------------------------------------------------------------

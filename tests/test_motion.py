@@ -63,38 +63,38 @@ output b.phi
 @pytest.mark.parametrize("case", ["andrews", "a02_regular", "driven"])
 def test_full_rank_accelerations_equal_the_dense_saddle_point_solve(case):
     if case == "andrews":
-        system = mechdsl.load(EXAMPLES / "andrews.mech").compile()
+        kernels = mechdsl.load(EXAMPLES / "andrews.mech").compile()
     elif case == "a02_regular":
-        system = mechdsl.loads(a02_text(4), "a02.mech").compile()
+        kernels = mechdsl.loads(a02_text(4), "a02.mech").compile()
     else:  # a drive and a free coordinate: f, f', f'' enter Phi, nu, gamma
-        system = mechdsl.loads(DOUBLE_PENDULUM, "dp.mech").compile()
-    motion = Motion(system)
+        kernels = mechdsl.loads(DOUBLE_PENDULUM, "dp.mech").compile()
+    motion = Motion(kernels)
     rng = np.random.default_rng(3)
     for t in (0.0, 0.37):
         if case == "a02_regular":
             y = a02_state(4, 1.0 + t, -1.3)
         else:
-            y = np.concatenate((system.guess[0] + 1e-3 * rng.normal(size=system.n),
-                                rng.normal(size=system.n)))
+            y = np.concatenate((kernels.system.guess[0] + 1e-3 * rng.normal(size=kernels.system.n),
+                                rng.normal(size=kernels.system.n)))
         y = consistent(motion, t, y)
-        q, qd = y[:system.n], y[system.n:]
+        q, qd = y[:kernels.system.n], y[kernels.system.n:]
         qdd, lam = motion.accelerations(t, q, qd)
-        qdd0, lam0 = reference(system, t, q, qd)
+        qdd0, lam0 = reference(kernels, t, q, qd)
         assert np.abs(qdd - qdd0).max() <= 1e-12 * np.abs(qdd0).max()
         assert np.abs(lam - lam0).max() <= 1e-11 * np.abs(lam0).max()
         assert np.allclose(motion.rhs(t, y), np.concatenate((qd, qdd)), rtol=0, atol=0)
 
 
 def test_band_and_dense_storages_agree():
-    system = mechdsl.loads(chain_text(12), "chain.mech").compile()
-    dense = Motion(system, SolverOptions(augmented_band_from=10**6))
-    band = Motion(system, SolverOptions(augmented_band_from=1))
+    kernels = mechdsl.loads(chain_text(12), "chain.mech").compile()
+    dense = Motion(kernels, SolverOptions(augmented_band_from=10**6))
+    band = Motion(kernels, SolverOptions(augmented_band_from=1))
     assert dense.plan.dense and not band.plan.dense and band.plan.kd <= 6
     rng = np.random.default_rng(0)
-    y = consistent(dense, 0.0, np.concatenate((system.guess[0] + 0.01 * rng.normal(
-        size=system.n), rng.normal(size=system.n))))
-    a1, l1 = dense.accelerations(0.0, y[:system.n], y[system.n:])
-    a2, l2 = band.accelerations(0.0, y[:system.n], y[system.n:])
+    y = consistent(dense, 0.0, np.concatenate((kernels.system.guess[0] + 0.01 * rng.normal(
+        size=kernels.system.n), rng.normal(size=kernels.system.n))))
+    a1, l1 = dense.accelerations(0.0, y[:kernels.system.n], y[kernels.system.n:])
+    a2, l2 = band.accelerations(0.0, y[:kernels.system.n], y[kernels.system.n:])
     assert np.abs(a1 - a2).max() <= 1e-12 * np.abs(a1).max()
     assert np.abs(l1 - l2).max() <= 1e-11 * np.abs(l1).max()
 
@@ -124,9 +124,9 @@ def parallelogram(cranks: int) -> str:
 
 @pytest.mark.parametrize("cranks", [3, 4])
 def test_a_redundant_parallelogram_moves_as_its_closed_form(cranks):
-    system = mechdsl.loads(parallelogram(cranks), "par.mech").compile()
-    assert system.m >= system.n  # a dense saddle-point solve is singular here
-    motion = Motion(system)
+    kernels = mechdsl.loads(parallelogram(cranks), "par.mech").compile()
+    assert kernels.system.m >= kernels.system.n  # a dense saddle-point solve is singular here
+    motion = Motion(kernels)
     a, d, mid = 0.5, 2.0, (cranks - 1) * 2.0 / 2
     th, w = 0.7, 1.5
     c, s = np.cos(th), np.sin(th)
@@ -172,8 +172,8 @@ def a02_accelerations(theta: float, rate: float, thdd: float) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def a02():
-    system = mechdsl.loads(a02_text(N_A02), "a02.mech").compile()
-    return system, Motion(system)
+    kernels = mechdsl.loads(a02_text(N_A02), "a02.mech").compile()
+    return kernels, Motion(kernels)
 
 
 @pytest.mark.parametrize("theta", [1.0, 0.4, 0.05, np.pi - 0.05])
@@ -181,7 +181,7 @@ def test_a02_regular_positions_follow_the_parallelogram_branch(a02, theta):
     system, motion = a02
     rate = -2.0
     y = a02_state(N_A02, theta, rate)
-    qdd, _ = motion.accelerations(0.0, y[:system.n], y[system.n:])
+    qdd, _ = motion.accelerations(0.0, y[:system.system.n], y[system.system.n:])
     expect = a02_accelerations(theta, rate, -BRANCH * np.cos(theta))
     assert np.abs(qdd - expect).max() <= 1e-9 * np.abs(expect).max()
 
@@ -197,13 +197,13 @@ def test_a02_at_its_singular_position_gives_the_gauss_principle(a02, theta):
     less of the couplers' weight than the inner ones, and instantaneously the windows may
     shear), which the test shows too."""
     system, motion = a02
-    n = system.n
+    n = system.system.n
     rate = -2.0
     y = a02_state(N_A02, theta, rate)
     q, qd = y[:n], y[n:]
     phi, jac = motion.phi_jac(0.0, q)
     jac = jac.toarray()
-    assert np.linalg.matrix_rank(jac) == system.m - N_A02
+    assert np.linalg.matrix_rank(jac) == system.system.m - N_A02
     qdd, lam = motion.accelerations(0.0, q, qd)
     assert np.isfinite(qdd).all() and np.isfinite(lam).all()
     gamma = motion.gamma(0.0, q, qd)
@@ -220,7 +220,7 @@ def test_a02_at_its_singular_position_gives_the_gauss_principle(a02, theta):
 @pytest.mark.parametrize("theta, dq", [(1.0, 1e-3), (0.0, 1e-9), (np.pi, 1e-9)])
 def test_projections_restore_both_constraint_levels_mass_orthogonally(a02, theta, dq):
     system, motion = a02
-    n = system.n
+    n = system.system.n
     rng = np.random.default_rng(7)
     y = a02_state(N_A02, theta, -2.0)
     y[:n] += dq * rng.normal(size=n)
@@ -277,11 +277,11 @@ output b.phi
 
 
 def test_load_derivatives_equal_central_differences():
-    system = mechdsl.loads(SPRINGS, "springs.mech").compile()
-    motion = Motion(system)
+    kernels = mechdsl.loads(SPRINGS, "springs.mech").compile()
+    motion = Motion(kernels)
     rng = np.random.default_rng(11)
-    n, t = system.n, 0.3
-    q = system.guess[0] + 0.05 * rng.normal(size=n)
+    n, t = kernels.system.n, 0.3
+    q = kernels.system.guess[0] + 0.05 * rng.normal(size=n)
     qd = rng.normal(size=n)
     dq, dqd = motion.load_derivatives(t, q, qd)
     dq, dqd = dq.toarray(), dqd.toarray()
@@ -311,12 +311,12 @@ def test_an_evaluation_costs_time_linear_in_the_number_of_bodies():
 
     cost = {}
     for N in (40, 320):
-        system = mechdsl.loads(chain_text(N), "chain.mech").compile()
-        motion = Motion(system)
+        kernels = mechdsl.loads(chain_text(N), "chain.mech").compile()
+        motion = Motion(kernels)
         assert not motion.plan.dense and motion.plan.kd <= 6
         rng = np.random.default_rng(0)
-        y = consistent(motion, 0.0, np.concatenate((system.guess[0] + 1e-3 * rng.normal(
-            size=system.n), rng.normal(size=system.n))))
+        y = consistent(motion, 0.0, np.concatenate((kernels.system.guess[0] + 1e-3 * rng.normal(
+            size=kernels.system.n), rng.normal(size=kernels.system.n))))
         cost[N] = cpu_time_per_call(lambda: motion.rhs(0.0, y), reps=10)
     assert cost[320] <= 16 * cost[40], cost
 

@@ -26,9 +26,9 @@ OMEGA = 4 * np.pi
 def test_the_compiled_march_is_exact_on_the_seed(settled):
     # settled_step 0: the Jacobian is always factorised once more at the converged position;
     # otherwise a round-off step keeps the factorisation it was computed with
-    system = mechdsl.load(EXAMPLES / "slider_crank.mech").compile()
-    assert native.load(system) is not None
-    res = simulate(system, SolverOptions(backend="compiled", settled_step=settled))
+    kernels = mechdsl.load(EXAMPLES / "slider_crank.mech").compile()
+    assert native.load(kernels) is not None
+    res = simulate(kernels, SolverOptions(backend="compiled", settled_step=settled))
     assert res.ok
     x, v, a = slider_crank(2.0, 3.5, np.pi / 4 + OMEGA * res["t"], OMEGA, 0.0)
     np.testing.assert_allclose(res["slider.x"], x, rtol=0, atol=1e-12 * np.abs(x).max())
@@ -41,8 +41,8 @@ def test_a_sweep_with_a_locking_variant_ends_as_on_the_numpy_path():
     # l = 1.6: the rod is too short to follow the crank past 53 degrees: a lock-up midway,
     # found by the compiled march, reported by the numpy one from there
     mech = mechdsl.load(EXAMPLES / "slider_crank.mech")
-    system = mech.compile(mechdsl.api.Overrides(sweeps={"l": [3.5, 1.6, 3.0]}))
-    fast, slow = simulate(system, COMPILED), simulate(system, NUMPY)
+    kernels = mech.compile(mechdsl.api.Overrides(sweeps={"l": [3.5, 1.6, 3.0]}))
+    fast, slow = simulate(kernels, COMPILED), simulate(kernels, NUMPY)
     assert fast.status == slow.status == "failed"
     assert list(fast.n_solved) == list(slow.n_solved) and fast.n_solved[1] < 1001
     assert fast.messages == slow.messages
@@ -56,9 +56,9 @@ def test_a_sweep_with_a_locking_variant_ends_as_on_the_numpy_path():
 
 def test_a_model_the_backend_cannot_compile_runs_on_numpy():
     # a cam's profile is a function argument: evaluated by numpy, not compiled
-    system = mechdsl.load(EXAMPLES / "cam_flat.mech").compile()
-    assert native.source(system) is None
-    fast, slow = simulate(system, COMPILED), simulate(system, NUMPY)
+    kernels = mechdsl.load(EXAMPLES / "cam_flat.mech").compile()
+    assert native.source(kernels) is None
+    fast, slow = simulate(kernels, COMPILED), simulate(kernels, NUMPY)
     assert fast.ok and slow.ok
     for label in fast.data:
         np.testing.assert_array_equal(fast[label], slow[label])
@@ -149,8 +149,8 @@ def test_a_failure_at_instant_0_is_reported_as_on_the_numpy_path(drive):
     # f' (first) or f'' (second) infinite at t = 0: the compiled march, which would solve
     # instant 0 too, hands it to the numpy solver, which reports it
     text = (EXAMPLES / "slider_crank.mech").read_text().replace("pi/4 + omega*t", drive)
-    system = mechdsl.loads(text, "s.mech").compile()
-    fast, slow = simulate(system, COMPILED), simulate(system, NUMPY)
+    kernels = mechdsl.loads(text, "s.mech").compile()
+    fast, slow = simulate(kernels, COMPILED), simulate(kernels, NUMPY)
     assert fast.status == slow.status == "failed"
     assert list(fast.n_solved) == list(slow.n_solved) == [0]
     assert fast.messages == slow.messages
@@ -160,14 +160,14 @@ def test_a_failure_at_instant_0_is_reported_as_on_the_numpy_path(drive):
 def test_the_angles_cosines_are_carried_across_a_step_to_round_off():
     # trig_step: cos and sin at q from their values at qo by the angle-addition formulas,
     # against numpy's cos and sin at q, for steps from round-off to beyond the series' range
-    system = mechdsl.load(EXAMPLES / "slider_crank.mech").compile()
-    module = native._module(native.source(system))
+    kernels = mechdsl.load(EXAMPLES / "slider_crank.mech").compile()
+    module = native._module(native.source(kernels))
     rng = np.random.default_rng(7)
     angles = [2, 5]  # the crank's and the rod's phi (the slider's enters no cosine)
     worst = 0.0
     for h in (1e-16, 1e-12, 1e-8, 1e-5, 9e-4, 1.1e-3, 0.3):
-        qo = rng.uniform(-10, 10, system.n)
-        q = qo + h * rng.choice([-1.0, 1.0], system.n)
+        qo = rng.uniform(-10, 10, kernels.system.n)
+        q = qo + h * rng.choice([-1.0, 1.0], kernels.system.n)
         cs = np.empty(2 * len(angles))
         module.trig(qo, cs)
         module.trig_step(q, qo, cs)
@@ -181,9 +181,9 @@ def _carried(system, options):
     from mechdsl.solve.diagnose import col_scale
     from mechdsl.solve.single import OneState
 
-    D, t0 = col_scale(system), float(system.times[0])
-    q1, ok, _ = assembly.gauss_newton(system, system.guess.reshape(1, 1, system.n),
-                                      np.full((1, 1), t0), D, system.joint_rows, options)
+    D, t0 = col_scale(system.system), float(system.system.times[0])
+    q1, ok, _ = assembly.gauss_newton(system, system.system.guess.reshape(1, 1, system.system.n),
+                                      np.full((1, 1), t0), D, system.system.joint_rows, options)
     assert ok.all()
     fast = assembly._continue_compiled(system, q1[0, 0], t0, D[0, 0], options)
     slow = assembly._continue_one(OneState(system, system.one_state, D[0, 0], options),
@@ -204,12 +204,12 @@ def test_the_compiled_assembly_refuses_a_dead_point_as_the_float_code():
     # a rod of 1.6 locks the crank at 53 degrees: the drive cannot be carried to 90
     text = (EXAMPLES / "slider_crank.mech").read_text().replace(
         "param l = 3.5", "param l = 1.6").replace("pi/4 + omega*t", "pi/2 + omega*t")
-    system = mechdsl.loads(text, "s.mech").compile()
-    fast, slow = _carried(system, COMPILED)
+    kernels = mechdsl.loads(text, "s.mech").compile()
+    fast, slow = _carried(kernels, COMPILED)
     assert fast[1] is slow[1] is False and fast[2] == slow[2]
     np.testing.assert_allclose(fast[0], slow[0], rtol=0, atol=1e-13)
     for options in (COMPILED, NUMPY):
-        res = simulate(system, options)
+        res = simulate(kernels, options)
         assert res.status == "failed" and res.n_solved[0] == 0
         assert "the drives cannot reach their values at t0" in res.messages[0]
 
@@ -241,9 +241,9 @@ def test_a_drive_with_a_kink_is_exact_on_the_compiled_march(t1):
     # and the march must still land on the closed form at every instant
     from closed_forms import start_from_rest
 
-    system = mechdsl.load(EXAMPLES / "start_from_rest.mech").compile(
+    kernels = mechdsl.load(EXAMPLES / "start_from_rest.mech").compile(
         mechdsl.api.Overrides(params={"t1": t1}))
-    res = simulate(system, COMPILED)
+    res = simulate(kernels, COMPILED)
     assert res.ok and not res.warnings
     th, w, al = start_from_rest(res["t"], t1, 4 * np.pi / t1)
     x, v, a = slider_crank(2.0, 3.5, th, w, al)
@@ -260,25 +260,25 @@ def test_the_compiled_march_evaluates_most_instants_once():
     from mechdsl.solve.diagnose import col_scale
     from mechdsl.solve.run import _drive_values
 
-    system = mechdsl.load(EXAMPLES / "slider_crank.mech").compile()
-    counted = native.source(system).replace("norm_a = evaluate(x, cs",
+    kernels = mechdsl.load(EXAMPLES / "slider_crank.mech").compile()
+    counted = native.source(kernels).replace("norm_a = evaluate(x, cs",
                                             "RES[v] += 1.0; norm_a = evaluate(x, cs")
     assert counted.count("RES[v] += 1.0") == 4  # (march and march_one)
     module = native._module(counted)
-    K, n, opts = len(system.times), system.n, COMPILED
-    fd = np.stack(_drive_values(system, system.times[None, :]), axis=2)
-    asm = assemble(system, float(system.times[0]), opts)
+    K, n, opts = len(kernels.system.times), kernels.system.n, COMPILED
+    fd = np.stack(_drive_values(kernels, kernels.system.times[None, :]), axis=2)
+    asm = assemble(kernels, float(kernels.system.times[0]), opts)
     Q, QD, QDD = (np.empty((1, K, n)) for _ in range(3))
     RC, SG = np.empty((1, K)), np.empty((1, K))
     status, counter = np.zeros(1, np.int64), np.zeros(1)
-    module.march(asm.q, np.zeros((1, n)), np.zeros((1, n)), np.ones(1), system.times.copy(),
-                 fd, np.zeros((0, 1)), np.ascontiguousarray(col_scale(system)[:, 0]),
+    module.march(asm.q, np.zeros((1, n)), np.zeros((1, n)), np.ones(1), kernels.system.times.copy(),
+                 fd, np.zeros((0, 1)), np.ascontiguousarray(col_scale(kernels.system)[:, 0]),
                  opts.newton_tol, opts.newton_error, opts.settled_step, opts.max_iterations,
                  0.1, opts.branch_ratio, opts.singular_rcond, 1, Q, QD, QDD, RC, SG, status,
                  counter)
     assert status[0] == K
     assert K <= int(counter[0]) <= 1.35 * K
-    x, v, a = slider_crank(2.0, 3.5, np.pi / 4 + OMEGA * system.times, OMEGA, 0.0)
+    x, v, a = slider_crank(2.0, 3.5, np.pi / 4 + OMEGA * kernels.system.times, OMEGA, 0.0)
     np.testing.assert_allclose(Q[0, :, 6], x, rtol=0, atol=1e-15 * np.abs(x).max())
     np.testing.assert_allclose(QD[0, :, 6], v, rtol=0, atol=1e-15 * np.abs(v).max())
     np.testing.assert_allclose(QDD[0, :, 6], a, rtol=0, atol=1e-15 * np.abs(a).max())

@@ -34,10 +34,10 @@ def _compare(a, b, what: str) -> None:
 def test_float_code_and_batched_settle_change_no_answer(load_example, example, monkeypatch):
     mech = load_example(example)
     fast = mech.simulate(options=SolverOptions(backend="numpy"))
-    system = mech.compile()
-    system.__dict__["one_state"] = None  # (a cached property: the batched code throughout)
+    kernels = mech.compile()
+    kernels.__dict__["one_state"] = None  # (a cached property: the batched code throughout)
     monkeypatch.setattr(batch, "applies", lambda system, states: False)
-    general = simulate(system, SolverOptions(backend="numpy"))
+    general = simulate(kernels, SolverOptions(backend="numpy"))
     _compare(fast, general, example)
 
 

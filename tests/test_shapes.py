@@ -46,7 +46,7 @@ def write_rectangle_mesh(path, x0, y0, w, h, nx=7, ny=3, quads=False):
 
 
 def props(system, body="link"):
-    return system.mass[system.body_names.index(body)]
+    return system.system.mass[system.system.body_names.index(body)]
 
 
 @pytest.mark.parametrize("ext, quads", [(".vtu", False), (".msh", False), (".vtk", True)])
@@ -56,9 +56,9 @@ def test_meshed_rectangle_matches_closed_form(loads, tmp_path, ext, quads):
     text = BODY.format(items=f'shape = "{mesh.name}"\n    density = 2700')
     (tmp_path / "link.mech").write_text(text)
     import mechdsl
-    system = mechdsl.load(tmp_path / "link.mech", registry=loads("").registry).compile()
+    kernels = mechdsl.load(tmp_path / "link.mech", registry=loads("").registry).compile()
     area, centroid, polar = rectangle(0.5, -0.25, 3.0, 0.5)
-    mp = props(system)
+    mp = props(kernels)
     assert mp.area[0] == pytest.approx(area, rel=1e-14)
     np.testing.assert_allclose(mp.centroid[0], centroid, rtol=1e-14, atol=1e-15)
     assert mp.polar[0] == pytest.approx(polar, rel=1e-13)
@@ -79,13 +79,13 @@ def test_degenerate_cells_add_nothing(loads, tmp_path):
     (tmp_path / "link.mech").write_text(
         BODY.format(items='shape = "sq.vtu"\n    density = 2'))
     import mechdsl
-    system = mechdsl.load(tmp_path / "link.mech", registry=loads("").registry).compile()
+    kernels = mechdsl.load(tmp_path / "link.mech", registry=loads("").registry).compile()
     area, centroid, polar = rectangle(0.0, 0.0, 2.0, 1.0)
-    mp = props(system)
+    mp = props(kernels)
     assert mp.area[0] == pytest.approx(area, rel=1e-14)
     np.testing.assert_allclose(mp.centroid[0], centroid, rtol=1e-14)
     assert mp.polar[0] == pytest.approx(polar, rel=1e-13)
-    edges = system.sketch.shapes[system.body_names.index("link")][0]
+    edges = kernels.system.sketch.shapes[kernels.system.body_names.index("link")][0]
     assert len(edges) == 4  # the square's four sides, the diagonal and the sliver gone
     assert sum(np.linalg.norm(e[1] - e[0]) for e in edges) == pytest.approx(6.0)
 
@@ -96,8 +96,8 @@ def test_polygon_triangle_and_rectangle_in_a_sweep(loads):
     text = BODY.format(items="shape = polygon((0, 0), (0, 1.5), (b, 0))") \
         + "param b = 2\nsweep b = [2, 3]\n"
     text = "param b = 2\n" + text.replace("param b = 2\n", "")
-    system = loads(text).compile()
-    mp = props(system)
+    kernels = loads(text).compile()
+    mp = props(kernels)
     for v, b in enumerate((2.0, 3.0)):
         h = 1.5
         assert mp.area[v] == pytest.approx(b * h / 2)

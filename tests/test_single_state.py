@@ -24,7 +24,7 @@ def crank(load_example):
 
 def _states(system, count: int, seed: int = 5) -> np.ndarray:
     rng = np.random.default_rng(seed)
-    return system.guess[0] + 0.05 * rng.normal(size=(count, system.n))
+    return system.system.guess[0] + 0.05 * rng.normal(size=(count, system.system.n))
 
 
 def test_float_kernels_agree_with_the_batched_ones(crank):
@@ -47,8 +47,8 @@ def test_float_jacobian_is_the_derivative_of_phi(crank):
     out = one.phi_jac(q.tolist(), (), 0.0, one.params, one.functions)
     dense = crank.fused.dense(np.array(out[one.m :]))
     h = 1e-6
-    for j in range(crank.n):
-        e = np.zeros(crank.n)
+    for j in range(crank.system.n):
+        e = np.zeros(crank.system.n)
         e[j] = h
         plus = one.phi_jac((q + e).tolist(), (), 0.0, one.params, one.functions)[: one.m]
         minus = one.phi_jac((q - e).tolist(), (), 0.0, one.params, one.functions)[: one.m]
@@ -63,16 +63,16 @@ def test_float_lu_solves_and_signs_as_lapack(crank):
         A = crank.fused.dense(np.array(vals))
         fac = one.factor(vals, THRESHOLD)
         assert fac is not None
-        b = rng.normal(size=crank.n)
+        b = rng.normal(size=crank.system.n)
         np.testing.assert_allclose(A @ one.solve(fac, b.tolist()), b, atol=1e-12)
         np.testing.assert_allclose(A.T @ one.solve_t(fac, b.tolist()), b, atol=1e-12)
-        solver = OneState(crank, one, col_scale(crank)[0, 0], SolverOptions())
+        solver = OneState(crank, one, col_scale(crank.system)[0, 0], SolverOptions())
         assert solver.sign(fac) == np.sign(np.linalg.det(A))
 
 
 def test_condition_number_is_the_exact_one_and_the_estimate_bounds_it(crank):
     one = crank.one_state
-    D = col_scale(crank)[0, 0]
+    D = col_scale(crank.system)[0, 0]
     solver = OneState(crank, one, D, SolverOptions())
     for q in _states(crank, 10, seed=9):
         jac = crank.fused.dense(crank.fused.evaluate_jac(q[None, None]))[0, 0]
@@ -98,24 +98,24 @@ def test_a_pivot_that_vanished_falls_back_to_lapack(crank):
     A = crank.fused.dense(np.array(vals))
     assert abs(np.linalg.det(A)) > 1e-6  # still regular, only the fixed order fails
     assert one.factor(vals, THRESHOLD) is None
-    solver = OneState(crank, one, col_scale(crank)[0, 0], SolverOptions())
-    b = np.arange(1.0, crank.n + 1)
+    solver = OneState(crank, one, col_scale(crank.system)[0, 0], SolverOptions())
+    b = np.arange(1.0, crank.system.n + 1)
     np.testing.assert_allclose(A @ solver._solve_values(vals, b.tolist()), b, atol=1e-12)
 
 
 def test_the_coarse_march_on_floats_lands_on_the_closed_form(crank):
     opts = SolverOptions()
     asm = assemble(crank, 0.0, opts)
-    solver = OneState(crank, crank.one_state, col_scale(crank)[0, 0], opts)
+    solver = OneState(crank, crank.one_state, col_scale(crank.system)[0, 0], opts)
     fac = solver.factor(asm.q[0].tolist())
     qd, qdd = solver.rates(fac, asm.q[0].tolist(), [4 * np.pi], [0.0])
-    out = coarse_march_one(solver, (0.0, asm.q[0], qd, qdd), fac.sign, crank.times,
+    out = coarse_march_one(solver, (0.0, asm.q[0], qd, qdd), fac.sign, crank.system.times,
                            opts.coarse_stride, opts, opts.level_split)
     assert out is not None and out is not UNDECIDED
     idx, (q, qd, qdd) = out
-    assert idx[-1] == len(crank.times) - 1 and (np.diff(idx) > 0).all()
-    th = np.pi / 4 + 4 * np.pi * crank.times[idx]
-    k = crank.body_names.index("slider")
+    assert idx[-1] == len(crank.system.times) - 1 and (np.diff(idx) > 0).all()
+    th = np.pi / 4 + 4 * np.pi * crank.system.times[idx]
+    k = crank.system.body_names.index("slider")
     for got, want in zip((q, qd, qdd), slider_crank(2.0, 3.5, th, 4 * np.pi, 0.0)):
         np.testing.assert_allclose(got[0, :, 3 * k], want, rtol=1e-13, atol=1e-13)
 
@@ -127,7 +127,7 @@ def test_float_and_batched_assembly_agree(crank, load_example):
     a, b = assemble(crank, 0.0, opts), assemble(batched, 0.0, opts)
     assert a.ok.all() and b.ok.all()
     np.testing.assert_allclose(a.q, b.q, atol=1e-13)
-    k = crank.body_names.index("slider")
+    k = crank.system.body_names.index("slider")
     assert a.q[0, 3 * k] == pytest.approx(slider_crank(2.0, 3.5, np.pi / 4, 0, 0)[0], abs=1e-13)
 
 
@@ -147,14 +147,14 @@ def test_a_jacobian_without_a_usable_pivot_is_no_factorisation(load_example):
     zeros): the factorisation is refused, not raised."""
     from dataclasses import replace
 
-    system = load_example("fourbar.mech").compile(Overrides())
-    one = system.one_state
+    kernels = load_example("fourbar.mech").compile(Overrides())
+    one = kernels.one_state
     with pytest.raises(ZeroDivisionError):
         one.factor([0.0] * one.nnz, THRESHOLD)
     zeros = replace(one, phi_jac=lambda q, qd, t, p, F: [0.0] * (one.m + one.nnz))
-    solver = OneState(system, zeros, col_scale(system)[0, 0], SolverOptions())
-    assert solver.factor(system.guess[0].tolist()) is None
-    assert solver.factor(system.guess[0].tolist(), exact=False) is None
+    solver = OneState(kernels, zeros, col_scale(kernels.system)[0, 0], SolverOptions())
+    assert solver.factor(kernels.system.guess[0].tolist()) is None
+    assert solver.factor(kernels.system.guess[0].tolist(), exact=False) is None
 
 
 def test_the_cholesky_step_is_the_svd_step_and_gives_way_to_it_on_redundant_rows():
@@ -200,10 +200,10 @@ def test_float_and_batched_assembly_agree_from_guesses_off_the_closure(load_exam
     a, b = assemble(crank, 0.0, opts), assemble(batched, 0.0, opts)
     assert a.ok.all() and b.ok.all() and a.start is not None and b.start is None
     np.testing.assert_allclose(a.q, b.q, atol=1e-12)
-    k = crank.body_names.index("slider")
+    k = crank.system.body_names.index("slider")
     assert a.q[0, 3 * k] == pytest.approx(slider_crank(2.0, 3.5, np.pi / 4, 0, 0)[0], abs=1e-12)
     # the factorisation handed to the first instant is the one at the configuration reached
-    fresh = OneState(crank, crank.one_state, col_scale(crank)[0, 0], opts).factor(a.q[0].tolist())
+    fresh = OneState(crank, crank.one_state, col_scale(crank.system)[0, 0], opts).factor(a.q[0].tolist())
     assert a.start.fac.sign == fresh.sign and a.start.fac.rcond == pytest.approx(fresh.rcond)
     res = simulate(crank)
     x, vx, ax = slider_crank(2.0, 3.5, np.pi / 4 + 4 * np.pi * res["t"], 4 * np.pi, 0)

@@ -25,8 +25,8 @@ def test_seed_slider_crank_matches_the_closed_form_to_round_off(load_example):
 
 
 def test_assembly_from_the_seed_guesses_finds_the_closed_form_configuration(load_example):
-    system = load_example("slider_crank.mech").compile()
-    asm = assemble(system, 0.0)
+    kernels = load_example("slider_crank.mech").compile()
+    asm = assemble(kernels, 0.0)
     assert asm.ok.all()
     q = asm.q[0]
     th = np.pi / 4
@@ -113,13 +113,13 @@ def test_velocities_and_accelerations_are_skipped_when_not_requested(loads, monk
         simulate t = 0 .. 1 step 0.001
         output crank.x
     """)
-    system = mech.compile()
-    assert system.order == 0
+    kernels = mech.compile()
+    assert kernels.system.order == 0
     calls = []
     real = solve.eq.acceleration_rhs
     monkeypatch.setattr(solve.eq, "acceleration_rhs",
                         lambda s, q, *a: calls.append(q.shape) or real(s, q, *a))
-    res = solve.simulate(system)
+    res = solve.simulate(kernels)
     assert res.ok
     assert np.allclose(res["crank.x"], np.cos(res["t"]), atol=1e-12)
     # gamma is evaluated only where the predictors need it: at the last instant of each
@@ -130,7 +130,7 @@ def test_velocities_and_accelerations_are_skipped_when_not_requested(loads, monk
     assert evaluated <= 1001 // opts.coarse_stride + 1001 // opts.level_split + len(calls)
     assert all(shape[1] <= solve.SolverOptions().max_block for shape in calls)
     calls.clear()
-    res = solve.simulate(system, solve.SolverOptions(coarse_stride=1))
+    res = solve.simulate(kernels, solve.SolverOptions(coarse_stride=1))
     assert all(shape[1] == 1 for shape in calls)
     assert len(calls) < 40
 

@@ -33,10 +33,10 @@ def _dense(sj) -> np.ndarray:
 
 @pytest.mark.parametrize("example", ["slider_crank.mech", "planetary.mech", "cam_roller.mech"])
 def test_pattern_values_are_the_dense_jacobian(load_example, example):
-    system = load_example(example).compile()
+    kernels = load_example(example).compile()
     rng = np.random.default_rng(1)
-    q = rng.normal(size=(system.n_variants, 4, system.n))
-    np.testing.assert_array_equal(_dense(eq.jacobian_values(system, q)), eq.jacobian(system, q))
+    q = rng.normal(size=(kernels.system.n_variants, 4, kernels.system.n))
+    np.testing.assert_array_equal(_dense(eq.jacobian_values(kernels, q)), eq.jacobian(kernels, q))
 
 
 def test_permutation_sign_is_the_parity():
@@ -50,21 +50,21 @@ def test_permutation_sign_is_the_parity():
 
 
 def test_sparse_factor_agrees_with_dense(loads):
-    system = loads(models.chain_text(6)).compile()
+    kernels = loads(models.chain_text(6)).compile()
     rng = np.random.default_rng(3)
-    q = rng.normal(size=(1, 5, system.n))
-    D = np.full((1, 1, system.n), 1.0)
-    dense = factor(eq.jacobian(system, q), D)
-    sparse = factor(eq.jacobian_values(system, q), D)
+    q = rng.normal(size=(1, 5, kernels.system.n))
+    D = np.full((1, 1, kernels.system.n), 1.0)
+    dense = factor(eq.jacobian(kernels, q), D)
+    sparse = factor(eq.jacobian_values(kernels, q), D)
     np.testing.assert_array_equal(sparse.sign, dense.sign)
     # Higham's estimate of ||A^-1||_1 is a lower bound, exact in most cases
     assert np.all(sparse.rcond >= dense.rcond * (1 - 1e-9))
     assert np.all(sparse.rcond <= 3 * dense.rcond)
-    rhs = rng.normal(size=(1, 5, system.m))
+    rhs = rng.normal(size=(1, 5, kernels.system.m))
     np.testing.assert_allclose(sparse.solve(rhs), dense.solve(rhs), rtol=1e-9, atol=1e-12)
-    x, ok = solve(eq.jacobian_values(system, q), rhs)
+    x, ok = solve(eq.jacobian_values(kernels, q), rhs)
     assert ok.all()
-    np.testing.assert_allclose(np.einsum("...ij,...j->...i", eq.jacobian(system, q), x), rhs,
+    np.testing.assert_allclose(np.einsum("...ij,...j->...i", eq.jacobian(kernels, q), x), rhs,
                                atol=1e-10)
 
 
@@ -105,8 +105,8 @@ def test_sparse_assembly_from_rough_guesses(loads):
 def test_sparse_lock_up_stops_where_dense_does(load_example):
     """The slider-crank with a rod shorter than its crank locks up: the sparse path reports
     the same instant, the same reason and keeps the same instants as the dense one."""
-    system = load_example("slider_crank.mech").compile(Overrides(params={"l": 1.5}))
-    dense, sparse = simulate(system, DENSE), simulate(system, SPARSE)
+    kernels = load_example("slider_crank.mech").compile(Overrides(params={"l": 1.5}))
+    dense, sparse = simulate(kernels, DENSE), simulate(kernels, SPARSE)
     assert not dense.ok and not sparse.ok
     assert dense.n_solved[0] == sparse.n_solved[0]
     # the same reason; the instant bisected to may differ in its last digits

@@ -182,11 +182,11 @@ def test_the_dynamics_runs_with_the_blas_threads_it_is_given(limit):
 
     from mechdsl.solve.dynamic import DynamicRun
 
-    system = mechdsl.loads(dm.chain_text(15, t1=0.05)).compile()  # 45 coordinates: large
+    kernels = mechdsl.loads(dm.chain_text(15, t1=0.05)).compile()  # 45 coordinates: large
     watch = _Watch()
     with threadpool_limits(limits=4, user_api="blas"):  # the process's own setting
         before = {d["filepath"]: d["num_threads"] for d in threadpool_info()}
-        res = DynamicRun(system, SolverOptions(blas_threads=limit), progress=watch).run()
+        res = DynamicRun(kernels, SolverOptions(blas_threads=limit), progress=watch).run()
         after = {d["filepath"]: d["num_threads"] for d in threadpool_info()}
     assert res.ok, res.messages
     assert watch.threads == {limit}
@@ -229,8 +229,8 @@ def test_a_large_model_is_planned_with_its_banded_solver_not_a_dense_one():
     from mechdsl.solve.memory import plan
     from mechdsl.solve.dynamic import DynamicRun
 
-    system = mechdsl.loads(dm.chain_text(400, t1=0.01)).compile()
+    kernels = mechdsl.loads(dm.chain_text(400, t1=0.01)).compile()
     limit = resident_bytes() + 40 * 2**20
     with pytest.raises(MechError, match="needs about"):
-        plan(system, limit, SolverOptions().max_batch_elements, sparse=False)
-    DynamicRun(system, SolverOptions(max_memory=limit))  # accepted
+        plan(kernels.system, limit, SolverOptions().max_batch_elements, sparse=False)
+    DynamicRun(kernels, SolverOptions(max_memory=limit))  # accepted

@@ -32,9 +32,10 @@ from .fused import Fused, TraceFailure, fuse, rebind
 from .shapes import mass_properties, shape_edges
 from .sparse import Pattern
 from . import dynamics as dyn
+from .kernels import DriveFunction, Kernels
 from .system import (
-    Constraint, DriveFunction, EnergyOutput, ExprOutput, Group, OutputSpec, ReactionOutput,
-    ReductionOutput, Sketch, Start, System,
+    Constraint, EnergyOutput, ExprOutput, Group, OutputSpec, ReactionOutput, ReductionOutput,
+    Sketch, Start, System,
 )
 from .units import QUANTITY_DIMS, Units, expr_dim
 from .units import TIME as TIME_DIM
@@ -42,7 +43,7 @@ from .units import div as dim_div
 from .units import power as dim_power
 from .variants import Overrides, evaluate, remembered, time_grid
 
-__all__ = ["compile_model", "Overrides", "System"]
+__all__ = ["compile_model", "Kernels", "Overrides", "System"]
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -53,18 +54,20 @@ def _readonly(a: np.ndarray) -> np.ndarray:
 
 def compile_model(model: Model, registry: Registry, overrides: Overrides | None = None,
                   *, need_times: bool = True, fold: bool = True,
-                  reuse: System | None = None, memo: dict | None = None) -> System:
-    """Resolve ``model`` against ``registry`` for every sweep variant.
+                  reuse: Kernels | None = None, memo: dict | None = None) -> Kernels:
+    """Resolve ``model`` against ``registry`` for every sweep variant: the compiled model's
+    data (``.system``, a :class:`~mechdsl.compiled.system.System`) and the code generated
+    for it (the :class:`~mechdsl.compiled.kernels.Kernels` returned).
 
     ``fold``: values the same in every variant are constants of the generated code (the
     fastest code for these values); without it every value is a param of the code, which
-    then serves other values too. ``reuse``: a System compiled from the same model (by
+    then serves other values too. ``reuse``: kernels compiled from the same model (by
     :meth:`mechdsl.api.Mechanism.compile`: for two variants, each param moved a little,
     so that its code holds as constants only what no param changes); where the structure is
     the same (the same joints, drives and forces between the same bodies, only values
     differ) and the values fit its code, its traced and generated code is taken with the
     new values instead of tracing again (:func:`mechdsl.compiled.fused.rebind`), and so are
-    its plans (``System.template``): the LU's pivot order (a pivot that becomes small falls
+    its plans (``Kernels.template``): the LU's pivot order (a pivot that becomes small falls
     back to partial pivoting, as over a run) and the code on floats. ``memo``: a dict the
     caller keeps for this model, in which each expression's compiled form is kept from one
     compilation to the next.
@@ -76,12 +79,12 @@ def compile_model(model: Model, registry: Registry, overrides: Overrides | None 
     overrides = read_tables(overrides or Overrides(), model.source)
     compiler = _Compiler(model, registry, overrides, fold, reuse, memo)
     try:
-        system = compiler.run(need_times)
+        kernels = compiler.run(need_times)
     except MechError as err:
         raise err.with_source(model.source) from None
     if compiler.reuse is not None:  # its code was taken (not traced anew): and its plans
-        system = replace(system, template=reuse.template or reuse)
-    return system
+        kernels = replace(kernels, template=reuse.template or reuse)
+    return kernels
 
 
 def check_structure(model: Model, registry: Registry) -> None:
@@ -162,7 +165,7 @@ class _BindPlan:
 
 class _Compiler:
     def __init__(self, model: Model, registry: Registry, ov: Overrides, fold: bool = True,
-                 reuse: System | None = None, memo: dict | None = None) -> None:
+                 reuse: Kernels | None = None, memo: dict | None = None) -> None:
         self.model, self.registry, self.ov = model, registry, ov
         self.fold, self.reuse, self.memo = fold, reuse, memo
         self.evaluated = True  # False while only names are resolved (structure())
@@ -181,7 +184,7 @@ class _Compiler:
         self._outputs()
         self._sketch(groups)
 
-    def run(self, need_times: bool) -> System:
+    def run(self, need_times: bool) -> Kernels:
         self.var = evaluate(self.model, self.ov, self.memo)
         self.V = self.var.count
         if self.V > 1:
@@ -194,7 +197,7 @@ class _Compiler:
         constraints, groups, drive_rows, drive_fns = self._constraints()
         self.constraints, self.groups = constraints, groups
         force_groups, elements = self._forces()
-        if self.reuse is not None and not (_same_structure(groups, self.reuse.groups)
+        if self.reuse is not None and not (_same_structure(groups, self.reuse.system.groups)
                                            and _same_structure(force_groups,
                                                                self._reused_forces())):
             self.reuse = None  # another structure: traced anew
@@ -202,7 +205,7 @@ class _Compiler:
         if not fused:
             fused = _fused(groups, constraints, len(self.bodies), self.model.source, self.fold)
             self.reuse = None
-        pattern = (self.reuse.pattern if self.reuse is not None else
+        pattern = (self.reuse.system.pattern if self.reuse is not None else
                    Pattern.from_entries(fused.rows, fused.cols, (fused.m, fused.n)))
         outputs = self._outputs()
         times = (time_grid(self.model, self.ov, self.var, len(outputs)) if need_times
@@ -210,6 +213,7 @@ class _Compiler:
         order = max((o.order for o in outputs), default=0)
         env = {k: _readonly(v[:, None]) for k, v in self.var.env.items()}
         guess = self._guess()
+        dynamics = self._dynamics(force_groups, elements, outputs)
         system = System(
             source=self.model.source,
             body_names=tuple(b.name for b in self.bodies),
@@ -218,7 +222,6 @@ class _Compiler:
             constraints=tuple(constraints),
             groups=tuple(groups),
             drive_rows=_readonly(np.asarray(drive_rows, dtype=np.intp)),
-            drive_functions=tuple(drive_fns),
             env=env,
             sweep={k: _readonly(v) for k, v in self.var.sweep.items()},
             n_variants=self.V,
@@ -228,27 +231,40 @@ class _Compiler:
             outputs=tuple(outputs),
             order=order,
             pattern=pattern,
-            fused=fused,
             sketch=self._sketch(groups),
             mass=tuple(mass_properties(b, self.var) for b in self.bodies),
+            masses=dynamics is not None,
             time_unit=self.units.time,
-            dynamics=self._dynamics(force_groups, elements, outputs),
             tolerances=self._tolerances(),
             reductions=tuple(self.reductions),
             warnings=tuple(self.unit_warnings.values()),
         )
-        return self._with_start(system)
+        kernels = Kernels(system, fused, dynamics, tuple(drive_fns), self._expressions(outputs),
+                          {r.label: self._compiled_expr(r.expr) for r in self.reductions})
+        return self._with_start(kernels)
+
+    def _compiled_expr(self, e: E.Expr):
+        """``e`` as a function of an environment, kept in the memo from one compilation of
+        the model to the next."""
+        return remembered(self.memo, "expr", e, lambda: E.compile_expr(e))
+
+    def _expressions(self, outputs) -> dict:
+        """The functions of the expression outputs, by label."""
+        return {o.label: self._compiled_expr(o.expr) for o in outputs
+                if isinstance(o, ExprOutput)}
 
     # -- the start of a forward-dynamics run ---------------------------------------------------
-    def _with_start(self, system: System) -> System:
-        """``system`` with its :class:`~mechdsl.compiled.system.Start`: which coordinates
-        are guessed, and the model with its ``initial`` statements added as drives (f(t) =
-        value + rate (t - t0), so that f(t0) is the value and f'(t0) the rate). An initial
+    def _with_start(self, kernels: Kernels) -> Kernels:
+        """``kernels`` with their system's :class:`~mechdsl.compiled.system.Start`: which
+        coordinates are guessed, and the model with its ``initial`` statements added as
+        drives (f(t) = value + rate (t - t0), so that f(t0) is the value and f'(t0) the
+        rate), its code in ``kernels.start``. An initial
         statement in a model that has no forward dynamics is a located error: the run is
         the kinematics (the joints and drives fix every coordinate), or the model has no
         masses."""
         initials = self.model.initials
-        if initials and system.dynamics is None:
+        system = kernels.system
+        if initials and kernels.dynamics is None:
             raise MechError(f"initial '{cut(initials[0].name)}' is for forward dynamics, and "
                             "the model has no masses: give its bodies mass and inertia, or "
                             "remove the statement", initials[0].span)
@@ -260,14 +276,14 @@ class _Compiler:
                 f"every coordinate ({system.n} coordinates, {system.m} equations of joints "
                 "and drives), and the run is the kinematics; remove it, or drive the "
                 "mechanism from where it should start", initials[0].span)
-        if system.dynamics is None:
-            return system
+        if kernels.dynamics is None:
+            return kernels
         guessed = np.zeros(system.n, bool)
         for i, b in enumerate(self.bodies):
             if b.guess is not None:
                 guessed[3 * i : 3 * i + 3] = True
         if not initials:
-            return replace(system, start=Start(_readonly(guessed)))
+            return kernels.with_system(replace(system, start=Start(_readonly(guessed))))
         t0 = float(system.times.reshape(-1)[0]) if system.times is not None else 0.0
         constraints, groups, drive_rows, drive_fns = self._constraints(
             self._initial_drives(t0))
@@ -277,12 +293,13 @@ class _Compiler:
         # the equations only: no masses, outputs or reductions (it is assembled, never run)
         augmented = replace(system, m=m, constraints=tuple(constraints), groups=tuple(groups),
                             drive_rows=_readonly(np.asarray(drive_rows, dtype=np.intp)),
-                            drive_functions=tuple(drive_fns), fused=fused, pattern=pattern,
-                            dynamics=None, outputs=(), reductions=(), start=None)
+                            pattern=pattern, masses=False, outputs=(), reductions=(),
+                            start=None)
         rows = np.arange(system.m, m, dtype=np.intp)
         rated = np.array([c.rate is not None for c in initials], dtype=bool)
-        return replace(system, start=Start(_readonly(guessed), augmented, _readonly(rows),
-                                           _readonly(rated)))
+        start = Start(_readonly(guessed), augmented, _readonly(rows), _readonly(rated))
+        return replace(kernels, system=replace(system, start=start),
+                       start=Kernels(augmented, fused, None, tuple(drive_fns)))
 
     def _initial_drives(self, t0: float) -> list[Drive]:
         """The ``initial`` statements as drives of f(t) = value + rate (t - t0) (rate 0 where
@@ -319,7 +336,7 @@ class _Compiler:
         return [self._group(ftype, members) for ftype, members in packed.values()], elements
 
     def _reused_forces(self) -> list:
-        """The force groups of the System reused (none where it has no dynamics)."""
+        """The force groups of the kernels reused (none where they have no dynamics)."""
         d = self.reuse.dynamics if self.reuse is not None else None
         return list(d.force_groups) if d is not None else []
 
@@ -780,7 +797,7 @@ class _Compiler:
             part_dims = {name: TIME_DIM if func.startswith("arg") else self._dim(columns[label])
                          for name, func, label in parts}
             d = self._dim_of(r.expr, part_dims.get, r.name)
-            self.reductions.append(ReductionOutput(r.name, E.compile_expr(r.expr), tuple(parts),
+            self.reductions.append(ReductionOutput(r.name, tuple(parts),
                                                    r.expr, self.units.label(d),
                                                    self.units.scale(d)))
         return list(columns.values())
@@ -798,7 +815,7 @@ class _Compiler:
             d = self._dim_of(e, lambda n: self._dim(specs[n]) if n in specs else None, owner)
         else:
             d = dim_div(rate_of[0], dim_power(TIME_DIM, rate_of[1]))
-        return ExprOutput(label, E.compile_expr(e), inputs,
+        return ExprOutput(label, inputs,
                           max((s.order for _, s in inputs), default=0), e,
                           self.units.label(d), dim=d)
 

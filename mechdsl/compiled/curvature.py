@@ -23,6 +23,7 @@ import numpy as np
 from ..symbolic.codegen import first_floats
 from ..symbolic import Graph
 from .fused import _Params, trace_members
+from .kernels import Kernels
 
 
 @dataclass(frozen=True)
@@ -49,13 +50,14 @@ class Curvature:
         return lam[self.eq] * self.values(q, t)
 
 
-def curvature(system) -> Curvature | None:
-    """The :class:`Curvature` of ``system`` (a compiled model of one variant), or None where
+def curvature(kernels: Kernels) -> Curvature | None:
+    """The :class:`Curvature` of ``kernels`` (a compiled model of one variant), or None where
     its constraints are linear in q. The constraints are traced member by member (whatever
-    the layout of ``system.fused``) and only their Jacobian's gradient is compiled."""
+    the layout of ``kernels.fused``) and only their Jacobian's gradient is compiled."""
+    system = kernels.system
     from ..symbolic.codegen import scalar_functions, scalar_kernel
 
-    f = system.fused
+    f = kernels.fused
     if f.layout == "member" and f.graph is not None:
         graph, jac, rows, cols = f.graph, f.jac_nodes, f.rows, f.cols
         arrays = f.params

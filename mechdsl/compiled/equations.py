@@ -18,16 +18,18 @@ from types import MappingProxyType
 
 import numpy as np
 
+from .kernels import Kernels
 from .sparse import LU_BATCH, LUJac, SparseJac
-from .system import EnergyOutput, ExprOutput, ReactionOutput, System
+from .system import EnergyOutput, ExprOutput, ReactionOutput
 
 
-def drive_values(system: System, t: np.ndarray, which: str, shape) -> np.ndarray:
+def drive_values(kernels: Kernels, t: np.ndarray, which: str, shape) -> np.ndarray:
     """f, f' or f'' (``which``: 'f', 'fd', 'fdd') of every drive at ``t``: shape + (D,)."""
+    system = kernels.system
     env = dict(system.env)
     env["t"] = t
     with np.errstate(all="ignore"):
-        cols = [getattr(d, which)(env) for d in system.drive_functions]
+        cols = [getattr(d, which)(env) for d in kernels.drive_functions]
     # (a value of the shape already is taken as it is, read-only as a broadcast is: a
     # drive may hand back the caller's own t; broadcast_to costs microseconds)
     cols = [_read_only(c) if np.shape(c) == shape else np.broadcast_to(c, shape)
@@ -43,106 +45,117 @@ def _read_only(a: np.ndarray) -> np.ndarray:
     return view
 
 
-def drive_table(system: System, t: np.ndarray, shape) -> np.ndarray:
+def drive_table(kernels: Kernels, t: np.ndarray, shape) -> np.ndarray:
     """f, f' and f'' of every drive at ``t``, as one array: shape + (3, D) (D drives)."""
+    system = kernels.system
     env = dict(system.env)
     env["t"] = t
-    out = np.empty(tuple(shape) + (3, len(system.drive_functions)))
+    out = np.empty(tuple(shape) + (3, len(kernels.drive_functions)))
     with np.errstate(all="ignore"):
-        for j, d in enumerate(system.drive_functions):
+        for j, d in enumerate(kernels.drive_functions):
             for i, f in enumerate((d.f, d.fd, d.fdd)):
                 out[..., i, j] = f(env)
     return out
 
 
-def constraint_values(system: System, q: np.ndarray, t: np.ndarray,
+def constraint_values(kernels: Kernels, q: np.ndarray, t: np.ndarray,
                       f: np.ndarray | None = None) -> np.ndarray:
     """Phi(q, t), shape ``(V, b, m)``; ``f``: the drives' f(t) where the caller has them."""
+    system = kernels.system
     with np.errstate(all="ignore"):
-        phi = system.fused.evaluate_phi(q)
-    if system.drive_functions:
-        phi[..., system.drive_rows] -= (drive_values(system, t, "f", q.shape[:-1]) if f is None
+        phi = kernels.fused.evaluate_phi(q)
+    if kernels.drive_functions:
+        phi[..., system.drive_rows] -= (drive_values(kernels, t, "f", q.shape[:-1]) if f is None
                                         else f)
     return phi
 
 
-def jacobian_entries(system: System, q: np.ndarray) -> np.ndarray:
+def jacobian_entries(kernels: Kernels, q: np.ndarray) -> np.ndarray:
     """The non-zero entries of Phi_q in ``system.pattern``'s order, shape ``(V, b, nnz)``."""
+    system = kernels.system
     with np.errstate(all="ignore"):
-        return system.fused.evaluate_jac(q)
+        return kernels.fused.evaluate_jac(q)
 
 
-def jacobian(system: System, q: np.ndarray) -> np.ndarray:
+def jacobian(kernels: Kernels, q: np.ndarray) -> np.ndarray:
     """Phi_q, shape ``(V, b, m, n)``."""
-    return system.fused.dense(jacobian_entries(system, q))
+    system = kernels.system
+    return kernels.fused.dense(jacobian_entries(kernels, q))
 
 
-def jacobian_values(system: System, q: np.ndarray) -> SparseJac:
+def jacobian_values(kernels: Kernels, q: np.ndarray) -> SparseJac:
     """Phi_q as its non-zero entries in ``system.pattern``: values of shape ``(V, b, nnz)``."""
-    return SparseJac(jacobian_entries(system, q), system.pattern)
+    system = kernels.system
+    return SparseJac(jacobian_entries(kernels, q), system.pattern)
 
 
-def solver_jacobian(system: System, q: np.ndarray, rows: np.ndarray, sparse: bool):
+def solver_jacobian(kernels: Kernels, q: np.ndarray, rows: np.ndarray, sparse: bool):
     """Phi_q (rows ``rows``) as the solver factorises it: dense ``(V, b, len(rows), n)``, or
     sparse (all rows) for a large mechanism."""
+    system = kernels.system
     if sparse:
-        return jacobian_values(system, q)
-    return jacobian_for(system, jacobian_entries(system, q), rows)
+        return jacobian_values(kernels, q)
+    return jacobian_for(kernels, jacobian_entries(kernels, q), rows)
 
 
-def jacobian_for(system: System, values: np.ndarray, rows: np.ndarray):
+def jacobian_for(kernels: Kernels, values: np.ndarray, rows: np.ndarray):
     """The entries as the factorisation wants them: for the generated LU (a square system,
     a batch large enough to pay for it), else dense."""
+    system = kernels.system
     # (the batch size first: a small batch never pays for planning the LU)
     if (values[..., 0].size >= LU_BATCH and len(rows) == system.m == system.n
-            and system.lu is not None):
-        return LUJac(values, system.pattern, system.lu)
-    jac = system.fused.dense(values)
+            and kernels.lu is not None):
+        return LUJac(values, system.pattern, kernels.lu)
+    jac = kernels.fused.dense(values)
     return jac if len(rows) == system.m else jac[..., rows, :]
 
 
-def residual_and_jacobian(system: System, q: np.ndarray, t: np.ndarray, rows: np.ndarray,
+def residual_and_jacobian(kernels: Kernels, q: np.ndarray, t: np.ndarray, rows: np.ndarray,
                           sparse: bool, f: np.ndarray | None = None):
     """Phi(q, t) ``(V, b, m)`` and Phi_q as :func:`solver_jacobian` gives it, from one
     evaluation (Newton needs both at the same q: each body's cos and sin computed once);
     ``f``: the drives' f(t) where the caller has them."""
+    system = kernels.system
     with np.errstate(all="ignore"):
-        phi, vals = system.fused.evaluate_phi_jac(q)
-    if system.drive_functions:
+        phi, vals = kernels.fused.evaluate_phi_jac(q)
+    if kernels.drive_functions:
         phi = phi.copy()
-        phi[..., system.drive_rows] -= (drive_values(system, t, "f", q.shape[:-1]) if f is None
+        phi[..., system.drive_rows] -= (drive_values(kernels, t, "f", q.shape[:-1]) if f is None
                                         else f)
     if sparse:
         return phi, SparseJac(vals, system.pattern)
-    return phi, jacobian_for(system, vals, rows)
+    return phi, jacobian_for(kernels, vals, rows)
 
 
-def velocity_rhs(system: System, t: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+def velocity_rhs(kernels: Kernels, t: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     """nu = -Phi_t, shape ``shape + (m,)``: f'(t) in the drive rows, zero elsewhere."""
+    system = kernels.system
     nu = np.zeros(tuple(shape) + (system.m,))
-    if system.drive_functions:
-        nu[..., system.drive_rows] = drive_values(system, t, "fd", tuple(shape))
+    if kernels.drive_functions:
+        nu[..., system.drive_rows] = drive_values(kernels, t, "fd", tuple(shape))
     return nu
 
 
-def acceleration_rhs(system: System, q: np.ndarray, qd: np.ndarray,
+def acceleration_rhs(kernels: Kernels, q: np.ndarray, qd: np.ndarray,
                      t: np.ndarray) -> np.ndarray:
     """gamma = -(Phi_q qd)_q qd + f''(t) in the drive rows, shape ``(V, b, m)``."""
+    system = kernels.system
     with np.errstate(all="ignore"):
-        gamma = system.fused.evaluate_gamma(q, qd)
-    if system.drive_functions:
-        gamma[..., system.drive_rows] += drive_values(system, t, "fdd", q.shape[:-1])
+        gamma = kernels.fused.evaluate_gamma(q, qd)
+    if kernels.drive_functions:
+        gamma[..., system.drive_rows] += drive_values(kernels, t, "fdd", q.shape[:-1])
     return gamma
 
 
-def multipliers(system: System, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+def multipliers(kernels: Kernels, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                 t: np.ndarray) -> np.ndarray:
     """The Lagrange multipliers of states (q, qd, qdd) that satisfy the constraints, from the
     equations of motion M qdd + Phi_q^T lambda = Q (Haug 1989, eq. 6.3.18): Phi_q^T lambda =
     Q - M qdd, shape (V, b, m). A square Phi_q (fully driven) is solved as it is; with free
     coordinates (m < n) the system is consistent and solved by QR in the least-squares
     sense, which is then exact. Redundant equations (m > n) leave lambda undetermined: NaN."""
-    d = system.dynamics
+    system = kernels.system
+    d = kernels.dynamics
     shape = q.shape[:-1]
     t = np.broadcast_to(t, shape)
     if system.m > system.n:
@@ -150,7 +163,7 @@ def multipliers(system: System, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
     with np.errstate(all="ignore"):
         rhs = d.generalised_forces(q, qd, t) - np.einsum("...ij,...j->...i", d.mass_matrix(q),
                                                           qdd)
-        jt = np.swapaxes(np.nan_to_num(jacobian(system, q)), -1, -2)  # (..., n, m)
+        jt = np.swapaxes(np.nan_to_num(jacobian(kernels, q)), -1, -2)  # (..., n, m)
         if system.m == system.n:
             try:
                 return np.linalg.solve(jt, rhs[..., None])[..., 0]
@@ -161,13 +174,14 @@ def multipliers(system: System, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
         return np.linalg.solve(r, y[..., None])[..., 0]
 
 
-def reaction_values(system: System, spec: ReactionOutput, q: np.ndarray, lam: np.ndarray,
+def reaction_values(kernels: Kernels, spec: ReactionOutput, q: np.ndarray, lam: np.ndarray,
                     t: np.ndarray | None) -> np.ndarray:
     """A joint's reaction on its body, or a drive's effort or power, from the multipliers
     ``lam`` (V, b, m). The load of constraint k on body b is -Phi_q[rows_k, q_b]^T lambda_k
     = (F_x, F_y, n_O), n_O its moment about b's origin; about the joint's point s' of b it is
     n_O - (A s') x F. A drive's effort is -lambda (the generalised force along its measure
     g: a torque for an angle, a force for a length), its power -lambda f'(t)."""
+    system = kernels.system
     c = system.constraints[spec.constraint]
     r0, r1 = c.rows
     if c.kind == "drive":
@@ -175,10 +189,10 @@ def reaction_values(system: System, spec: ReactionOutput, q: np.ndarray, lam: np
         if spec.quantity != "power":
             return effort
         j = int(np.flatnonzero(system.drive_rows == r0)[0])
-        fd = drive_values(system, np.broadcast_to(t, q.shape[:-1]), "fd", q.shape[:-1])
+        fd = drive_values(kernels, np.broadcast_to(t, q.shape[:-1]), "fd", q.shape[:-1])
         return effort * fd[..., j]
     k = 3 * spec.body
-    jac = jacobian(system, q)[..., r0:r1, k : k + 3]  # (..., rows, 3)
+    jac = jacobian(kernels, q)[..., r0:r1, k : k + 3]  # (..., rows, 3)
     load = -np.einsum("...ri,...r->...i", jac, lam[..., r0:r1])
     if spec.quantity == "fx":
         return load[..., 0]
@@ -199,7 +213,7 @@ _AXIS = MappingProxyType({"x": 0, "y": 1, "phi": 2, "vx": 0, "vy": 1, "omega": 2
                           "ax": 0, "ay": 1, "alpha": 2})
 
 
-def output_values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
+def output_values(kernels: Kernels, spec, q: np.ndarray, qd: np.ndarray | None,
                   qdd: np.ndarray | None, t: np.ndarray | None = None,
                   cache: dict | None = None) -> np.ndarray:
     """One output quantity for states ``(V, b, n)`` at times ``t`` (V, b): shape ``(V, b)``.
@@ -210,15 +224,17 @@ def output_values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
     params, t and the quantities it reads. The value is reported in the column's unit (times
     ``spec.scale``: degrees for an angle where the model asks for them).
     """
-    values = _values(system, spec, q, qd, qdd, t, cache)
+    system = kernels.system
+    values = _values(kernels, spec, q, qd, qdd, t, cache)
     return values * spec.scale if spec.scale != 1.0 else values
 
 
-def _values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
+def _values(kernels: Kernels, spec, q: np.ndarray, qd: np.ndarray | None,
             qdd: np.ndarray | None, t: np.ndarray | None, cache: dict | None) -> np.ndarray:
     """output_values in the computed unit (radians)."""
+    system = kernels.system
     if isinstance(spec, EnergyOutput):
-        d = system.dynamics
+        d = kernels.dynamics
         with np.errstate(all="ignore"):
             if spec.label == "dissipated_power":
                 return d.dissipated_power(q, qd, np.zeros(q.shape[:-1]) if t is None else t)
@@ -228,17 +244,17 @@ def _values(system: System, spec, q: np.ndarray, qd: np.ndarray | None,
     if isinstance(spec, ReactionOutput):
         cache = {} if cache is None else cache
         if "lambda" not in cache:
-            cache["lambda"] = multipliers(system, q, qd, qdd, t)
-        return reaction_values(system, spec, q, cache["lambda"], t)
+            cache["lambda"] = multipliers(kernels, q, qd, qdd, t)
+        return reaction_values(kernels, spec, q, cache["lambda"], t)
     if isinstance(spec, ExprOutput):
         env = dict(system.env)
         env["t"] = np.zeros(q.shape[:-1]) if t is None else t
         for name, read in spec.inputs:  # (a reaction read shares the multipliers)
             if isinstance(read, ReactionOutput) and cache is None:
                 cache = {}
-            env[name] = output_values(system, read, q, qd, qdd, t, cache)
+            env[name] = output_values(kernels, read, q, qd, qdd, t, cache)
         with np.errstate(all="ignore"):
-            return np.broadcast_to(np.asarray(spec.function(env), dtype=float),
+            return np.broadcast_to(np.asarray(kernels.expressions[spec.label](env), dtype=float),
                                    q.shape[:-1]).copy()
     i = spec.body
     k = 3 * i

@@ -38,6 +38,7 @@ import numpy as np
 
 from ..symbolic.codegen import CALLED, assignments
 from ..symbolic.graph import Graph, Node
+from .kernels import Kernels
 from .lu import scalar_lines
 
 #: States (variants times instants) per call of the compiled march: about 0.1 s of work, so
@@ -152,10 +153,11 @@ def stormer(m: int) -> list:
     return betas
 
 
-def source(system) -> str | None:
-    """The module source of the compiled march of ``system``; None where the backend does
+def source(kernels: Kernels) -> str | None:
+    """The module source of the compiled march of ``kernels``; None where the backend does
     not apply (a large mechanism's group layout, function arguments, no square LU plan)."""
-    f, lu = system.fused, system.lu
+    system = kernels.system
+    f, lu = kernels.fused, kernels.lu
     if f is None or lu is None or f.layout != "member" or f.functions:
         return None
     graph: Graph = f.graph
@@ -575,11 +577,12 @@ def _cache_folder() -> str | None:
     return safe_folder("native")
 
 
-def load(system):
-    """The compiled module of ``system``: its ``march`` and its ``carry`` (numba imported,
+def load(kernels: Kernels):
+    """The compiled module of ``kernels``: its ``march`` and its ``carry`` (numba imported,
     the module compiled or loaded from the cache), or None where the backend does not apply
     or numba is missing."""
-    text = source(system)
+    system = kernels.system
+    text = source(kernels)
     if text is None or not available():
         return None
     return _module(text)
@@ -621,15 +624,16 @@ def _module(text: str):
     return module
 
 
-def dynamics_source(system) -> str | None:
-    """The module source of the compiled equations of motion of ``system``: ``accel(t, q,
+def dynamics_source(kernels: Kernels) -> str | None:
+    """The module source of the compiled equations of motion of ``kernels``: ``accel(t, q,
     qd, p, pd, qdd, lam)`` solves [M Phi_q^T; Phi_q 0][qdd; lambda] = [Q; gamma] for one
     state (by M's blocks and the Schur complement, see ``SCHUR``), with the same graphs as
     the numpy kernels written as scalar code; None where the backend does not apply (the
     group layout, function arguments, drives)."""
-    f, d = system.fused, system.dynamics
+    system = kernels.system
+    f, d = kernels.fused, kernels.dynamics
     if (f is None or d is None or d.graph is None or f.layout != "member" or f.functions
-            or d.functions or system.drive_functions):
+            or d.functions or kernels.drive_functions):
         return None
     n, m = system.n, system.m
     big = n + m
@@ -738,9 +742,10 @@ def accel(t, q, qd, p, pd, qdd, lam):
 '''
 
 
-def load_dynamics(system) -> Callable | None:
-    """The compiled ``accel`` of ``system`` (see :func:`dynamics_source`), or None."""
-    text = dynamics_source(system)
+def load_dynamics(kernels: Kernels) -> Callable | None:
+    """The compiled ``accel`` of ``kernels`` (see :func:`dynamics_source`), or None."""
+    system = kernels.system
+    text = dynamics_source(kernels)
     if text is None or not available():
         return None
     return _module(text).accel

@@ -27,6 +27,7 @@ from dataclasses import dataclass, replace
 from typing import Callable
 
 from ..symbolic.codegen import ScalarKernel, first_floats, scalar_functions, scalar_kernel
+from .kernels import Kernels
 from .lu import LUPlan, scalar_lines
 
 
@@ -78,11 +79,12 @@ def with_values(one: OneState, fused) -> OneState:
                    else ())
 
 
-def one_state(system, v: int = 0) -> OneState | None:
-    """Variant ``v`` of ``system`` as float code; None where it does not apply: a model
+def one_state(kernels: Kernels, v: int = 0) -> OneState | None:
+    """Variant ``v`` of ``kernels`` as float code; None where it does not apply: a model
     traced type by type (the group layout of a large mechanism) or without a square
     generated LU."""
-    f, lu = system.fused, system.lu
+    system = kernels.system
+    f, lu = kernels.fused, kernels.lu
     if f is None or lu is None or f.layout != "member" or f.graph is None:
         return None
     phi_jac = scalar_kernel(f.graph, [*f.phi_nodes, *f.jac_nodes], "phi_jac")

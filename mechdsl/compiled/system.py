@@ -10,16 +10,14 @@ from __future__ import annotations
 
 import bisect
 import functools
-from dataclasses import dataclass, field
-from typing import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from typing import Mapping
 
 import numpy as np
 
 from ..errors import Source, Span
 from ..grammar import expr as E
 from ..plugins.contract import ConstraintType
-from .fused import Fused
-from .lu import MAX_N, LUPlan, plan
 from .sparse import Pattern
 
 
@@ -47,16 +45,6 @@ class Group:
 
 
 @dataclass(frozen=True)
-class DriveFunction:
-    """f(t), f'(t), f''(t) of one drive, compiled, with the trees they came from."""
-
-    f: Callable
-    fd: Callable
-    fdd: Callable
-    exprs: tuple[E.Expr, E.Expr, E.Expr]
-
-
-@dataclass(frozen=True)
 class OutputSpec:
     """One output column: quantity ``quantity`` of ``body`` or of a point fixed in it."""
 
@@ -75,12 +63,12 @@ class OutputSpec:
 @dataclass(frozen=True)
 class ExprOutput:
     """One output column computed by an expression (``output slide = ...``, or its exact
-    time derivatives): ``function`` evaluated on the params, ``t`` and the output quantities
-    ``inputs`` ((name in the expression, its column spec)). ``order`` is the highest time
+    time derivatives): ``expr`` evaluated on the params, ``t`` and the output quantities
+    ``inputs`` ((name in the expression, its column spec)), by the function compiled for it
+    (:attr:`mechdsl.compiled.kernels.Kernels.expressions`). ``order`` is the highest time
     derivative of q the inputs need."""
 
     label: str
-    function: Callable
     inputs: tuple[tuple[str, OutputSpec], ...]
     order: int
     expr: E.Expr
@@ -92,13 +80,13 @@ class ExprOutput:
 
 @dataclass(frozen=True)
 class ReductionOutput:
-    """One value per variant (``output peak = max(abs(slider.ax))``): ``function`` evaluated
+    """One value per variant (``output peak = max(abs(slider.ax))``): ``expr`` evaluated
     on the params and on ``parts``, ``(name in the expression, reduction, output column)``:
     each a reduction (:data:`mechdsl.grammar.model.REDUCTIONS`) of a column of the run's
-    ``outputs`` over its instants."""
+    ``outputs`` over its instants, by the function compiled for it
+    (:attr:`mechdsl.compiled.kernels.Kernels.reductions`)."""
 
     label: str
-    function: Callable
     parts: tuple[tuple[str, str, str], ...]
     expr: E.Expr
     unit: str = ""
@@ -182,7 +170,9 @@ class Start:
 
 @dataclass(frozen=True)
 class System:
-    """A compiled mechanism. Arrays are read-only; nothing here changes during a solve."""
+    """A compiled mechanism as plain data. Arrays are read-only; nothing here changes during
+    a solve, and nothing here is code: the code generated for it is held by its
+    :class:`~mechdsl.compiled.kernels.Kernels`."""
 
     source: Source
     body_names: tuple[str, ...]
@@ -191,7 +181,6 @@ class System:
     constraints: tuple[Constraint, ...]
     groups: tuple[Group, ...]
     drive_rows: np.ndarray
-    drive_functions: tuple[DriveFunction, ...]
     env: Mapping[str, np.ndarray]
     sweep: Mapping[str, np.ndarray]
     n_variants: int
@@ -200,18 +189,16 @@ class System:
     times: np.ndarray | None
     outputs: tuple[OutputSpec | ExprOutput, ...]
     order: int = field(default=0)
-    #: the non-zero entries of Phi_q (the order of ``fused.jac``'s values)
+    #: the non-zero entries of Phi_q (the order of the kernels' Jacobian values)
     pattern: Pattern | None = None
-    #: the compiled evaluation of Phi, Phi_q, gamma (:mod:`mechdsl.compiled.fused`)
-    fused: Fused | None = None
     #: the geometry that drawings and exports show
     sketch: Sketch | None = None
     #: per moving body, the mass properties of its shape (shapes.MassProperties) or None
     mass: tuple = ()
+    #: whether the model has masses and loads (its kernels' ``dynamics``)
+    masses: bool = False
     #: the unit of time, from the model's ``units`` statement ("" where none is given)
     time_unit: str = ""
-    #: masses and loads (:mod:`mechdsl.compiled.dynamics`), where the model has any
-    dynamics: object | None = None
     #: the simulate statement's options (rtol, atol)
     tolerances: Mapping[str, float] = field(default_factory=dict)
     #: per-variant reductions of the ``outputs`` (which are then their inputs only)
@@ -222,91 +209,15 @@ class System:
     #: warnings about the model's text (a unit mismatch in an output), located
     #: (:class:`mechdsl.errors.MechWarning`)
     warnings: tuple[str, ...] = ()
-    #: the model whose traced code this one runs with other values (compile_model's
-    #: ``reuse``): its plans (the LU, the code on floats) serve this one too
-    template: "System | None" = field(default=None, repr=False, compare=False)
 
-    @functools.cached_property
-    def lu(self) -> LUPlan | None:
-        """The generated sparse LU of Phi_q (square systems), its pivot order chosen on the
-        Jacobian at the first variant's guess (:mod:`mechdsl.compiled.lu`); None where that
-        Jacobian is singular in its pattern. A model with a ``template`` takes the
-        template's (the same pattern and code: a pivot that becomes small for these values
-        falls back to partial pivoting, as one does over a run)."""
-        if self.template is not None:
-            return self.template.lu
-        if self.fused is None or self.m != self.n or not 0 < self.n <= MAX_N:
-            return None
-        f = self.fused
-        sample = f.evaluate_jac(self.guess[:, None, :])[0, 0]
-        # the member layout's entries are one node each: those that are constants fold
-        constants = ({k: float(d.value) for k, d in enumerate(f.jac_nodes)
-                      if d.op == "const" and np.isfinite(float(d.value))}
-                     if f.layout == "member" else None)
-        return plan(f.rows, f.cols, self.n, sample, constants)
-
-    @functools.cached_property
-    def native(self):
-        """The compiled module of this model (:mod:`mechdsl.compiled.native`: numba
-        imported, the march compiled or loaded from the disk cache), or None where the
-        backend does not apply or numba is missing. Loaded on first use only."""
-        from . import native
-
-        return native.load(self)
-
-    @functools.cached_property
-    def one_state(self):
-        """A single mechanism's model as code on Python floats, for the steps of a solve that
-        see one state at a time (:mod:`mechdsl.compiled.scalar`); None for a sweep, or where
-        it does not apply."""
-        if self.n_variants != 1:
-            return None
-        from .scalar import with_values
-
-        if self.template is not None:
-            one = self.template.state_code
-            return None if one is None else with_values(one, self.fused)
-        return self.state_code
-
-    @functools.cached_property
-    def state_code(self):
-        """:attr:`one_state` of the first variant whatever the number of variants: the code
-        a model compiled as a template (compile_model's ``reuse``) lends to the models that
-        run it with other values."""
-        from .scalar import one_state
-
-        return one_state(self, 0)
-
-    @functools.cached_property
-    def scalar_kernels(self):
-        """The forward dynamics' one-state kernels on floats
-        (:func:`mechdsl.symbolic.codegen.scalar_kernel`): ``(phi_jac, motion, fixed)``.
-        ``phi_jac`` gives Phi and Phi_q's entries. ``motion`` gives the entries of the
-        augmented matrix [M Phi_q^T; Phi_q 0] in the order they are stored (Phi_q's entries,
-        Phi_q^T's, M's) except the constant ones, then its right-hand side [Q; gamma];
-        ``fixed`` holds, over that order, the value of each constant entry and NaN where
-        ``motion`` gives it (a constant is stored once, not at every evaluation). None
-        where the model is traced type by type (the group layout) or has no masses."""
-        from ..symbolic.codegen import joint_scalar_kernel, scalar_kernel
-
-        f, d = self.fused, self.dynamics
-        if self.template is not None and d is not None and self.template.dynamics is not None \
-                and d.graph is self.template.dynamics.graph:
-            return self.template.scalar_kernels
-        if f is None or d is None or f.layout != "member" or d.graph is None:
-            return None
-        nodes = [*f.jac_nodes, *f.gamma_nodes, *d.mass_nodes, *d.load_nodes]
-        nnz, m, n_mass = len(f.jac_nodes), len(f.gamma_nodes), len(d.mass_nodes)
-        jac, mass = range(nnz), range(nnz + m, nnz + m + n_mass)
-        matrix = [*jac, *jac, *mass]
-        fixed = np.array([float(nodes[k].value) if nodes[k].op == "const" else np.nan
-                          for k in matrix], dtype=float)
-        rhs = [*range(nnz + m + n_mass, len(nodes)), *range(nnz, nnz + m)]
-        order = [k for k, c in zip(matrix, fixed) if np.isnan(c)] + rhs
-        return (scalar_kernel(f.graph, [*f.phi_nodes, *f.jac_nodes], "phi_jac"),
-                joint_scalar_kernel([(f.graph, [*f.jac_nodes, *f.gamma_nodes]),
-                                     (d.graph, [*d.mass_nodes, *d.load_nodes])], "motion",
-                                    order=order), fixed)
+    def variant(self, v: int) -> "System":
+        """The system restricted to sweep variant ``v``."""
+        groups = tuple(replace(g, params={k: a.variant(v) if hasattr(a, "variant")
+                                          else a[v : v + 1] for k, a in g.params.items()})
+                       for g in self.groups)
+        return replace(self, groups=groups, env={k: a[v : v + 1] for k, a in self.env.items()},
+                       outputs=tuple(_output_variant(o, v) for o in self.outputs),
+                       n_variants=1, scale=self.scale[v : v + 1], guess=self.guess[v : v + 1])
 
     @property
     def n_bodies(self) -> int:
@@ -334,3 +245,13 @@ class System:
     def _row_starts(self) -> list[int]:
         return [c.rows[0] for c in self.constraints]
 
+
+
+def _output_variant(spec, v: int):
+    """An output column's spec for variant ``v`` alone (its point's coordinates)."""
+    if getattr(spec, "point", None) is not None:
+        return replace(spec, point=spec.point[v : v + 1])
+    if getattr(spec, "inputs", None):
+        return replace(spec, inputs=tuple((name, _output_variant(s, v))
+                                          for name, s in spec.inputs))
+    return spec

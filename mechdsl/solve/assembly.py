@@ -9,6 +9,7 @@ from typing import Callable
 import numpy as np
 
 from ..compiled import equations as eq
+from ..compiled.kernels import Kernels
 from ..compiled.lu import THRESHOLD
 from ..compiled.sparse import SparseJac
 from ..compiled.system import System
@@ -105,7 +106,7 @@ def _lm_step_one(a: np.ndarray, r: np.ndarray) -> np.ndarray:
     return _lm_step_svd(np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)[None], r[None])[0]
 
 
-def assemble(system: System, t0: float, options: SolverOptions | None = None,
+def assemble(kernels: Kernels, t0: float, options: SolverOptions | None = None,
              compiled: bool = False) -> Assembly:
     """Find q with Phi(q, t0) = 0 in the assembly mode nearest the guesses.
 
@@ -122,6 +123,7 @@ def assemble(system: System, t0: float, options: SolverOptions | None = None,
     ``compiled``: the run marches on the compiled backend, which then carries a single
     mechanism's drives too (where the model compiles).
     """
+    system = kernels.system
     opts = options or SolverOptions()
     count_check(system)
     V, n = system.n_variants, system.n
@@ -129,20 +131,20 @@ def assemble(system: System, t0: float, options: SolverOptions | None = None,
     t = np.full((V, 1), float(t0))
     joint_rows = system.joint_rows
     guess = system.guess.reshape(V, 1, n)
-    q1, ok1, it1 = gauss_newton(system, guess, t, D, joint_rows, opts)
+    q1, ok1, it1 = gauss_newton(kernels, guess, t, D, joint_rows, opts)
     mob, start = None, None
     q, ok, it2 = q1, ok1 & False, 0
     if ok1.any():
         first = int(np.flatnonzero(ok1)[0])
         if system.m > n:
             # more equations than coordinates: find the redundant ones before going on
-            mob = analyse(one_variant(system, first), q1[first, 0], D[first, 0])
+            mob = analyse(one_variant(kernels, first), q1[first, 0], D[first, 0])
         else:
             mob = square(system)
-        q, ok, it2, start = _continue_drives(system, q1, t, D, ok1, opts, mob.rows, compiled)
+        q, ok, it2, start = _continue_drives(kernels, q1, t, D, ok1, opts, mob.rows, compiled)
         retry = ok1 & ~ok
         if retry.any():
-            q2, ok2, it3 = gauss_newton(system, q1, t, D, mob.rows, opts)
+            q2, ok2, it3 = gauss_newton(kernels, q1, t, D, mob.rows, opts)
             q = np.where((retry & ok2)[:, None, None], q2, q)
             ok = ok | (retry & ok2)
             it2 += it3
@@ -152,8 +154,8 @@ def assemble(system: System, t0: float, options: SolverOptions | None = None,
         # nothing to check or to report
         return Assembly(q[:, 0], ok, (), it1 + it2, mob, start)
     with np.errstate(all="ignore"):
-        phi = eq.constraint_values(system, np.where(ok1[:, None, None], q, q1), t)[:, 0]
-        weights = _row_weights(system, q, D, opts)[:, 0]
+        phi = eq.constraint_values(kernels, np.where(ok1[:, None, None], q, q1), t)[:, 0]
+        weights = _row_weights(kernels, q, D, opts)[:, 0]
     if mob is not None and mob.dropped.size:
         # least squares settles for a compromise where redundant equations are inconsistent:
         # every equation must hold
@@ -181,7 +183,7 @@ def assemble(system: System, t0: float, options: SolverOptions | None = None,
             what += (f" ({len(joint_rows)} joint equations for {n} coordinates: they may "
                      "over-constrain the mechanism)")
         closest = np.where(ok1[v], q[v, 0], q1[v, 0])
-        defects = jacobian_defects(system, closest, float(t0), int(v))
+        defects = jacobian_defects(kernels, closest, float(t0), int(v))
         if defects:
             messages.append(f"the mechanism cannot be assembled at t = {t0:g}"
                             f"{variant_label(system, v)}: {defects}")
@@ -227,14 +229,15 @@ def _lm_step_sparse(jac: SparseJac, rows: np.ndarray, D: np.ndarray, W: np.ndarr
     return out
 
 
-def _row_weights(system: System, q: np.ndarray, D: np.ndarray,
+def _row_weights(kernels: Kernels, q: np.ndarray, D: np.ndarray,
                  opts: SolverOptions) -> np.ndarray:
     """1 / norm of each row of Phi_q D (1 for an empty row): makes equations comparable."""
+    system = kernels.system
     with np.errstate(all="ignore"):
         if _large(system, opts):
-            norms = np.nan_to_num(eq.jacobian_values(system, q).row_norms(D))
+            norms = np.nan_to_num(eq.jacobian_values(kernels, q).row_norms(D))
         else:
-            norms = np.linalg.norm(np.nan_to_num(eq.jacobian(system, q) * D[..., None, :]),
+            norms = np.linalg.norm(np.nan_to_num(eq.jacobian(kernels, q) * D[..., None, :]),
                                    axis=-1)
     return np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
 
@@ -243,7 +246,7 @@ def _row_weights(system: System, q: np.ndarray, D: np.ndarray,
 OneEquations = Callable[[list], tuple[np.ndarray, np.ndarray]]
 
 
-def gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
+def gauss_newton(kernels: Kernels, q: np.ndarray, t: np.ndarray, D: np.ndarray,
                  rows: np.ndarray, opts: SolverOptions, one: OneEquations | None = None
                  ) -> tuple[np.ndarray, np.ndarray, int]:
     """Damped Gauss-Newton on the equations ``rows`` from ``q`` (V, 1, n).
@@ -253,13 +256,14 @@ def gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
     this goes through configurations where the Jacobian is singular. Returns q, a (V,) mask
     of the converged variants (step and scaled residual small) and the iterations used.
     A single mechanism is solved on floats: by ``one`` where the caller has its equations
-    as float code at ``t``, else by the system's own (``system.one_state``).
+    as float code at ``t``, else by the kernels' own (``kernels.one_state``).
     """
+    system = kernels.system
     V = q.shape[0]
     if rows.size == 0:
         return q.copy(), np.ones(V, bool), 0
-    if one is None and system.one_state is not None:
-        solver = OneState(system, system.one_state, D[0, 0], opts)
+    if one is None and kernels.one_state is not None:
+        solver = OneState(kernels, kernels.one_state, D[0, 0], opts)
         if V == 1 and _closed_exactly(solver, q[0, 0], rows):
             return q.copy(), np.ones(1, bool), 1
         one = _one_equations(solver, float(t[0, 0]), rows)
@@ -269,9 +273,9 @@ def gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
             qn, ok, it = out
             return np.array(qn).reshape(q.shape), np.array([ok]), it
     large = _large(system, opts)
-    W = _row_weights(system, q, D, opts)[..., rows]
+    W = _row_weights(kernels, q, D, opts)[..., rows]
     with np.errstate(all="ignore"):
-        phi = eq.constraint_values(system, q, t)[..., rows]
+        phi = eq.constraint_values(kernels, q, t)[..., rows]
     merit = 0.5 * np.sum((W * phi) ** 2, axis=-1)
     merit = np.where(np.isfinite(merit), merit, np.inf)
     done = np.zeros((V, 1), bool)
@@ -280,10 +284,10 @@ def gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
     for it in range(1, opts.assembly_max_iterations + 1):
         with np.errstate(all="ignore"):
             if large:
-                dz = _lm_step_sparse(eq.jacobian_values(system, q), rows, D, W,
+                dz = _lm_step_sparse(eq.jacobian_values(kernels, q), rows, D, W,
                                      np.nan_to_num(W * phi))
             else:
-                A = eq.jacobian(system, q)[..., rows, :] * D[..., None, :] * W[..., None]
+                A = eq.jacobian(kernels, q)[..., rows, :] * D[..., None, :] * W[..., None]
                 dz = _lm_step(A, np.nan_to_num(W * phi))
         # a trust region: long Gauss-Newton steps can leap to another assembly mode; short
         # ones follow the residual down from the guess to the closure nearest it
@@ -301,7 +305,7 @@ def gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
         for _ in range(30):
             q_try = q + (alpha * todo)[..., None] * D * dz
             with np.errstate(all="ignore"):
-                phi_try = eq.constraint_values(system, q_try, t)[..., rows]
+                phi_try = eq.constraint_values(kernels, q_try, t)[..., rows]
                 merit_try = 0.5 * np.sum((W * phi_try) ** 2, axis=-1)
             better = todo & ~accepted & (merit_try < merit) & np.isfinite(merit_try)
             q = np.where(better[..., None], q_try, q)
@@ -323,31 +327,32 @@ def gauss_newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
     return q, done[:, 0], it
 
 
-def _continue_drives(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
+def _continue_drives(kernels: Kernels, q: np.ndarray, t: np.ndarray, D: np.ndarray,
                      active: np.ndarray, opts: SolverOptions, rows: np.ndarray,
                      compiled: bool = False
                      ) -> tuple[np.ndarray, np.ndarray, int, OneStart | None]:
     """Carry the drives from their values at ``q`` to f(t0) (step 2 of :func:`assemble`;
     ``compiled``: by the compiled backend where it applies); the last item is the float
     code's :class:`OneStart` where it carried them."""
+    system = kernels.system
     ok = active.copy()
     if system.drive_rows.size == 0 or not ok.any():
         return q, ok, 0, None
-    if system.one_state is not None and len(rows) == system.n:
-        done = (_continue_compiled(system, q[0, 0], float(t[0, 0]), D[0, 0], opts)
+    if kernels.one_state is not None and len(rows) == system.n:
+        done = (_continue_compiled(kernels, q[0, 0], float(t[0, 0]), D[0, 0], opts)
                 if compiled else None)
         if done is None:
-            done = _continue_one(OneState(system, system.one_state, D[0, 0], opts), q[0, 0],
+            done = _continue_one(OneState(kernels, kernels.one_state, D[0, 0], opts), q[0, 0],
                                  float(t[0, 0]), opts)
         if done is not None:
             qn, good, it, start = done
             return np.array(qn).reshape(q.shape), np.array([good]), it, start
     with np.errstate(all="ignore"):
         delta = np.zeros(q.shape[:-1] + (system.m,))
-        delta[..., system.drive_rows] = -eq.constraint_values(system, q, t)[..., system.drive_rows]
+        delta[..., system.drive_rows] = -eq.constraint_values(kernels, q, t)[..., system.drive_rows]
     delta = np.where(ok[:, None, None], np.nan_to_num(delta), 0.0)
     sparse = use_sparse(system, opts, rows)
-    fac = factor(eq.solver_jacobian(system, q, rows, sparse), D)
+    fac = factor(eq.solver_jacobian(kernels, q, rows, sparse), D)
     floor = np.sqrt(opts.newton_tol)
     s, ds, iterations = 0.0, 1.0, 0
     while s < 1.0 and ok.any():
@@ -355,9 +360,9 @@ def _continue_drives(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray
         with np.errstate(all="ignore"):
             pred = q + (s_new - s) * fac.solve(delta[..., rows])
         pred = np.where(np.isfinite(pred), pred, q)
-        qn, conv, it = newton(system, pred, t, D, ok, opts, rows, shift=(1.0 - s_new) * delta)
+        qn, conv, it = newton(kernels, pred, t, D, ok, opts, rows, shift=(1.0 - s_new) * delta)
         iterations += it
-        fn = factor(eq.solver_jacobian(system, qn, rows, sparse), D)
+        fn = factor(eq.solver_jacobian(kernels, qn, rows, sparse), D)
         good = (conv & (fn.rcond >= opts.singular_rcond) & (fn.sign == fac.sign)
                 & (correction_ratio(qn, pred, q, D, floor) <= opts.branch_ratio))
         good |= ~ok[:, None]
@@ -424,18 +429,19 @@ def _continue_one(one, q: np.ndarray, t0: float, opts: SolverOptions
     return x, True, iterations, OneStart(f, fd, fdd, fac)
 
 
-def _continue_compiled(system: System, q: np.ndarray, t0: float, D: np.ndarray,
+def _continue_compiled(kernels: Kernels, q: np.ndarray, t0: float, D: np.ndarray,
                        opts: SolverOptions) -> tuple[list, bool, int, None] | None:
     """:func:`_continue_one` by the compiled backend (``carry`` of
     :mod:`mechdsl.compiled.native`), for a run on that backend: the same steps and checks
     in machine code; None where the model does not compile or a pivot of the fixed order
     became small (the float code decides)."""
-    module = system.native
+    system = kernels.system
+    module = kernels.native
     if module is None:
         return None
     f = np.ascontiguousarray(
-        eq.drive_values(system, np.array([[t0]]), "f", (1, 1))[0, 0], dtype=float)
-    params = system.fused.params
+        eq.drive_values(kernels, np.array([[t0]]), "f", (1, 1))[0, 0], dtype=float)
+    params = kernels.fused.params
     p = np.array([float(np.ravel(v)[0]) for v in params]) if params else np.zeros(0)
     x, info = np.empty(system.n), np.zeros(2, np.int64)
     module.carry(np.ascontiguousarray(q, dtype=float), f, p, np.ascontiguousarray(D),
@@ -463,7 +469,7 @@ def _one_equations(one: OneState, t: float, rows: np.ndarray) -> OneEquations:
     at t only where their rows are solved: the joints alone need none)."""
     f = ([c[0] for c in one.drives(np.array([t]), ("f",))[0]]
          if not set(one.drive_rows).isdisjoint(rows.tolist()) else [0.0] * len(one.drive_rows))
-    dense = one.system.fused.dense
+    dense = one.kernels.fused.dense
 
     def evaluate(x: list) -> tuple[np.ndarray, np.ndarray]:
         phi, vals = one.residual(x, f)

@@ -36,7 +36,7 @@ from typing import Callable, ClassVar
 
 import numpy as np
 
-from ..compiled.system import System
+from ..compiled.kernels import Kernels
 from ..errors import MechError
 from ..results import Results
 from .diagnose import col_scale
@@ -52,11 +52,12 @@ class Run:
     #: The method's name in :data:`mechdsl.solve.run.METHODS`.
     name: ClassVar[str] = ""
 
-    def __init__(self, system: System, options: SolverOptions | None = None, *,
+    def __init__(self, kernels: Kernels, options: SolverOptions | None = None, *,
                  progress: Progress | None = None) -> None:
+        system = kernels.system
         if system.times is None:
             raise MechError("the system was compiled without a time grid")
-        self.system = system
+        self.system, self.kernels = system, kernels
         #: The options, with the condition limits for the model's size
         #: (:meth:`~mechdsl.solve.options.SolverOptions.for_size`).
         self.opts = (options or SolverOptions()).for_size(system.n_bodies)

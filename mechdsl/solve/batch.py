@@ -33,8 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..compiled import equations as eq
+from ..compiled.kernels import Kernels
 from ..compiled.sparse import LU_BATCH
-from ..compiled.system import System
 from .linalg import Factor, GeneratedLU
 from .options import SolverOptions
 
@@ -57,10 +57,11 @@ class Settled:
     ratio: np.ndarray | None = None
 
 
-def applies(system: System, states: int) -> bool:
-    """Whether :func:`settle` takes a batch of ``states`` states of ``system``."""
-    f = system.fused
-    return (system.lu is not None and f is not None and f.layout == "member"
+def applies(kernels: Kernels, states: int) -> bool:
+    """Whether :func:`settle` takes a batch of ``states`` states of ``kernels``."""
+    system = kernels.system
+    f = kernels.fused
+    return (kernels.lu is not None and f is not None and f.layout == "member"
             and system.m == system.n and states >= LU_BATCH)
 
 
@@ -85,7 +86,7 @@ def _absmax0(x: np.ndarray) -> np.ndarray:
     return np.maximum.reduce(np.abs(x), axis=0)
 
 
-def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
+def settle(kernels: Kernels, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
            active: np.ndarray, opts: SolverOptions, rates: bool,
            before: np.ndarray | None = None, floor: float | None = None,
            drive_values: tuple[np.ndarray, ...] | None = None) -> Settled | None:
@@ -100,12 +101,13 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
     measured too, on the entry-major arrays (``floor`` required with it: a state that did
     not move would make 0 / 0). ``drive_values``: the drives' f, f', f'' at ``T``
     (V, b, drives each) where the caller has them. None where it does not apply."""
+    system = kernels.system
     V, b, n = pred.shape
     if before is not None and not (floor or 0) > 0:
         raise ValueError("settle: the correction ratio needs a positive floor")
-    if not applies(system, V * b):
+    if not applies(kernels, V * b):
         return None
-    plan, fused, p = system.lu, system.fused, system.pattern
+    plan, fused, p = kernels.lu, kernels.fused, system.pattern
     m = system.m
     P, Fn = fused.params, fused.functions
     X = np.array(pred.T, dtype=float)  # (n, b, V), contiguous
@@ -115,12 +117,12 @@ def settle(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
     inv_d = 1.0 / Dt
     drive_rows = system.drive_rows
     which = ("f", "fd", "fdd") if rates else ("f",)
-    if not system.drive_functions:
+    if not kernels.drive_functions:
         drives = None
     elif drive_values is not None:
         drives = [v.T for v in drive_values[: len(which)]]
     else:
-        drives = [np.asarray(eq.drive_values(system, T, w, (V, b))).T for w in which]
+        drives = [np.asarray(eq.drive_values(kernels, T, w, (V, b))).T for w in which]
     done = np.zeros((b, V), bool)
     done |= ~active[None, :]
     failed = np.zeros((b, V), bool)

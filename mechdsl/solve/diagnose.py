@@ -7,6 +7,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..compiled import equations as eq
+from ..compiled.kernels import Kernels
 from ..compiled.system import System
 from ..errors import listing
 
@@ -53,14 +54,15 @@ def col_scale(system: System) -> np.ndarray:
     return d
 
 
-def singularity(system: System, q: np.ndarray, v: int) -> tuple[float, str]:
+def singularity(kernels: Kernels, q: np.ndarray, v: int) -> tuple[float, str]:
     """Condition number of the scaled Jacobian at ``q`` (n,) of variant ``v``, and the joints
     and drives whose equations take part in its near-dependency: the largest components of
     the left singular vector of the smallest singular value."""
-    one = one_variant(system, v)
+    system = kernels.system
+    one = one_variant(kernels, v)
     if system.m == system.n and system.n > DENSE_ANALYSIS_MAX:
         return _sparse_singularity(one, q)
-    jac = eq.jacobian(one, q.reshape(1, 1, -1))[0, 0] * col_scale(one)[0]
+    jac = eq.jacobian(one, q.reshape(1, 1, -1))[0, 0] * col_scale(one.system)[0]
     rn = np.linalg.norm(jac, axis=-1)
     jac = jac / np.where(rn > 0, rn, 1.0)[:, None]
     try:
@@ -102,15 +104,15 @@ def loop_names(system: System, u: np.ndarray) -> str:
     return ", ".join(named) + (f" and {rest} more" if rest else "")
 
 
-def _sparse_singularity(one: System, q: np.ndarray) -> tuple[float, str]:
+def _sparse_singularity(one: Kernels, q: np.ndarray) -> tuple[float, str]:
     """:func:`singularity` for a large mechanism, without a dense SVD: the condition estimate
     of the sparse LU, and the left singular direction by two steps of inverse iteration,
     u = (A A^T)^-1 r (the smallest singular value's direction dominates)."""
     from ..compiled.sparse import TransposedLU, inverse_norm1
 
     vals = eq.jacobian_values(one, q.reshape(1, 1, -1)).values[0, 0]
-    p = one.pattern
-    D = col_scale(one)[0, 0]
+    p = one.system.pattern
+    D = col_scale(one.system)[0, 0]
     a = vals * D[p.cols]
     rn = np.sqrt(np.bincount(p.rows, a * a, minlength=p.shape[0]))
     a = np.nan_to_num(a / np.where(rn > 0, rn, 1.0)[p.rows])
@@ -126,40 +128,24 @@ def _sparse_singularity(one: System, q: np.ndarray) -> tuple[float, str]:
         return float("inf"), "(the equations could not be separated: exactly singular)"
     if not np.isfinite(u).all() or not np.isfinite(cond):
         return float("inf"), "(the Jacobian could not be analysed)"
-    return cond, loop_names(one, u)
+    return cond, loop_names(one.system, u)
 
 
-def one_variant(system: System, v: int) -> System:
-    """The system restricted to variant ``v``."""
-    groups = tuple(replace(g, params={k: a.variant(v) if hasattr(a, "variant") else a[v : v + 1]
-                                      for k, a in g.params.items()})
-                   for g in system.groups)
-    return replace(system, groups=groups, env={k: a[v : v + 1] for k, a in system.env.items()},
-                   outputs=tuple(_output_variant(o, v) for o in system.outputs),
-                   n_variants=1, scale=system.scale[v : v + 1], guess=system.guess[v : v + 1],
-                   fused=None if system.fused is None else system.fused.variant(v),
-                   dynamics=None if system.dynamics is None else system.dynamics.variant(v))
+def one_variant(kernels: Kernels, v: int) -> Kernels:
+    """The kernels and system restricted to variant ``v``."""
+    return kernels.variant(v)
 
 
-def _output_variant(spec, v: int):
-    """An output column's spec for variant ``v`` alone (its point's coordinates)."""
-    if getattr(spec, "point", None) is not None:
-        return replace(spec, point=spec.point[v : v + 1])
-    if getattr(spec, "inputs", None):
-        return replace(spec, inputs=tuple((name, _output_variant(s, v))
-                                          for name, s in spec.inputs))
-    return spec
-
-
-def failure(system: System, q_last: np.ndarray, t_last: float, v: int, target: float,
+def failure(kernels: Kernels, q_last: np.ndarray, t_last: float, v: int, target: float,
             k: int, why: str, q_next: np.ndarray | None = None) -> str:
     """The message for variant ``v`` failing on its way from ``t_last`` to ``target``, before
     recorded instant ``k``. ``why``: 'diverged', 'singular', 'crossing' or 'jump'. Where
     Newton diverged, the Jacobian is checked against Phi at the predicted state ``q_next``
     (and at the last solved one): a plugin's wrong derivative is named as such."""
+    system = kernels.system
     times = system.times
     if why == "diverged" and q_next is not None:
-        one = one_variant(system, v)
+        one = one_variant(kernels, v)
         with np.errstate(all="ignore"):
             phi = eq.constraint_values(one, q_next.reshape(1, 1, -1), np.full((1, 1), target))
         undefined = np.flatnonzero(~np.isfinite(phi[0, 0]))
@@ -170,12 +156,12 @@ def failure(system: System, q_last: np.ndarray, t_last: float, v: int, target: f
                     f"t = {t_last:.10g}, the last solved state (the square root of a negative "
                     "number, a function argument outside its table's range)")
     if why == "diverged":
-        defects = (jacobian_defects(system, q_next, target, v) if q_next is not None
-                   else None) or jacobian_defects(system, q_last, t_last, v)
+        defects = (jacobian_defects(kernels, q_next, target, v) if q_next is not None
+                   else None) or jacobian_defects(kernels, q_last, t_last, v)
         if defects:
             return (f"Newton-Raphson does not converge at t = {target:.10g} (before "
                     f"{instant_text(system, k)}){variant_label(system, v)}: {defects}")
-    cond, names = singularity(system, q_last, v)
+    cond, names = singularity(kernels, q_last, v)
     if why == "diverged" and cond > NEAR_SINGULAR:
         why = "singular"  # Newton stalls right at a dead point: say what it is
     at = f"t = {times[k]:.10g} ({instant_text(system, k)}){variant_label(system, v)}"
@@ -204,11 +190,12 @@ def failure(system: System, q_last: np.ndarray, t_last: float, v: int, target: f
 _COORDS = (("x", "y", "phi"), ("vx", "vy", "omega"), ("ax", "ay", "alpha"))
 
 
-def nonfinite_message(system: System, v: int, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+def nonfinite_message(kernels: Kernels, v: int, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                       t: float, k: int) -> str:
     """The message for variant ``v`` whose state (q, qd, qdd), each (n,), at time ``t`` (the
     recorded instant ``k``, or -1 between instants) is not all finite: the first output (or
     else body coordinate) that is not, and the equations whose right-hand side is not."""
+    system = kernels.system
     values = (q, qd, qdd)
     order = next(o for o, a in enumerate(values) if not np.isfinite(a).all())
     what = None
@@ -222,7 +209,7 @@ def nonfinite_message(system: System, v: int, q: np.ndarray, qd: np.ndarray, qdd
         if spec.order < order:
             continue
         with np.errstate(all="ignore"):
-            x = eq.output_values(system, spec, *states, np.full((V, 1), t))[v, 0]
+            x = eq.output_values(kernels, spec, *states, np.full((V, 1), t))[v, 0]
         if not np.isfinite(x):
             what = f"{spec.label} is {float(x)!r}"
             break
@@ -232,18 +219,19 @@ def nonfinite_message(system: System, v: int, q: np.ndarray, qd: np.ndarray, qdd
         what = f"{system.body_names[i // 3]}.{_COORDS[order][i % 3]} is {x!r}"
     when = (f"t = {t:.10g} ({instant_text(system, k)})" if k >= 0
             else f"t = {t:.10g}, between instants")
-    cause = _nonfinite_cause(system, v, q, qd, t, order)
+    cause = _nonfinite_cause(kernels, v, q, qd, t, order)
     return (f"{what} at {when}{variant_label(system, v)}: "
             f"{('a position', 'a velocity', 'an acceleration')[order]} that is not a finite "
             f"number{cause}; the run stops there (SolverOptions(nonfinite='keep'), or "
             "--keep-nonfinite, keeps such values and goes on)")
 
 
-def _nonfinite_cause(system: System, v: int, q: np.ndarray, qd: np.ndarray, t: float,
+def _nonfinite_cause(kernels: Kernels, v: int, q: np.ndarray, qd: np.ndarray, t: float,
                      order: int) -> str:
     """', from the right-hand side of ...': the equations whose nu (order 1) or gamma
     (order 2) is not finite at that state, if any."""
-    one = one_variant(system, v)
+    system = kernels.system
+    one = one_variant(kernels, v)
     tt = np.full((1, 1), t)
     with np.errstate(all="ignore"):
         if order == 1:
@@ -270,18 +258,19 @@ JACOBIAN_CHECK_DIRECTIONS = 2
 JACOBIAN_CHECK_TOLERANCE = 1e-5
 
 
-def jacobian_defects(system: System, q: np.ndarray, t: float, v: int) -> str | None:
+def jacobian_defects(kernels: Kernels, q: np.ndarray, t: float, v: int) -> str | None:
     """Where the solver cannot converge: compare Phi_q d with (Phi(q + h d) - Phi(q - h d)) / 2h
     at ``q`` (n,) of variant ``v`` for random scaled directions d, in the rows of the types
     that supply their own Jacobian (``jacobian_terms``; a derived one is exact): a row that
     disagrees means the plugin's Jacobian is not the derivative of its equations. Returns the
     message naming the joints and their plugins, or None when the Jacobian agrees (two Phi
     evaluations and one Jacobian per direction, whatever the size of the mechanism)."""
+    system = kernels.system
     supplied = [g.rows.ravel() for g in system.groups if g.ctype.supplies("jacobian_terms")]
     if not supplied:
         return None
-    one = one_variant(system, v)
-    D = col_scale(one)[0, 0]
+    one = one_variant(kernels, v)
+    D = col_scale(one.system)[0, 0]
     rng = np.random.default_rng(12345)
     h = 1e-6
     tt = np.full((1, 1), t)
@@ -296,7 +285,7 @@ def jacobian_defects(system: System, q: np.ndarray, t: float, v: int) -> str | N
             fd = (phi(q + h * d) - phi(q - h * d)) / (2 * h)
             if system.n > DENSE_ANALYSIS_MAX and system.pattern is not None:
                 vals = eq.jacobian_values(one, q.reshape(1, 1, -1)).values[0, 0]
-                p = one.pattern
+                p = one.system.pattern
                 jd = np.bincount(p.rows, vals * d[p.cols], minlength=system.m)
                 size = np.sqrt(np.bincount(p.rows, (vals * D[p.cols]) ** 2, minlength=system.m))
             else:
@@ -353,9 +342,10 @@ def passages_warning(times_passed: list[float], grid: np.ndarray) -> str:
             "from their predicted values (accurate to about one step)")
 
 
-def undefined_drive_message(system: System, v: int, target: float, k: int) -> str:
+def undefined_drive_message(kernels: Kernels, v: int, target: float, k: int) -> str:
     """The drives whose function is not a number at ``target`` (instant ``k``)."""
-    values = eq.drive_values(system, np.full((system.n_variants, 1), target), "f",
+    system = kernels.system
+    values = eq.drive_values(kernels, np.full((system.n_variants, 1), target), "f",
                              (system.n_variants, 1))[v, 0]
     drives = [c for c in system.constraints if c.kind == "drive"]
     bad = [drives[i] for i in np.flatnonzero(~np.isfinite(values))] or drives

@@ -35,7 +35,7 @@ from typing import Callable
 import numpy as np
 
 from ..compiled import equations as eq
-from ..compiled.system import System
+from ..compiled.kernels import Kernels
 from ..errors import MechError
 from .memory import plan
 from ..results import Results
@@ -60,11 +60,12 @@ class DynamicRun(Run):
 
     name = "dynamic"
 
-    def __init__(self, system: System, options: SolverOptions | None = None, *,
+    def __init__(self, kernels: Kernels, options: SolverOptions | None = None, *,
                  poses: bool = False, rates: bool = False, progress: Progress | None = None,
                  extra_memory: int = 0) -> None:
-        super().__init__(system, options, progress=progress)
-        if system.dynamics is None:
+        system = kernels.system
+        super().__init__(kernels, options, progress=progress)
+        if kernels.dynamics is None:
             raise MechError(
                 f"the mechanism is not fully driven ({system.n} coordinates, {system.m} "
                 "equations) and has no masses: give its bodies mass and inertia to simulate "
@@ -212,7 +213,7 @@ class DynamicRun(Run):
         q0 = self._initial_positions()[0]
         if q0 is None:
             return None, self.failures[0]
-        self.one, self.variant = _one(self.system, 0), 0
+        self.one, self.variant = _one(self.kernels, 0), 0
         self.ev = self._equations_of(0, q0)
         try:
             self.ev.accelerations(float(self.times[0]), q0, np.zeros(self.system.n))
@@ -241,7 +242,7 @@ class DynamicRun(Run):
                 return _Evaluator(self.one, self.D[v, 0], self._compiled())
         if redundant and not self.redundant:
             self.warnings.append(
-                f"the constraints are redundant at the assembly{variant_label(self.one, v)} "
+                f"the constraints are redundant at the assembly{variant_label(self.one.system, v)} "
                 "(Phi_q has rank below its number of equations): integrated by the "
                 "augmented Lagrangian, which determines the motion but not how redundant "
                 "joints share their reactions")
@@ -262,7 +263,7 @@ class DynamicRun(Run):
         if getattr(self, "_accel", None) is None:
             from ..compiled import native
 
-            self._accel = native.load_dynamics(self.system) or False
+            self._accel = native.load_dynamics(self.kernels) or False
             if not self._accel:
                 why = ("numba is not installed (pip install mechdsl[fast])"
                        if not native.available() else "the compiled backend does not "
@@ -281,28 +282,29 @@ class DynamicRun(Run):
         t = np.full((V, 1), self.times[0])
         guess = sysm.guess.reshape(V, 1, sysm.n)
         one = None
-        if V == 1 and sysm.scalar_kernels is not None:
+        k = self.kernels
+        if V == 1 and k.scalar_kernels is not None:
             # a single mechanism on floats, by the kernels its integration uses
-            ev, t0 = _Evaluator(sysm, self.D[0, 0]), float(self.times[0])
+            ev, t0 = _Evaluator(k, self.D[0, 0]), float(self.times[0])
 
             def one(x: list) -> tuple[np.ndarray, np.ndarray]:
                 return ev.phi_jac(t0, np.array(x))
 
-        q1, ok1, _ = gauss_newton(sysm, guess, t, self.D, sysm.joint_rows, opts, one)
+        q1, ok1, _ = gauss_newton(k, guess, t, self.D, sysm.joint_rows, opts, one)
         if sysm.drive_rows.size:
-            q2, ok2, _ = gauss_newton(sysm, q1, t, self.D, np.arange(sysm.m), opts, one)
+            q2, ok2, _ = gauss_newton(k, q1, t, self.D, np.arange(sysm.m), opts, one)
         else:  # the joints are every equation
             q2, ok2 = q1, ok1
         # the initial statements closed too, and the guesses it moved reported
         from .initial import positions
-        q2, notes = positions(sysm, q2, ok1 & ok2, t, self.D, opts)
+        q2, notes = positions(k, q2, ok1 & ok2, t, self.D, opts)
         self.warnings.extend(notes)
         out: list[np.ndarray | None] = []
         for v in range(V):
             if ok1[v] and ok2[v]:
                 out.append(q2[v, 0])
                 continue
-            phi = np.abs(eq.constraint_values(sysm, q2[v : v + 1], t[v : v + 1])[0, 0])
+            phi = np.abs(eq.constraint_values(k, q2[v : v + 1], t[v : v + 1])[0, 0])
             worst = np.argsort(-np.nan_to_num(phi, nan=np.inf))[:3]
             self.failures.append(
                 f"the mechanism cannot be assembled at t = {self.times[0]:g}"
@@ -317,15 +319,16 @@ class DynamicRun(Run):
         from .integrators import INTEGRATORS, stiff_method
 
         #: the system as variant v sees it: its params, its functions
-        self.one, self.variant = _one(self.system, v), v
+        self.one, self.variant = _one(self.kernels, v), v
         self.ev = self._equations_of(v, q0)
-        sysm, times, d = self.one, self.times, self.one.dynamics
+        times, d = self.times, self.one.dynamics
+        sysm = self.one.system
         n = sysm.n
         t0 = float(times[0])
         from .initial import velocities
         try:
             # v0 and the initial statements' rates onto the constraints, with the warnings
-            qd0, notes = velocities(self.system, v, t0, q0, self.D[v, 0], self.opts)
+            qd0, notes = velocities(self.kernels, v, t0, q0, self.D[v, 0], self.opts)
             y0 = self._projector()(t0, np.concatenate((q0, qd0)))
             self.ev.accelerations(t0, y0[:n], y0[n:])  # singular at the start?
         except np.linalg.LinAlgError:
@@ -420,7 +423,7 @@ class DynamicRun(Run):
         int P, and W at each output instant inside the step; W(t0) = 0. None otherwise."""
         if not any(o.label == "dissipated_energy" for o in self.system.outputs):
             return None
-        times, n, d = self.times, self.one.n, self.one.dynamics
+        times, n, d = self.times, self.one.system.n, self.one.dynamics
         W = self.states["W"]
         W[:] = np.nan
         W[0] = 0.0
@@ -452,7 +455,7 @@ class DynamicRun(Run):
         the integrator's accuracy. A variant's pairs not refined keep the samples'."""
         times = self.times
         K, V = len(times), self.system.n_variants
-        specs = {o.label: o for o in self.one.outputs}
+        specs = {o.label: o for o in self.one.system.outputs}
         brackets: dict = {}  # (lo, hi) -> the dense output between (each integrated once)
         for label, sense in sorted(self.to_refine):
             y = sense * self.data[label][v]
@@ -482,7 +485,7 @@ class DynamicRun(Run):
         from .driver import integrate
         from .integrators import INTEGRATORS
 
-        times, n, st = self.times, self.one.n, self.states
+        times, n, st = self.times, self.one.system.n, self.states
         K = len(times)
         lo, hi = max(k - 1, 0), min(k + 1, K - 1)
         segments = brackets.get((lo, hi))
@@ -526,7 +529,7 @@ class DynamicRun(Run):
         the equations of motion per instant, skipped otherwise)."""
         n, st = self.ev.n, self.states
         q, qd = y[:n], y[n:]
-        if self.one.order >= 2 or self.keep_rates:
+        if self.one.system.order >= 2 or self.keep_rates:
             try:
                 st["qdd"][k], st["lambda"][k] = self.ev.accelerations(t, q, qd)
             except np.linalg.LinAlgError:  # (NaN, not what an earlier attempt left there)
@@ -546,7 +549,7 @@ class DynamicRun(Run):
         q, qd, qdd = (st[name][None, :k] for name in ("q", "qd", "qdd"))
         T = self.times[None, :k]
         cache = {"lambda": st["lambda"][None, :k], "dissipated_energy": st["W"][None, :k]}
-        for spec in self.one.outputs:
+        for spec in self.one.system.outputs:
             self.data[spec.label][v, :k] = eq.output_values(self.one, spec, q, qd, qdd, T,
                                                             cache)[0]
         if self.poses is not None:
@@ -555,7 +558,7 @@ class DynamicRun(Run):
             self.pose_rates[v, :k, 0], self.pose_rates[v, :k, 1] = qd[0], qdd[0]
 
     def _singular_message(self, v: int, t: float) -> str:
-        sysm, d = self.one, self.one.dynamics
+        sysm, d = self.one.system, self.one.dynamics
         massless = [b + (" (no mass)" if d.mass[0, i] == 0 else " (no inertia)")
                     for i, b in enumerate(sysm.body_names)
                     if d.mass[0, i] == 0 or d.inertia[0, i] == 0]
@@ -595,16 +598,14 @@ def _augmented() -> type:
     return Motion
 
 
-def _one(system: System, v: int) -> System:
-    """The system as variant ``v`` alone sees it (its params), for the outputs."""
-    if system.n_variants == 1:
-        return system
-    from ..solve.diagnose import one_variant
-
-    one = one_variant(system, v)
+def _one(kernels: Kernels, v: int) -> Kernels:
+    """The kernels as variant ``v`` alone sees them (its params), for the outputs."""
+    if kernels.system.n_variants == 1:
+        return kernels
+    one = kernels.variant(v)
     # the one-state kernels read the params as arguments: every variant runs the code
     # generated once for the sweep (Andrews, 30 variants: 10 ms a variant less)
-    one.__dict__["scalar_kernels"] = system.scalar_kernels
+    one.__dict__["scalar_kernels"] = kernels.scalar_kernels
     return one
 
 
@@ -637,22 +638,23 @@ class _Evaluator:
     otherwise, or where a scalar kernel meets a value outside a function's domain, by the
     array kernels."""
 
-    def __init__(self, system: System, D: np.ndarray, compiled=None) -> None:
+    def __init__(self, kernels: Kernels, D: np.ndarray, compiled=None) -> None:
         # scipy.linalg is imported by the forward dynamics only (0.1 s of start-up)
+        system = kernels.system
         from scipy.linalg.lapack import dgesv, dpotrf, dpotrs
 
         from ..symbolic.codegen import scalar_functions
 
         self.dgesv, self.dpotrf, self.dpotrs = dgesv, dpotrf, dpotrs
-        self.system, self.D = system, D
+        self.system, self.kernels, self.D = system, kernels, D
         #: the compiled accel of the backend (mechdsl.compiled.native), or None
         self.compiled = compiled
-        f, d = system.fused, system.dynamics
+        f, d = kernels.fused, kernels.dynamics
         self.n, self.m = n, m = system.n, system.m
-        kernels = system.scalar_kernels
-        self.scalar = kernels is not None
+        scalar = kernels.scalar_kernels
+        self.scalar = scalar is not None
         if self.scalar:
-            self.k_phi_jac, self.k_motion, fixed = kernels
+            self.k_phi_jac, self.k_motion, fixed = scalar
             self.p = first_floats(f.params)
             self.F = scalar_functions(f.functions)
             self.pd = first_floats(d.params)
@@ -676,7 +678,7 @@ class _Evaluator:
 
     def _drives(self, t: float, which: str) -> np.ndarray:
         T = np.full((1, 1), t)
-        return eq.drive_values(self.system, T, which, (1, 1))[0, 0]
+        return eq.drive_values(self.kernels, T, which, (1, 1))[0, 0]
 
     def phi_jac(self, t: float, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Phi(q, t) (m,) and Phi_q (m, n)."""
@@ -695,8 +697,8 @@ class _Evaluator:
                 pass
         Q3, T2 = q[None, None], np.full((1, 1), t)
         with np.errstate(all="ignore"):
-            return (eq.constraint_values(self.system, Q3, T2)[0, 0],
-                    eq.jacobian(self.system, Q3)[0, 0])
+            return (eq.constraint_values(self.kernels, Q3, T2)[0, 0],
+                    eq.jacobian(self.kernels, Q3)[0, 0])
 
     def nu(self, t: float) -> np.ndarray:
         out = np.zeros(self.m)
@@ -747,11 +749,11 @@ class _Evaluator:
                 return sol[:n], sol[n:]
             except (ValueError, ZeroDivisionError, OverflowError):
                 pass
-        sysm, d = self.system, self.system.dynamics
+        k, d = self.kernels, self.kernels.dynamics
         Q3, Qd3, T2 = q[None, None], qd[None, None], np.full((1, 1), t)
         with np.errstate(all="ignore"):
-            jac = eq.jacobian(sysm, Q3)[0, 0]
-            gamma = eq.acceleration_rhs(sysm, Q3, Qd3, T2)[0, 0]
+            jac = eq.jacobian(k, Q3)[0, 0]
+            gamma = eq.acceleration_rhs(k, Q3, Qd3, T2)[0, 0]
             mass = d.mass_matrix(Q3)[0, 0]
             load = d.generalised_forces(Q3, Qd3, T2)[0, 0]
         a = np.zeros((big, big))

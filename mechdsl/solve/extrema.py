@@ -110,7 +110,7 @@ def refine(run: "KinematicRun", pairs: set[tuple[str, int]]
         with np.errstate(all="ignore"):
             for j, (label, sense) in enumerate(pairs):
                 cut = slice(j * C, (j + 1) * C)
-                f[:, cut] = sense * eq.output_values(system, specs[label], q[:, cut],
+                f[:, cut] = sense * eq.output_values(run.kernels, specs[label], q[:, cut],
                                                      qd[:, cut], qdd[:, cut], T[:, cut], {})
         if not np.isfinite(f[complete]).all():
             raise Abandoned

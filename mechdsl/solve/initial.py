@@ -34,6 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..compiled import equations as eq
+from ..compiled.kernels import Kernels
 from ..compiled.system import System
 from ..errors import MechError, listing
 from .assembly import gauss_newton
@@ -53,7 +54,7 @@ _COORDINATES = ("x", "y", "phi")
 _RATES = ("vx", "vy", "omega")
 
 
-def positions(system: System, q: np.ndarray, ok: np.ndarray, t: np.ndarray, D: np.ndarray,
+def positions(kernels: Kernels, q: np.ndarray, ok: np.ndarray, t: np.ndarray, D: np.ndarray,
               opts: SolverOptions, guess_tol: float = GUESS_TOL
               ) -> tuple[np.ndarray, list[str]]:
     """The assembly at t0 with the ``initial`` statements, and the warnings about it.
@@ -63,6 +64,7 @@ def positions(system: System, q: np.ndarray, ok: np.ndarray, t: np.ndarray, D: n
     the column scale. Returns q with every ``initial`` statement's equation closed too (the
     variants not ``ok`` are left as they are) and the warnings. Raises a MechError located
     at an ``initial`` statement that over-determines the assembly or cannot be reached."""
+    system = kernels.system
     start = system.start
     if start is None or not ok.any():
         return q, []
@@ -70,40 +72,42 @@ def positions(system: System, q: np.ndarray, ok: np.ndarray, t: np.ndarray, D: n
     free = None
     k = 0
     if start.system is not None:
-        free = _free_coordinates(system, q, ok, D)
+        free = _free_coordinates(kernels, q, ok, D)
         k = len(start.rows)
-        q = _with_initials(system, q, ok, t, D, opts, free)
+        q = _with_initials(kernels, q, ok, t, D, opts, free)
     moved = _moved_guesses(system, q, ok, D, guess_tol)
     if not moved:
         return q, []
     if free is None:
-        free = _free_coordinates(system, q, ok, D)
+        free = _free_coordinates(kernels, q, ok, D)
     if k >= free:  # every free coordinate stated: the guesses only started the search
         return q, []
     return q, [_guess_warning(system, q, moved, float(t[0, 0]), free - k)]
 
 
-def _free_coordinates(system: System, q: np.ndarray, ok: np.ndarray, D: np.ndarray) -> int:
+def _free_coordinates(kernels: Kernels, q: np.ndarray, ok: np.ndarray, D: np.ndarray) -> int:
     """n - the rank of the joints' and drives' equations at the first assembled variant."""
+    system = kernels.system
     v = int(np.flatnonzero(ok)[0])
-    one = one_variant(system, v) if system.n_variants > 1 else system
+    one = one_variant(kernels, v) if system.n_variants > 1 else kernels
     with np.errstate(all="ignore"):
         jac = eq.jacobian(one, q[v : v + 1])[0, 0] * D[v, 0]
     kept, _ = independent_rows(jac)
     return system.n - len(kept)
 
 
-def _with_initials(system: System, q: np.ndarray, ok: np.ndarray, t: np.ndarray,
+def _with_initials(kernels: Kernels, q: np.ndarray, ok: np.ndarray, t: np.ndarray,
                    D: np.ndarray, opts: SolverOptions, free: int) -> np.ndarray:
     """q assembled on the joints, the drives and the ``initial`` statements (see
     :func:`positions`)."""
+    system, code = kernels.system, kernels.start
     start = system.start
     aug, rows = start.system, start.rows
     # over-determination: the rows of the statements, after the joints' and drives', in
     # order, at the configuration that closes the joints (the rank there is the rank at the
     # start wherever that is not a singular position)
     v = int(np.flatnonzero(ok)[0])
-    one = one_variant(aug, v) if aug.n_variants > 1 else aug
+    one = one_variant(code, v) if aug.n_variants > 1 else code
     with np.errstate(all="ignore"):
         jac = eq.jacobian(one, q[v : v + 1])[0, 0] * D[v, 0]
     _, dropped = independent_rows(jac)
@@ -125,12 +129,12 @@ def _with_initials(system: System, q: np.ndarray, ok: np.ndarray, t: np.ndarray,
         raise MechError(f"initial '{c.name}' over-determines the start: {why}; remove it",
                         c.span, system.source)
     every = np.arange(aug.m)
-    q2, ok2, _ = gauss_newton(aug, q, t, D, every, opts)
+    q2, ok2, _ = gauss_newton(code, q, t, D, every, opts)
     failed = np.flatnonzero(ok & ~ok2)
     if failed.size:
         v = int(failed[0])
         with np.errstate(all="ignore"):
-            phi = np.abs(eq.constraint_values(aug, q2[v : v + 1], t[v : v + 1])[0, 0][rows])
+            phi = np.abs(eq.constraint_values(code, q2[v : v + 1], t[v : v + 1])[0, 0][rows])
         worst = int(np.argmax(np.nan_to_num(phi, nan=np.inf)))
         c = aug.row_owner(int(rows[worst]))
         raise MechError(
@@ -180,18 +184,20 @@ def _guess_warning(system: System, q: np.ndarray, moved_in: list[tuple[int, np.n
             f"statement; to start it at a guessed value, state it (e.g. '{example}')")
 
 
-def velocities(system: System, v: int, t0: float, q0: np.ndarray, D: np.ndarray,
+def velocities(kernels: Kernels, v: int, t0: float, q0: np.ndarray, D: np.ndarray,
                opts: SolverOptions) -> tuple[np.ndarray, list[str]]:
     """The initial velocities of variant ``v`` at the assembled ``q0`` (n,) and the warnings
     about them (see the module): the given ``v0`` (zero elsewhere) corrected by the least
     D-scaled change onto Phi_q qd = nu, with the rated ``initial`` statements' rows added.
     ``D`` (n,) the column scale of variant ``v``."""
-    d = system.dynamics
+    system = kernels.system
+    d = kernels.dynamics
     start = system.start
     given = np.asarray(d.v0_given, dtype=bool)
     qd_given = np.array(d.v0[v], dtype=float)
-    aug = start.system if start is not None and start.system is not None else system
-    one = one_variant(aug, v) if aug.n_variants > 1 else aug
+    code = kernels.start if start is not None and kernels.start is not None else kernels
+    aug = code.system
+    one = one_variant(code, v) if aug.n_variants > 1 else code
     rows = np.arange(system.m)
     if aug is not system:
         rows = np.concatenate((rows, start.rows[start.rated]))

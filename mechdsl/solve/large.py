@@ -85,14 +85,14 @@ def march_large(run, k: int, end: int) -> int:
     if fac is None or fac.lus is None or fac.lus[0, 0] is None or not run.active[0]:
         return k
     system, opts, times = run.system, run.opts, run.times
-    fused, pattern = system.fused, system.pattern
+    fused, pattern = run.kernels.fused, system.pattern
     n, m = system.n, system.m
     D = run.D[0, 0]
     drive_rows = system.drive_rows
     T = times[k:end]
     shape = (1, len(T))
-    if system.drive_functions:
-        f, fd, fdd = (np.array(eq.drive_values(system, T[None, :], w, shape)[0])
+    if run.kernels.drive_functions:
+        f, fd, fdd = (np.array(eq.drive_values(run.kernels, T[None, :], w, shape)[0])
                       for w in ("f", "fd", "fdd"))
         defined = allfinite(f) & allfinite(fd) & allfinite(fdd)
     else:

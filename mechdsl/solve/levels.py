@@ -18,14 +18,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..compiled import equations as eq
-from ..compiled.system import System
+from ..compiled.kernels import Kernels
 from .linalg import solve
 from .options import SolverOptions
 from .rowwise import absmax
 from .single import UNDECIDED, OneState, coarse_march_one
 
 
-def polish(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
+def polish(kernels: Kernels, q: np.ndarray, t: np.ndarray, D: np.ndarray,
            opts: SolverOptions, rows: np.ndarray, active: np.ndarray | None = None,
            tol: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Newton-Raphson on Phi(q, t) = 0 for a batch of states ``q`` (V, b, n) at ``t``
@@ -34,20 +34,21 @@ def polish(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
     contraction |dq_k|^3 / |dq_(k-1)|^2, at most ``opts.newton_error``. Returns the states and a (V, b)
     mask of the converged ones (a state whose step stopped contracting is not). Variants
     not ``active`` (V,) are left as they are, and count as converged."""
+    system = kernels.system
     q = np.array(q, dtype=float)
     tol = opts.newton_tol if tol is None else tol
-    f = (eq.drive_values(system, t, "f", q.shape[:-1]) if system.drive_functions else None)
+    f = (eq.drive_values(kernels, t, "f", q.shape[:-1]) if kernels.drive_functions else None)
     prev = np.full(q.shape[:-1], np.inf)
     done = np.zeros(q.shape[:-1], bool)
     if active is not None:
         done |= ~active[:, None]
     with np.errstate(all="ignore"):  # once for the loop: each entry costs a few us
         for it in range(1, opts.max_iterations + 1):
-            phi, vals = system.fused.evaluate_phi_jac(q)
+            phi, vals = kernels.fused.evaluate_phi_jac(q)
             if f is not None:
                 phi = phi.copy()
                 phi[..., system.drive_rows] -= f
-            jac = eq.jacobian_for(system, vals, rows)
+            jac = eq.jacobian_for(kernels, vals, rows)
             dq, solved = solve(jac, -phi if len(rows) == system.m else -phi[..., rows])
             step = absmax(dq / D)
             left = np.where((step < 0.25 * prev) & (prev < np.inf),
@@ -64,7 +65,7 @@ def polish(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray,
     return q, done
 
 
-def coarse_march(system: System, start: tuple[np.ndarray, ...], sign: np.ndarray,
+def coarse_march(kernels: Kernels, start: tuple[np.ndarray, ...], sign: np.ndarray,
                  times: np.ndarray, gap: int, D: np.ndarray, opts: SolverOptions,
                  rows: np.ndarray, min_gap: int, active: np.ndarray
                  ) -> tuple[np.ndarray, tuple[np.ndarray, ...], bool] | None:
@@ -81,12 +82,13 @@ def coarse_march(system: System, start: tuple[np.ndarray, ...], sign: np.ndarray
     full tolerance and checked as a level checks its states: a single mechanism, marched
     on floats by :func:`mechdsl.solve.single.coarse_march_one`); the variants not
     ``active`` stay where they are."""
+    system = kernels.system
     from .newton import correction_ratio
 
-    if system.one_state is not None and active[0]:
+    if kernels.one_state is not None and active[0]:
         # a single mechanism: one state per step, on floats (numpy's per-call overhead
         # would be nearly all of its cost)
-        one = OneState(system, system.one_state, D[0, 0], opts)
+        one = OneState(kernels, kernels.one_state, D[0, 0], opts)
         out = coarse_march_one(one, (start[0][0], *(a[0] for a in start[1:])), sign[0],
                                times, gap, opts, min_gap)
         if out is not UNDECIDED:
@@ -109,10 +111,10 @@ def coarse_march(system: System, start: tuple[np.ndarray, ...], sign: np.ndarray
         with np.errstate(all="ignore"):
             taylor = q + tau * (qd + tau / 2 * (qdd + tau / 3 * jerk))
             pred = np.where(still[..., None], q[:, None], taylor[:, None])
-        qn, ok = polish(system, pred, T, D, opts, rows, active, tol=loose)
+        qn, ok = polish(kernels, pred, T, D, opts, rows, active, tol=loose)
         # no condition estimate here (every instant gets one when it is settled): the sign of
         # det(Phi_q) and the rates, by LAPACK on the small dense Jacobian
-        jac = eq.jacobian(system, qn)
+        jac = eq.jacobian(kernels, qn)
         if len(rows) != system.m:
             jac = jac[..., rows, :]
         with np.errstate(all="ignore"):
@@ -124,8 +126,8 @@ def coarse_march(system: System, start: tuple[np.ndarray, ...], sign: np.ndarray
                 return None
             gap = (j - at) // 2
             continue
-        qd_new, _ = solve(jac, eq.velocity_rhs(system, T, (V, 1))[..., rows])
-        qdd_new, _ = solve(jac, eq.acceleration_rhs(system, qn, qd_new, T)[..., rows])
+        qd_new, _ = solve(jac, eq.velocity_rhs(kernels, T, (V, 1))[..., rows])
+        qdd_new, _ = solve(jac, eq.acceleration_rhs(kernels, qn, qd_new, T)[..., rows])
         if not (np.isfinite(qd_new[active]).all() and np.isfinite(qdd_new[active]).all()):
             return None
         with np.errstate(all="ignore"):

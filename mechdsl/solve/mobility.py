@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..compiled import equations as eq
+from ..compiled.kernels import Kernels
 from ..compiled.system import System
 from ..errors import MechError, NumericalError, listing
 from .diagnose import MAX_NAMED
@@ -77,12 +78,13 @@ def square(system: System) -> Mobility:
                     np.zeros(0, np.intp), np.zeros(0))
 
 
-def report(system: System, q: np.ndarray, col_scale: np.ndarray) -> tuple[int, int, str]:
+def report(kernels: Kernels, q: np.ndarray, col_scale: np.ndarray) -> tuple[int, int, str]:
     """(mobility, rank of the joint equations, the redundant ones named) at ``q`` (n,) of a
-    one-variant ``system``; nothing is raised (for ``mechdsl check``)."""
+    one-variant ``kernels``; nothing is raised (for ``mechdsl check``)."""
+    system = kernels.system
     joint_rows = system.joint_rows
     with np.errstate(all="ignore"):
-        jac = eq.jacobian(system, q.reshape(1, 1, -1))[0, 0] * col_scale
+        jac = eq.jacobian(kernels, q.reshape(1, 1, -1))[0, 0] * col_scale
     kept, dropped = independent_rows(jac[joint_rows])
     return system.n - len(kept), len(kept), _names(system, joint_rows[dropped])
 
@@ -112,14 +114,15 @@ class Freedom:
         return self.mobility - self.drive_rank
 
 
-def freedom(system: System, q: np.ndarray, col_scale: np.ndarray) -> Freedom:
-    """:class:`Freedom` at ``q`` (n,) of a one-variant ``system``: the rank of the joint
+def freedom(kernels: Kernels, q: np.ndarray, col_scale: np.ndarray) -> Freedom:
+    """:class:`Freedom` at ``q`` (n,) of a one-variant ``kernels``: the rank of the joint
     equations, then of the drives' after them (a drive on a coordinate the joints or an
     earlier drive already fix adds nothing)."""
+    system = kernels.system
     joint_rows = np.asarray(system.joint_rows, dtype=np.intp)
     drive_rows = np.asarray(system.drive_rows, dtype=np.intp)
     with np.errstate(all="ignore"):
-        jac = eq.jacobian(system, q.reshape(1, 1, -1))[0, 0] * col_scale
+        jac = eq.jacobian(kernels, q.reshape(1, 1, -1))[0, 0] * col_scale
     kept, _ = independent_rows(jac[np.concatenate((joint_rows, drive_rows))])
     joint_rank = sum(1 for k in kept if k < len(joint_rows))
     start = getattr(system, "start", None)
@@ -154,18 +157,19 @@ def independent_rows(a: np.ndarray, tol: float = RANK_TOL) -> tuple[list[int], l
     return kept, dropped
 
 
-def analyse(system: System, q: np.ndarray, col_scale: np.ndarray) -> Mobility:
+def analyse(kernels: Kernels, q: np.ndarray, col_scale: np.ndarray) -> Mobility:
     """The mobility at the joints' configuration ``q`` (n,), and the equations to solve;
-    ``system`` holds one variant (see :func:`mechdsl.solve.diagnose.one_variant`).
+    ``kernels`` holds one variant (see :func:`mechdsl.solve.diagnose.one_variant`).
 
     Raises MechError when the drives do not match the mobility (too few, too many, or a drive
     on a coordinate the joints already fix), and NumericalError when the rank falls short of
     the count only because the configuration is singular (a dead point or change point)."""
+    system = kernels.system
     n = system.n
     drive_rows = np.asarray(system.drive_rows, dtype=int)
     joint_rows = system.joint_rows
     with np.errstate(all="ignore"):
-        jac = eq.jacobian(system, q.reshape(1, 1, n))[0, 0] * col_scale
+        jac = eq.jacobian(kernels, q.reshape(1, 1, n))[0, 0] * col_scale
     kept, dropped = independent_rows(jac[joint_rows])
     kept_rows, dropped_rows = joint_rows[kept], joint_rows[dropped]
     rank = len(kept)

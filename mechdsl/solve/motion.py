@@ -90,6 +90,7 @@ import math
 import numpy as np
 
 from ..compiled import equations as eq
+from ..compiled.kernels import Kernels
 from ..compiled.system import System
 from ..errors import MechError
 from .augmented import Factor, plan
@@ -109,18 +110,20 @@ class Motion:
     :class:`mechdsl.solve.stepper.Equations` protocol), by the augmented Lagrangian (see
     the module). Sparse matrices are returned as :class:`~mechdsl.solve.triplets.Triplets`."""
 
-    def __init__(self, system: System, options: SolverOptions | None = None,
+    def __init__(self, kernels: Kernels, options: SolverOptions | None = None,
                  variant: int = 0) -> None:
+        system = kernels.system
         from scipy.linalg.lapack import dgetrf, dgetrs, dpbtrf, dpbtrs
 
-        if system.dynamics is None:
+        if kernels.dynamics is None:
             raise MechError("the mechanism has no masses: give its bodies mass and inertia "
                             "to simulate its motion", source=system.source)
         if system.n_variants > 1:
-            system = one_variant(system, variant)
-        self.system = system
+            kernels = one_variant(kernels, variant)
+            system = kernels.system
+        self.system, self.kernels = system, kernels
         self.opts = opts = options or SolverOptions()
-        f, d = system.fused, system.dynamics
+        f, d = kernels.fused, kernels.dynamics
         self.n, self.m = n, m = system.n, system.m
         self.D = col_scale(system)[0, 0]
         self._lapack = (dgetrf, dgetrs, dpbtrf, dpbtrs)
@@ -130,12 +133,12 @@ class Motion:
         self.plan = plan(n, m, d.rows, d.cols, f.rows, f.cols, opts.augmented_band_from)
         # the scalar kernels of the one-state fast path (small models), shared with the
         # explicit integrators' evaluator (compiled once per model)
-        kernels = system.scalar_kernels
-        self.scalar = kernels is not None
+        scalar = kernels.scalar_kernels
+        self.scalar = scalar is not None
         if self.scalar:
             from ..symbolic.codegen import scalar_functions
 
-            self.k_phi_jac, k_motion, fixed = kernels
+            self.k_phi_jac, k_motion, fixed = scalar
             self.p = first_floats(f.params)
             self.F = scalar_functions(f.functions)
             self.pd = first_floats(d.params)
@@ -185,13 +188,13 @@ class Motion:
         needs it (outside a function's domain, where the floats' kernel raises)."""
         from ..symbolic import kernel
 
-        d = self.system.dynamics
+        d = self.kernels.dynamics
         return kernel(d.graph, self._mq_nodes, "motion_terms") if self._mq_nodes else None
 
     def _mass_loads(self, q: np.ndarray, qd: np.ndarray, t: float
                     ) -> tuple[np.ndarray, np.ndarray]:
         """M's entries and Q at one state, by the array path."""
-        d = self.system.dynamics
+        d = self.kernels.dynamics
         out = self._mq_fixed.copy()
         if self._mq_scalar is not None:
             try:
@@ -230,7 +233,7 @@ class Motion:
 
     # -- the model's terms, as values in their fixed patterns ---------------------------------
     def _drives(self, t: float, which: str) -> np.ndarray:
-        return eq.drive_values(self.system, np.full((1, 1), t), which, (1, 1))[0, 0]
+        return eq.drive_values(self.kernels, np.full((1, 1), t), which, (1, 1))[0, 0]
 
     def _phi_jac_values(self, t: float, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Phi (m,) and the entries of Phi_q (nnz,)."""
@@ -244,7 +247,7 @@ class Motion:
                 pass
         if phi is None:
             with np.errstate(all="ignore"):
-                phi, jv = self.system.fused.evaluate_phi_jac(q[None, None])
+                phi, jv = self.kernels.fused.evaluate_phi_jac(q[None, None])
             phi, jv = phi[0, 0].copy(), jv[0, 0]
         if self.drive_rows.size:
             phi[self.drive_rows] -= self._drives(t, "f")
@@ -276,11 +279,11 @@ class Motion:
                 return entries, vals[k:k + n], gamma
             except (ValueError, ZeroDivisionError, OverflowError):
                 pass
-        sysm = self.system
+        code = self.kernels
         Q3, Qd3, T2 = q[None, None], qd[None, None], np.full((1, 1), t)
         with np.errstate(all="ignore"):
-            jv = sysm.fused.evaluate_jac(Q3)[0, 0]
-            gamma = eq.acceleration_rhs(sysm, Q3, Qd3, T2)[0, 0]
+            jv = code.fused.evaluate_jac(Q3)[0, 0]
+            gamma = eq.acceleration_rhs(code, Q3, Qd3, T2)[0, 0]
         mv, load = self._mass_loads(q, qd, t)
         return np.concatenate((jv, jv, mv)), load, gamma
 
@@ -435,7 +438,7 @@ class Motion:
     def gamma(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """gamma = -(Phi_q qd)_q qd + f''(t) in the drive rows (m,)."""
         with np.errstate(all="ignore"):
-            return eq.acceleration_rhs(self.system, q[None, None], qd[None, None],
+            return eq.acceleration_rhs(self.kernels, q[None, None], qd[None, None],
                                        np.full((1, 1), t))[0, 0]
 
     def mass(self, q: np.ndarray) -> object:
@@ -450,7 +453,7 @@ class Motion:
     def _load_jacobian(self) -> tuple:
         """The load derivatives' kernel of floats (None without varying entries) and the
         positions of dQ/dq's and dQ/dqd's entries in its output."""
-        d = self.system.dynamics
+        d = self.kernels.dynamics
         lj = d.load_jacobian
         fn = None
         if lj.kernel is not None:
@@ -463,7 +466,7 @@ class Motion:
                          ) -> tuple[Triplets, Triplets]:
         """dQ/dq and dQ/dqd (n, n): exact, from the traced loads
         (:attr:`mechdsl.compiled.dynamics.Dynamics.load_jacobian`)."""
-        d = self.system.dynamics
+        d = self.kernels.dynamics
         lj = d.load_jacobian
         fn, on_q, on_qd = self._load_jacobian
         vals = None
@@ -485,7 +488,7 @@ class Motion:
     def _curvature(self):
         from ..compiled.curvature import curvature
 
-        return curvature(self.system)
+        return curvature(self.kernels)
 
     def constraint_curvature(self, t: float, q: np.ndarray, lam: np.ndarray) -> Triplets:
         """d/dq (Phi_q^T lambda) = sum_i lambda_i Phi_i,qq (n, n), exact

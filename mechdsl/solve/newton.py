@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..compiled import equations as eq
+from ..compiled.kernels import Kernels
 from ..compiled.system import System
 from .linalg import Factor, solve
 from .options import SolverOptions
@@ -17,7 +18,7 @@ def use_sparse(system: System, opts: SolverOptions, rows: np.ndarray) -> bool:
             and len(rows) == system.m == system.n)
 
 
-def newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray, active: np.ndarray,
+def newton(kernels: Kernels, q: np.ndarray, t: np.ndarray, D: np.ndarray, active: np.ndarray,
            opts: SolverOptions, rows: np.ndarray, shift: np.ndarray | None = None,
            reuse: Factor | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """Solve the equations ``rows`` of Phi(q, t) + shift = 0 by Newton-Raphson,
@@ -35,6 +36,7 @@ def newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray, active: 
     better; the error left is then estimated from the linear rate theta = |dq_k|/|dq_(k-1)|
     as theta |dq_k| / (1 - theta). A large mechanism saves one sparse LU per iteration.
     """
+    system = kernels.system
     sparse = use_sparse(system, opts, rows)
     q = q.copy()
     done = np.zeros(q.shape[:-1], bool) | ~active[:, None]
@@ -43,7 +45,7 @@ def newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray, active: 
     it = 0
     b = q.shape[1]
     # the drives' f(t): the same at every iteration
-    f_all = (eq.drive_values(system, t, "f", q.shape[:-1]) if system.drive_functions
+    f_all = (eq.drive_values(kernels, t, "f", q.shape[:-1]) if kernels.drive_functions
              else None)
     for it in range(1, opts.max_iterations + 1):
         # instants that converged (in every variant) drop out of the next iterations
@@ -55,9 +57,9 @@ def newton(system: System, q: np.ndarray, t: np.ndarray, D: np.ndarray, active: 
         stale = reuse is not None and sparse
         with np.errstate(all="ignore"):
             if stale:
-                phi = eq.constraint_values(system, qc, tc, fc)
+                phi = eq.constraint_values(kernels, qc, tc, fc)
             else:
-                phi, jac = eq.residual_and_jacobian(system, qc, tc, rows, sparse, fc)
+                phi, jac = eq.residual_and_jacobian(kernels, qc, tc, rows, sparse, fc)
             if shift is not None:
                 phi = phi + (shift[:, cols] if part and shift.shape[1] == b else shift)
         rhs = -phi if len(rows) == system.m else -phi[..., rows]

@@ -13,7 +13,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from ..compiled.system import System
+from ..compiled.kernels import Kernels
 from ..results import Results
 from .extrema import SENSES
 
@@ -39,7 +39,7 @@ REDUCERS: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {
 }
 
 
-def reduce_results(results: Results, system: System,
+def reduce_results(results: Results, kernels: Kernels,
                    extremes: Mapping[tuple[str, int], tuple[np.ndarray, np.ndarray]]
                    | None = None) -> Results:
     """``results`` with the system's reductions computed from its histories, which are
@@ -50,6 +50,7 @@ def reduce_results(results: Results, system: System,
     maximum) and its time, found between the samples (:mod:`mechdsl.solve.extrema`):
     ``max``, ``min``, ``argmax``, ``argmin`` and ``range`` read them where given; the
     reductions that did are named in ``Results.refined``."""
+    system = kernels.system
     if not system.reductions:
         return results
     extremes = extremes or {}
@@ -68,7 +69,8 @@ def reduce_results(results: Results, system: System,
             else:
                 env[name] = REDUCERS[func](y, t) if K else np.full(V, np.nan)
         with np.errstate(all="ignore"):
-            value = np.array(np.broadcast_to(np.asarray(r.function(env), dtype=float), (V,)))
+            computed = np.asarray(kernels.reductions[r.label](env), dtype=float)
+            value = np.array(np.broadcast_to(computed, (V,)))
         value[~complete] = np.nan
         if r.scale != 1.0:  # (the columns are read in radians, the value reported in degrees)
             value *= r.scale

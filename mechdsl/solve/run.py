@@ -35,6 +35,7 @@ import numpy as np
 
 from ..compiled import equations as eq
 from ..compiled import native
+from ..compiled.kernels import Kernels
 from ..compiled.lu import THRESHOLD
 from ..compiled.sparse import LU_BATCH_STATES
 from ..compiled.system import ExprOutput, System
@@ -88,10 +89,11 @@ class KinematicRun(Run):
 
     name = "kinematic"
 
-    def __init__(self, system: System, options: SolverOptions | None = None, *,
+    def __init__(self, kernels: Kernels, options: SolverOptions | None = None, *,
                  poses: bool = False, rates: bool = False, progress: Progress | None = None,
                  extra_memory: int = 0) -> None:
-        super().__init__(system, options, progress=progress)
+        system = kernels.system
+        super().__init__(kernels, options, progress=progress)
         opts = self.opts
         count_check(system)  # before anything the size of the model is allocated
         if any(o.label == "dissipated_energy" for o in system.outputs):
@@ -141,7 +143,7 @@ class KinematicRun(Run):
         start = time.perf_counter()
         self.data = {o.label: np.full((V, K), np.nan) for o in system.outputs}
         try:
-            asm = assemble(system, float(times[0]), opts,
+            asm = assemble(self.kernels, float(times[0]), opts,
                            compiled=_wants_native(system, opts))
         except KeyboardInterrupt:
             return self.results("interrupted", time.perf_counter() - start)
@@ -224,10 +226,10 @@ class KinematicRun(Run):
         V, rows = system.n_variants, self.rows
         q0, t0 = asm.q[:, None], np.full((V, 1), times[0])
         fac, rates = None, None
-        if system.one_state is not None and len(rows) == system.n:
+        if self.kernels.one_state is not None and len(rows) == system.n:
             # a single mechanism: the factorisation, and the rates and residual where they
             # are finite numbers, on floats
-            solver = OneState(system, system.one_state, self.D[0, 0], opts)
+            solver = OneState(self.kernels, self.kernels.one_state, self.D[0, 0], opts)
             x = asm.q[0].tolist()
             start = asm.start  # the assembly's own factorisation at x, where it has one
             one = start.fac if start is not None else solver.factor(x)
@@ -250,11 +252,11 @@ class KinematicRun(Run):
                 else:
                     fac = one.batched()
         if fac is None:
-            fac = factor(eq.solver_jacobian(system, q0, rows, use_sparse(system, opts, rows)),
+            fac = factor(eq.solver_jacobian(self.kernels, q0, rows, use_sparse(system, opts, rows)),
                          self.D)
         singular = self.active & ~(fac.rcond[:, 0] >= opts.singular_rcond)
         for v in np.flatnonzero(singular):
-            self.failures.append(failure(system, self.q[v], float(times[0]), int(v),
+            self.failures.append(failure(self.kernels, self.q[v], float(times[0]), int(v),
                                          float(times[0]), 0, "singular"))
         self.active &= ~singular
         self.sign = fac.sign[:, 0]
@@ -312,8 +314,8 @@ class KinematicRun(Run):
             qs, ts = q[:, cols], t[:, cols]
             inv = fac.columns(cols)
             with np.errstate(all="ignore"):
-                qd = inv.solve(eq.velocity_rhs(system, ts, qs.shape[:-1])[..., rows])
-                qdd = inv.solve(eq.acceleration_rhs(system, qs, qd, ts)[..., rows])
+                qd = inv.solve(eq.velocity_rhs(self.kernels, ts, qs.shape[:-1])[..., rows])
+                qdd = inv.solve(eq.acceleration_rhs(self.kernels, qs, qd, ts)[..., rows])
         if opts.nonfinite == "stop" and not checked:
             need = 2 if self.pose_rates is not None else system.order
             bad = _nonfinite(q, qd, qdd, need) & mask[:, None]
@@ -324,7 +326,7 @@ class KinematicRun(Run):
             self.residual = max(self.residual, float(residual[mask].max(initial=0.0)))
         elif not checked:
             with np.errstate(all="ignore"):
-                phi = eq.constraint_values(system, q, t)
+                phi = eq.constraint_values(self.kernels, q, t)
             self.residual = max(self.residual, float(np.abs(phi[mask]).max(initial=0.0)))
             self._watch_redundant(phi, t, mask)
         lower = mask & (fac.rcond.min(axis=1) < self.min_rcond)
@@ -362,7 +364,7 @@ class KinematicRun(Run):
         # the usual case, every variant and a run of instants: by slices rather than copies
         cache: dict = {}  # the multipliers, once for all the reactions asked for
         for spec in system.outputs:
-            values = eq.output_values(system, spec, q, full_qd, full_qdd, t, cache)
+            values = eq.output_values(self.kernels, spec, q, full_qd, full_qdd, t, cache)
             if whole:
                 self.data[spec.label][:, k[0] : k[-1] + 1] = values
             else:
@@ -404,7 +406,7 @@ class KinematicRun(Run):
                         part(slice(0, j)))
         qd, qdd = rates if full else (np.full(q.shape, np.nan), np.full(q.shape, np.nan))
         for v in np.flatnonzero(bad[:, j] & mask):
-            self.failures.append(nonfinite_message(self.system, int(v), q[v, j], qd[v, j],
+            self.failures.append(nonfinite_message(self.kernels, int(v), q[v, j], qd[v, j],
                                                    qdd[v, j], float(t[v, j]), int(rec[j])))
             self.active[v] = False
             mask[v] = False
@@ -466,7 +468,7 @@ class KinematicRun(Run):
         if len(rows) != system.n:
             return k  # not as many independent equations as coordinates: the careful march
         split = opts.level_split
-        coarse = coarse_march(system, (self.t, self.q, self.qd, self.qdd), self.sign,
+        coarse = coarse_march(self.kernels, (self.t, self.q, self.qd, self.qdd), self.sign,
                               times[k - 1 : end], opts.coarse_stride, D, opts, rows,
                               min_gap=split, active=self.active)
         if coarse is None:
@@ -496,14 +498,14 @@ class KinematicRun(Run):
             T = values = pred = done = q = fac = rates = ratio = good = None
             idx = np.arange(j0, min(j0 + cap, end))
             T = np.where(act, times[idx][None, :], self.t[:, None])
-            values = _drive_values(system, T)
-            if (_undefined_drives(system, T, values) & act).any():
+            values = _drive_values(self.kernels, T)
+            if (_undefined_drives(self.kernels, T, values) & act).any():
                 return j0
             _, tn, qn, qdn, qddn = nodes
             with np.errstate(all="ignore"):
                 pred = quintic_hermite(tn[first], qn, qdn, qddn, times[idx])
             rates = None
-            done = batch.settle(system, pred, T, D, self.active, opts,
+            done = batch.settle(self.kernels, pred, T, D, self.active, opts,
                                 rates=self.pose_rates is not None or system.order >= 1,
                                 before=self.q, floor=self.floor, drive_values=values)
             if done is not None:
@@ -511,8 +513,8 @@ class KinematicRun(Run):
                 if done.qd is not None:
                     rates = (done.qd, done.qdd)
             else:
-                q, ok, _ = newton(system, pred, T, D, self.active, opts, rows)
-                fac = factor(eq.solver_jacobian(system, q, rows, False), D)
+                q, ok, _ = newton(self.kernels, pred, T, D, self.active, opts, rows)
+                fac = factor(eq.solver_jacobian(self.kernels, q, rows, False), D)
                 previous = np.concatenate((self.q[:, None], q[:, :-1]), axis=1)
                 ratio = correction_ratio(q, pred, previous, D, self.floor)
             good = (ok & (fac.rcond >= opts.singular_rcond) & (fac.sign == self._signs_before(fac))
@@ -580,16 +582,16 @@ class KinematicRun(Run):
         (the loosely solved states of the coarse march, already checked), it is not."""
         system, opts, D, rows = self.system, self.opts, self.D, self.rows
         act = self.active[:, None]
-        values = _drive_values(system, T)
-        if (_undefined_drives(system, T, values) & act).any():
+        values = _drive_values(self.kernels, T)
+        if (_undefined_drives(self.kernels, T, values) & act).any():
             return None
-        done = _settle_in_batches(system, pred, T, D, self.active, opts, self._batch_cap(),
+        done = _settle_in_batches(self.kernels, pred, T, D, self.active, opts, self._batch_cap(),
                                   values)
         if done is not None:
             q, ok, fac = done.q, done.converged, done.fac
         else:
-            q, ok = polish(system, pred, T, D, opts, rows, self.active)
-            fac = factor(eq.solver_jacobian(system, q, rows, False), D)
+            q, ok = polish(self.kernels, pred, T, D, opts, rows, self.active)
+            fac = factor(eq.solver_jacobian(self.kernels, q, rows, False), D)
         ratio = (correction_ratio(q, pred, base, D, self.floor) if base is not None
                  else np.zeros(q.shape[:-1]))
         good = (ok & (fac.rcond >= opts.singular_rcond) & (fac.sign == self.sign[:, None])
@@ -599,8 +601,8 @@ class KinematicRun(Run):
         if done is not None:
             return T, q, done.qd, done.qdd
         with np.errstate(all="ignore"):
-            qd = fac.solve(eq.velocity_rhs(system, T, q.shape[:-1])[..., rows])
-            qdd = fac.solve(eq.acceleration_rhs(system, q, qd, T)[..., rows])
+            qd = fac.solve(eq.velocity_rhs(self.kernels, T, q.shape[:-1])[..., rows])
+            qdd = fac.solve(eq.acceleration_rhs(self.kernels, q, qd, T)[..., rows])
         return T, q, qd, qdd
 
     # -- the compiled march ----------------------------------------------------------------------
@@ -610,7 +612,7 @@ class KinematicRun(Run):
         member layout, no function arguments, numba installed); else None."""
         if not _wants_native(self.system, self.opts) or len(self.rows) != self.system.n:
             return None
-        module = self.system.native
+        module = self.kernels.native
         if module is None and self.opts.backend == "compiled":
             why = ("numba is not installed (pip install mechdsl[fast])" if not native.available()
                    else "the compiled backend does not compile this model (a function "
@@ -629,7 +631,7 @@ class KinematicRun(Run):
         K, V, n = len(times), system.n_variants, system.n
         every = bool(self.active.all())
         live = slice(None) if every else np.flatnonzero(self.active)  # (a slice copies nothing)
-        params = system.fused.params
+        params = self.kernels.fused.params
         P = (np.stack([np.broadcast_to(p, (V, 1))[:, 0] for p in params]) if params
              else np.zeros((0, V)))
         c = np.ascontiguousarray
@@ -642,10 +644,10 @@ class KinematicRun(Run):
             start, end = k - 1 + first, min(K, k + step)
             T = np.broadcast_to(times[start:end], (V, end - start))
             C = end - start
-            fd = (eq.drive_table(system, T, T.shape) if system.drive_functions
+            fd = (eq.drive_table(self.kernels, T, T.shape) if self.kernels.drive_functions
                   else np.zeros((V, C, 3, 0)))
-            values = _derivatives(fd) if system.drive_functions else None
-            if (_undefined_drives(system, T, values) & self.active[:, None]).any():
+            values = _derivatives(fd) if self.kernels.drive_functions else None
+            if (_undefined_drives(self.kernels, T, values) & self.active[:, None]).any():
                 return k
             if not every:
                 fd = np.ascontiguousarray(fd[live])
@@ -716,11 +718,11 @@ class KinematicRun(Run):
             bb = len(targets)
             act = self.active[:, None]
             T = np.where(act, targets[None, :], self.t[:, None])
-            undefined = _undefined_drives(system, T) & act
+            undefined = _undefined_drives(self.kernels, T) & act
             pred = self.predict(T, opts.predictor_order)
-            qn, ok, iters = newton(system, pred, T, D, self.active, opts, rows,
+            qn, ok, iters = newton(self.kernels, pred, T, D, self.active, opts, rows,
                                    reuse=self.fac if sparse else None)
-            fac = factor(eq.solver_jacobian(system, qn, rows, sparse), D)
+            fac = factor(eq.solver_jacobian(self.kernels, qn, rows, sparse), D)
             ratio = correction_ratio(qn, pred, self.q[:, None], D, floor)
             singular = ok & ~(fac.rcond >= opts.singular_rcond)
             crossing = (ok & ~singular & (fac.sign != self._signs_before(fac))
@@ -755,8 +757,9 @@ class KinematicRun(Run):
             gap = target - t_now
             if attempts > opts.max_substeps:
                 for v in np.flatnonzero(self.active):
-                    defects = (jacobian_defects(system, pred[v, 0], target, int(v))
-                               or jacobian_defects(system, self.q[v], float(self.t[v]), int(v)))
+                    defects = (jacobian_defects(self.kernels, pred[v, 0], target, int(v))
+                               or jacobian_defects(self.kernels, self.q[v], float(self.t[v]),
+                                                   int(v)))
                     self.failures.append(
                         f"Newton-Raphson does not converge after t = {t_now:.10g}: {defects}"
                         if defects else too_coarse_message(system, int(v), t_now,
@@ -778,16 +781,16 @@ class KinematicRun(Run):
             bad = self.active & ~good[:, 0]
             for v in np.flatnonzero(bad):
                 if undefined[v, 0]:
-                    self.failures.append(undefined_drive_message(system, int(v), target,
+                    self.failures.append(undefined_drive_message(self.kernels, int(v), target,
                                                                  int(instant[k])))
                     continue
                 why = ("singular" if singular[v, 0] else "crossing" if crossing[v, 0]
                        else "jump" if jump[v, 0] else "diverged")
-                self.failures.append(failure(system, self.q[v], float(self.t[v]), int(v),
+                self.failures.append(failure(self.kernels, self.q[v], float(self.t[v]), int(v),
                                              target, int(instant[k]), why, pred[v, 0]))
             self.active &= ~bad
             if self.active.any():
-                fac = factor(eq.solver_jacobian(system, qn, rows, sparse), D)
+                fac = factor(eq.solver_jacobian(self.kernels, qn, rows, sparse), D)
                 self.accept(qn, T, _recorded(instant, rec), fac, self.active.copy(), rates)
                 if rec[0] >= 0:
                     hsub, attempts, k = None, 0, k + 1
@@ -813,7 +816,7 @@ class KinematicRun(Run):
         regular state): the positions, their rates (qd, qdd) and the variants that passed."""
         g = self.regular
         tau = (T[:, 0] - g.t)[:, None]
-        q, qd, qdd, ok = singular_step(self.system, pred, T, g.qd + tau * g.qdd, g.qdd, self.D,
+        q, qd, qdd, ok = singular_step(self.kernels, pred, T, g.qd + tau * g.qdd, g.qdd, self.D,
                                        self.rows, self.opts)
         ratio = correction_ratio(q, pred, self.q[:, None], self.D, self.floor)[:, 0]
         passed = ok & (ratio <= self.opts.branch_ratio) & self.active
@@ -826,7 +829,7 @@ class KinematicRun(Run):
         than the velocities at both ends allow (twice their mean times the gap)."""
         D = self.D
         with np.errstate(all="ignore"):
-            qd = fac.solve(eq.velocity_rhs(self.system, t[:, None], (len(q), 1))
+            qd = fac.solve(eq.velocity_rhs(self.kernels, t[:, None], (len(q), 1))
                            [..., self.rows])[:, 0]
             speed = (np.abs(self.qd / D[:, 0]) + np.abs(qd / D[:, 0])).max(axis=-1)
             moved = np.abs((q - self.q) / D[:, 0]).max(axis=-1)
@@ -838,7 +841,7 @@ class KinematicRun(Run):
         system = self.system
         per_instant = system.n_variants * system.m * system.n
         cap = max(1, self.opts.max_batch_elements // max(1, per_instant))
-        if system.m == system.n and system.lu is not None:
+        if system.m == system.n and self.kernels.lu is not None:
             cap = min(cap, max(1, LU_BATCH_STATES // system.n_variants))
         return cap
 
@@ -847,19 +850,20 @@ class KinematicRun(Run):
         return np.concatenate((self.sign[:, None], fac.sign[:, :-1]), axis=1)
 
 
-def _settle_in_batches(system: System, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
+def _settle_in_batches(kernels: Kernels, pred: np.ndarray, T: np.ndarray, D: np.ndarray,
                        active: np.ndarray, opts: SolverOptions, cap: int,
                        values: tuple[np.ndarray, ...] | None):
     """:func:`mechdsl.solve.batch.settle` of a level, ``cap`` instants at a time (a batch
     that fits the processor's cache, as the last step's), joined; None where it does not
     apply to some batch. ``values``: the drives' f, f', f'' at ``T`` (:func:`_drive_values`)."""
+    system = kernels.system
     c = pred.shape[1]
     if c <= cap:
-        return batch.settle(system, pred, T, D, active, opts, rates=True, drive_values=values)
+        return batch.settle(kernels, pred, T, D, active, opts, rates=True, drive_values=values)
     parts = []
     for j in range(0, c, cap):
         cut = slice(j, j + cap)
-        part = batch.settle(system, pred[:, cut], T[:, cut], D, active, opts, rates=True,
+        part = batch.settle(kernels, pred[:, cut], T[:, cut], D, active, opts, rates=True,
                             drive_values=None if values is None
                             else tuple(v[:, cut] for v in values))
         if part is None:
@@ -880,7 +884,7 @@ METHODS: dict[str, type[Run]] = {KinematicRun.name: KinematicRun,
                                   DynamicRun.name: DynamicRun}
 
 
-def simulate(system: System, options: SolverOptions | None = None, *,
+def simulate(kernels: Kernels, options: SolverOptions | None = None, *,
              poses: bool = False, rates: bool = False, progress: Progress | None = None,
              extra_memory: int = 0) -> Results:
     """Solve positions (and, where outputs need them, velocities and accelerations) at every
@@ -896,22 +900,23 @@ def simulate(system: System, options: SolverOptions | None = None, *,
     ``"failed"`` with the reasons in ``Results.messages``. Neither does an interrupt (status
     ``"interrupted"``): the instants solved before are kept.
     """
-    run = METHODS[method_for(system)](system, options, poses=poses, rates=rates,
-                                      progress=progress, extra_memory=extra_memory)
+    run = METHODS[method_for(kernels)](kernels, options, poses=poses, rates=rates,
+                                       progress=progress, extra_memory=extra_memory)
     results = run.run()
     if not rates and results.rates is not None:  # kept for the extremes only
         results = replace(results, rates=None, poses=results.poses if poses else None)
-    return reduce_results(results, system, getattr(run, "extrema", None))
+    return reduce_results(results, kernels, getattr(run, "extrema", None))
 
 
-def method_for(system: System) -> str:
-    """The method that solves ``system``: the kinematic march where the drives determine the
+def method_for(kernels: Kernels) -> str:
+    """The method that solves ``kernels``: the kinematic march where the drives determine the
     motion (as many equations as coordinates, or more), the forward dynamics where they do
     not and the model has masses. A model with masses and no drive at all is forward
     dynamics whatever its count of equations: nothing could drive it, and as many joint
     equations as coordinates means redundant constraints (a parallelogram with a third
     crank), which the forward dynamics integrates."""
-    if system.dynamics is not None and (system.m < system.n or not system.drive_rows.size):
+    system = kernels.system
+    if kernels.dynamics is not None and (system.m < system.n or not system.drive_rows.size):
         return "dynamic"
     return "kinematic"
 
@@ -963,13 +968,14 @@ def _wants_native(system: System, opts: SolverOptions) -> bool:
         system.n_variants * len(system.times) >= opts.compiled_from and native.available())
 
 
-def _undefined_drives(system: System, T: np.ndarray,
+def _undefined_drives(kernels: Kernels, T: np.ndarray,
                       values: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
     """(V, b): where some drive's function, or its derivatives, is not a finite number
     (``values``: f, f', f'' at ``T`` where the caller has them, from :func:`_drive_values`)."""
-    if not system.drive_functions:
+    system = kernels.system
+    if not kernels.drive_functions:
         return np.zeros(T.shape, bool)
-    values = values or _drive_values(system, T)
+    values = values or _drive_values(kernels, T)
     if all(np.isfinite(v).all() for v in values):  # the usual case: a reduction each
         return np.zeros(T.shape, bool)
     ok = np.ones(T.shape, bool)
@@ -978,11 +984,12 @@ def _undefined_drives(system: System, T: np.ndarray,
     return ~ok
 
 
-def _drive_values(system: System, T: np.ndarray) -> tuple[np.ndarray, ...] | None:
+def _drive_values(kernels: Kernels, T: np.ndarray) -> tuple[np.ndarray, ...] | None:
     """f, f', f'' of every drive at ``T`` (V, b), each (V, b, drives); None without drives."""
-    if not system.drive_functions:
+    system = kernels.system
+    if not kernels.drive_functions:
         return None
-    return _derivatives(eq.drive_table(system, T, T.shape))
+    return _derivatives(eq.drive_table(kernels, T, T.shape))
 
 
 def _derivatives(table: np.ndarray) -> tuple[np.ndarray, ...]:

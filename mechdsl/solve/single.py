@@ -22,9 +22,9 @@ from operator import add, neg, sub, truediv
 import numpy as np
 
 from ..compiled import equations as eq
+from ..compiled.kernels import Kernels
 from ..compiled.lu import THRESHOLD
 from ..compiled.scalar import OneState as Code
-from ..compiled.system import System
 from .linalg import Factor
 from .options import SolverOptions
 
@@ -46,8 +46,9 @@ class OneState:
     """Newton, factorisation and rates for the single variant of ``system`` (see the module
     documentation); ``D`` its column scale (n,) (L for lengths, 1 for angles)."""
 
-    def __init__(self, system: System, code: Code, D: np.ndarray, opts: SolverOptions) -> None:
-        self.system, self.code, self.opts = system, code, opts
+    def __init__(self, kernels: Kernels, code: Code, D: np.ndarray, opts: SolverOptions) -> None:
+        system = kernels.system
+        self.system, self.kernels, self.code, self.opts = system, kernels, code, opts
         self.D = [float(d) for d in D]
         self.m, self.n = code.m, code.n
         self.drive_rows = [int(r) for r in system.drive_rows]
@@ -57,11 +58,11 @@ class OneState:
         """f, f', f'' (``which``) of every drive at ``times``: a list per derivative asked
         for, of the drives' lists of values, one per instant."""
         t = np.asarray(times, dtype=float)[None, :]
-        if not self.system.drive_functions:
+        if not self.kernels.drive_functions:
             return tuple([] for _ in which)
         # one list per drive (a list per instant costs fifty times more to build)
         return tuple([col.tolist() for col in
-                      np.array(eq.drive_values(self.system, t, w, t.shape)[0]).T]
+                      np.array(eq.drive_values(self.kernels, t, w, t.shape)[0]).T]
                      for w in which)
 
     def residual(self, x: list, f: list) -> tuple[list, list]:
@@ -78,7 +79,7 @@ class OneState:
         fac = self.code.factor(vals, THRESHOLD)
         if fac is not None:
             return self.code.solve(fac, b)
-        dense = self.system.fused.dense(np.array(vals))
+        dense = self.kernels.fused.dense(np.array(vals))
         with np.errstate(all="ignore"):
             try:
                 x = np.linalg.solve(dense, np.array(b))

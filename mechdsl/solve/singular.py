@@ -17,7 +17,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..compiled import equations as eq
-from ..compiled.system import System
+from ..compiled.kernels import Kernels
 from .assembly import gauss_newton
 from .options import SolverOptions
 
@@ -37,21 +37,22 @@ def _complete(a: np.ndarray, rhs: np.ndarray, pred: np.ndarray, rcut: float) -> 
     return z + np.einsum("...ki,...k->...i", null, np.einsum("...ki,...i->...k", null, pred - z))
 
 
-def singular_step(system: System, q_pred: np.ndarray, t: np.ndarray, qd_pred: np.ndarray,
+def singular_step(kernels: Kernels, q_pred: np.ndarray, t: np.ndarray, qd_pred: np.ndarray,
                   qdd_pred: np.ndarray, D: np.ndarray, rows: np.ndarray, opts: SolverOptions
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Positions (V, 1, n), velocities and accelerations at an instant on a singular
     position, from predictions of all three; and a (V,) mask of where the positions
     converged."""
+    system = kernels.system
     # converge as far as a regular instant would: the assembly's residual test is too loose
     tight = replace(opts, assembly_residual=min(opts.assembly_residual, 1e-14),
                     assembly_tol=min(opts.assembly_tol, opts.newton_tol))
-    q, ok, _ = gauss_newton(system, q_pred, t, D, rows, tight)
+    q, ok, _ = gauss_newton(kernels, q_pred, t, D, rows, tight)
     with np.errstate(all="ignore"):
-        a = eq.jacobian(system, q)[:, 0][:, rows] * D[:, 0, None, :]
-        nu = eq.velocity_rhs(system, t, q.shape[:-1])[:, 0, rows]
+        a = eq.jacobian(kernels, q)[:, 0][:, rows] * D[:, 0, None, :]
+        nu = eq.velocity_rhs(kernels, t, q.shape[:-1])[:, 0, rows]
         z = _complete(a, nu, qd_pred / D[:, 0], NULL_RCUT)
         qd = (z * D[:, 0])[:, None]
-        gamma = eq.acceleration_rhs(system, q, qd, t)[:, 0, rows]
+        gamma = eq.acceleration_rhs(kernels, q, qd, t)[:, 0, rows]
         z2 = _complete(a, gamma, qdd_pred / D[:, 0], NULL_RCUT)
     return q, qd, (z2 * D[:, 0])[:, None], ok & np.isfinite(z).all(-1) & np.isfinite(z2).all(-1)

@@ -9,7 +9,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..compiled.system import System
+from ..compiled.kernels import Kernels
 from ..compiled.variants import Overrides, sweep_table
 from ..errors import MechError
 from ..memory import resident_bytes, within
@@ -30,7 +30,7 @@ def study_of(mech, ov: Overrides, options: SolverOptions | None = None, *,
     return Study(mech.model, ov, options, mech.portable(), poses, rates)
 
 
-def plan(mech, ov: Overrides, chunk: int | None = None) -> tuple[System, int, int, dict]:
+def plan(mech, ov: Overrides, chunk: int | None = None) -> tuple[Kernels, int, int, dict]:
     """How a sweep is cut: the compiled model of its first chunk (the probe, checked as a
     whole run would be), the number of variants, the variants per chunk (``chunk``, or
     :func:`~mechdsl.study.chunks.default_chunk`) and the whole sweep table."""
@@ -43,7 +43,7 @@ def plan(mech, ov: Overrides, chunk: int | None = None) -> tuple[System, int, in
         raise MechError(f"--chunk {chunk}: give at least 1 variant per chunk")
     first = min(total, chunk or CHUNK_VARIANTS)
     probe = mech.compile(replace(ov, variant_range=(0, first)) if sweep else ov)
-    return probe, total, chunk or default_chunk(probe, total), sweep
+    return probe, total, chunk or default_chunk(probe.system, total), sweep
 
 
 def solve_sweep(mech, ov: Overrides, options: SolverOptions | None = None, *,
@@ -62,7 +62,8 @@ def solve_sweep(mech, ov: Overrides, options: SolverOptions | None = None, *,
     beside ``store`` and put in place when the run ends, and ``placed`` is called with
     where it went (``store``, or beside it when an interrupted run kept an earlier store:
     :func:`mechdsl.outputs.store.finish_store`)."""
-    probe, total, size, sweep = planned or plan(mech, ov, chunk)
+    kernels, total, size, sweep = planned or plan(mech, ov, chunk)
+    probe = kernels.system
     study = study_of(mech, ov, options, poses=poses, rates=rates)
     limit = (options or SolverOptions()).max_memory
     if store is None:
@@ -79,7 +80,7 @@ def solve_sweep(mech, ov: Overrides, options: SolverOptions | None = None, *,
             err.notes = ["write them to a store (-o results.zarr or results.parquet), ask for "
                          "reductions (--reduce), or raise the limit with --max-memory"]
             raise
-        return run_study(study, probe, total, size, sweep, client=client, progress=progress)
+        return run_study(study, kernels, total, size, sweep, client=client, progress=progress)
     from ..outputs.store import create_store, discard_store, finish_store
 
     labels, units = labels_and_units(probe)
@@ -87,7 +88,7 @@ def solve_sweep(mech, ov: Overrides, options: SolverOptions | None = None, *,
                         time_unit=probe.time_unit, reduced=bool(probe.reductions),
                         chunk_variants=size, source_name=probe.source.name, n_variants=total)
     try:  # the writers fill the store where it is built; the earlier one stays till the end
-        results = run_study(study, probe, total, size, sweep, client=client, store=work,
+        results = run_study(study, kernels, total, size, sweep, client=client, store=work,
                             progress=progress)
         where = finish_store(work, status=results.status, messages=results.messages,
                              warnings=results.warnings, solve_time=results.solve_time,

@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..compiled.kernels import Kernels
 from ..compiled.system import System
 from ..compiled.variants import Overrides
 from ..grammar import Model
@@ -45,18 +46,18 @@ class Study:
         if not callable(getattr(self.compiler, "compile", None)):
             raise TypeError("a Study needs the compiler its API hands it (Mechanism.portable())")
 
-    def system(self, start: int, stop: int) -> System:
+    def kernels(self, start: int, stop: int) -> Kernels:
         """The compiled model of variants ``start`` .. ``stop - 1``."""
         return self.compiler.compile(replace(self.overrides, variant_range=(start, stop)))
 
-    def solve(self, start: int, stop: int, progress=None, system: System | None = None
+    def solve(self, start: int, stop: int, progress=None, kernels: Kernels | None = None
               ) -> Results:
         """Solve variants ``start`` .. ``stop - 1`` (their reductions, if the model asks for
-        them): :func:`mechdsl.solve.simulate` on their compiled model (``system``, if the
+        them): :func:`mechdsl.solve.simulate` on their compiled model (``kernels``, if the
         caller has it already)."""
         from ..solve import simulate
 
-        return simulate(system or self.system(start, stop), self.options,
+        return simulate(kernels or self.kernels(start, stop), self.options,
                         poses=self.poses or self.rates, rates=self.rates, progress=progress)
 
 

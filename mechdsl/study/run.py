@@ -17,6 +17,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..compiled.kernels import Kernels
 from ..compiled.system import System
 from ..errors import MechError
 from ..results import Results
@@ -33,11 +34,11 @@ def labels_and_units(system: System) -> tuple[list[str], dict[str, str]]:
 
 
 def solve_chunk(study: Study, start: int, stop: int, store: str | None = None,
-                system: System | None = None) -> Results:
-    """Solve variants ``start`` .. ``stop - 1`` of ``study`` (compiled as ``system``, if
+                kernels: Kernels | None = None) -> Results:
+    """Solve variants ``start`` .. ``stop - 1`` of ``study`` (compiled as ``kernels``, if
     given). With ``store``, write them into their region of it and return how they ended
     only (no arrays but ``n_solved``)."""
-    results = study.solve(start, stop, system=system)
+    results = study.solve(start, stop, kernels=kernels)
     if store is None:
         return results
     from ..outputs.store import write_chunk
@@ -73,13 +74,13 @@ class StudyRun:
             total = self.ranges[-1][1]
             self.progress(solved * self.instants, total * self.instants)
 
-    def in_process(self, probe: System) -> None:
+    def in_process(self, probe: Kernels) -> None:
         """Every chunk, one after the other, here; the first is ``probe`` if it has as many
         variants (compiled already)."""
         for start, stop in self.ranges:
-            system = probe if start == 0 and probe.n_variants == stop else None
+            kernels = probe if start == 0 and probe.system.n_variants == stop else None
             try:
-                results = solve_chunk(self.study, start, stop, self.store, system)
+                results = solve_chunk(self.study, start, stop, self.store, kernels)
             except KeyboardInterrupt:
                 self.status = "interrupted"
                 return
@@ -179,7 +180,7 @@ class Liveness:
         self.last = time.monotonic()
 
 
-def run_study(study: Study, probe: System, n_variants: int, chunk: int,
+def run_study(study: Study, probe: Kernels, n_variants: int, chunk: int,
               sweep: dict[str, np.ndarray], *, client=None, store: str | None = None,
               progress: Callable[[int, int], None] | None = None) -> Results:
     """Solve the ``n_variants`` variants of ``study`` in chunks of ``chunk``: on the Dask
@@ -189,14 +190,14 @@ def run_study(study: Study, probe: System, n_variants: int, chunk: int,
     results; with ``store`` (a store made by :func:`mechdsl.outputs.store.create_store`),
     each chunk is written there where it was solved, and the results hold no arrays."""
     run = StudyRun(study, chunk_ranges(n_variants, chunk), sweep, store, progress,
-                   len(probe.times))
+                   len(probe.system.times))
     start = time.perf_counter()
     if client is None:
         run.in_process(probe)
     else:
         run.on_cluster(client)
     elapsed = time.perf_counter() - start
-    template = next(iter(run.done.values())) if run.done else blank(probe)
+    template = next(iter(run.done.values())) if run.done else blank(probe.system)
     return run.results(template, elapsed)
 
 

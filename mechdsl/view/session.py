@@ -135,7 +135,7 @@ class Session:
                 results = mech.simulate(params=dict(self.values), poses=True,
                                         rates=bool(system.sketch and system.sketch.centrodes),
                                         options=self.options)
-                system = mech.compile(ov)
+                system = mech.compile(ov).system
         except MechError as err:
             return payload.error_message("failed", [format_error(err)], self.sliders())
         return payload.run_message(system, results, self.sliders(), file=self.display)

@@ -49,8 +49,8 @@ def test_rough_guesses_find_the_nearest_assembly_mode(registry, seed):
     guesses = truth.copy()
     guesses[:, :2] += rng.uniform(-0.3, 0.3, (3, 2)) * lengths[:, None]  # 30 % of each link
     guesses[:, 2] += rng.uniform(-0.5, 0.5, 3)
-    system = mech_with(registry, guesses).compile()
-    asm = assemble(system, 0.0)
+    kernels = mech_with(registry, guesses).compile()
+    asm = assemble(kernels, 0.0)
     assert asm.ok.all(), asm.messages
     got = asm.q[0].reshape(3, 3)
     np.testing.assert_allclose(got[:, :2], truth[:, :2], atol=1e-12)
@@ -71,9 +71,9 @@ def test_no_assembly_from_a_guess_is_reported(registry):
     # with the crank at pi/4 its pin is 3.37 from the rocker's pivot, the rocker is 3 long:
     # a coupler of 0.2 cannot span the gap
     mech = mech_with(registry, exact_poses())
-    system = mechdsl.loads(mech.model.source.text.replace("param b = 3.5", "param b = 0.2"),
+    kernels = mechdsl.loads(mech.model.source.text.replace("param b = 3.5", "param b = 0.2"),
                            "short.mech", registry=registry).compile()
-    asm = assemble(system, 0.0)
+    asm = assemble(kernels, 0.0)
     assert not asm.ok[0]
     assert "cannot be assembled at t = 0" in asm.messages[0]
     assert "the drives cannot reach their values at t0" in asm.messages[0]

@@ -89,9 +89,9 @@ def test_three_crank_coupling_rods_have_mobility_one(load_example):
     from mechdsl.solve.mobility import report
 
     mech = load_example("parallelogram.mech")
-    system = mech.compile()
-    asm = assemble(system, 0.0)
-    mobility, rank, redundant = report(one_variant(system, 0), asm.q[0], col_scale(system)[0, 0])
+    kernels = mech.compile()
+    asm = assemble(kernels, 0.0)
+    mobility, rank, redundant = report(one_variant(kernels, 0), asm.q[0], col_scale(kernels.system)[0, 0])
     assert (mobility, rank) == (1, 11)
     assert redundant == "joint A3 (1 of 2 equations, line 20)"
 
