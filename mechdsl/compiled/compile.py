@@ -310,7 +310,7 @@ class _Compiler:
             f = c.value
             if c.rate is not None:
                 f = E.add(c.value, E.mul(c.rate, E.sub(E.Name(TIME, c.span), E.Num(t0, c.span))))
-            out.append(Drive(c.name, c.type_name, c.args, f, c.span, c.type_span))
+            out.append(Drive(c.name, c.type_name, c.args, c.span, c.type_span, f))
         return out
 
     # -- dynamics ------------------------------------------------------------------------------

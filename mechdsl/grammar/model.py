@@ -113,7 +113,11 @@ class Arg:
 
 
 @dataclass(frozen=True)
-class Joint:
+class Element:
+    """What joints, drives, initial statements and forces have in common: ``KIND NAME:
+    TYPE(args)``, a plugin's type applied to arguments. ``span`` is the statement's,
+    ``type_span`` its type name's."""
+
     name: str
     type_name: str
     args: tuple[Arg, ...]
@@ -122,42 +126,31 @@ class Joint:
 
 
 @dataclass(frozen=True)
-class Drive:
+class Joint(Element):
+    """``joint NAME: TYPE(args)``: the equations TYPE writes hold at every instant."""
+
+
+@dataclass(frozen=True)
+class Drive(Element):
     """``drive NAME: TYPE(args) = f(t)``: the measure that TYPE computes from q equals f(t)."""
 
-    name: str
-    type_name: str
-    args: tuple[Arg, ...]
     function: Expr
-    span: Span
-    type_span: Span
 
 
 @dataclass(frozen=True)
-class Initial:
+class Initial(Element):
     """``initial NAME: TYPE(args) = value[, rate = r]``: the measure that the drive type TYPE
     computes from q equals ``value`` at t0, and its rate equals ``r`` where given: where a
     forward-dynamics run starts (:mod:`mechdsl.solve.initial`). Used for the assembly at t0
     only; after t0 the statement plays no role."""
 
-    name: str
-    type_name: str
-    args: tuple[Arg, ...]
     value: Expr
     rate: Expr | None
-    span: Span
-    type_span: Span
 
 
 @dataclass(frozen=True)
-class Force:
+class Force(Element):
     """``force NAME: TYPE(args)``: a force element (spring, damper, applied load)."""
-
-    name: str
-    type_name: str
-    args: tuple[Arg, ...]
-    span: Span
-    type_span: Span
 
 
 @dataclass(frozen=True)

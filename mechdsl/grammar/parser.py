@@ -398,8 +398,8 @@ class _ToModel(Transformer_NonRecursive):
 
     def drive(self, meta, items):
         name, type_name, *args, function = items
-        return S.Declared(Drive(str(name), str(type_name), tuple(args), function, _span(meta),
-                                _tspan(type_name)), _tspan(name))
+        return S.Declared(Drive(str(name), str(type_name), tuple(args), _span(meta),
+                                _tspan(type_name), function), _tspan(name))
 
     def initial_option(self, meta, items):
         name, value = items
@@ -418,8 +418,8 @@ class _ToModel(Transformer_NonRecursive):
             if rate is not None:
                 raise MechError(f"option '{opt}' is given twice", span)
             rate = e
-        return S.Declared(Initial(str(name), str(type_name), tuple(args), value, rate,
-                                  _span(meta), _tspan(type_name)), _tspan(name))
+        return S.Declared(Initial(str(name), str(type_name), tuple(args), _span(meta),
+                                  _tspan(type_name), value, rate), _tspan(name))
 
     def force(self, meta, items):
         name, type_name, *args = items
