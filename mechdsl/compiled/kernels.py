@@ -18,13 +18,17 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field, replace
-from typing import Callable, Mapping
+from typing import TYPE_CHECKING, Callable, Mapping
 
 import numpy as np
 
 from ..grammar import expr as E
 from .lu import MAX_N, LUPlan, plan
 from .system import System
+
+if TYPE_CHECKING:  # (imported by compile.py, which builds them)
+    from .dynamics import Dynamics
+    from .fused import Fused
 
 
 @dataclass(frozen=True)
@@ -43,9 +47,9 @@ class Kernels:
 
     system: System
     #: the compiled evaluation of Phi, Phi_q, gamma (:mod:`mechdsl.compiled.fused`)
-    fused: object | None = None
+    fused: Fused | None = None
     #: masses and loads (:mod:`mechdsl.compiled.dynamics`), where the model has any
-    dynamics: object | None = None
+    dynamics: Dynamics | None = None
     #: per drive row (``system.drive_rows``), f, f', f''
     drive_functions: tuple[DriveFunction, ...] = ()
     #: per expression output (:class:`~mechdsl.compiled.system.ExprOutput`), by label: its

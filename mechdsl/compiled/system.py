@@ -18,6 +18,7 @@ import numpy as np
 from ..errors import Source, Span
 from ..grammar import expr as E
 from ..plugins.contract import ConstraintType
+from .shapes import MassProperties
 from .sparse import Pattern
 
 
@@ -193,8 +194,8 @@ class System:
     pattern: Pattern | None = None
     #: the geometry that drawings and exports show
     sketch: Sketch | None = None
-    #: per moving body, the mass properties of its shape (shapes.MassProperties) or None
-    mass: tuple = ()
+    #: per moving body, the mass properties of its shape, or None where it has none
+    mass: tuple[MassProperties | None, ...] = ()
     #: whether the model has masses and loads (its kernels' ``dynamics``)
     masses: bool = False
     #: the unit of time, from the model's ``units`` statement ("" where none is given)
