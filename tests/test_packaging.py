@@ -4,10 +4,11 @@ The core names each plugin distribution of plugins/ as a dependency, pinned to i
 version, and each plugin names the core back (the argument is in pyproject.toml). The fast
 tests check that the nine pyproject files agree with each other, with mechdsl.__version__ and
 with requirements-dev.txt; the slow one builds the wheel of every distribution, installs the
-core's wheel by name into a fresh virtual environment (the third-party dependencies from the
-index or pip's cache, mechdsl's own distributions only from the built wheels) and runs the
-slider-crank there against its closed form. The editable install of requirements-dev.txt on a
-fresh clone is what CI runs (.ci/run, the README's install command).
+core's wheel by name into a fresh virtual environment (mechdsl's own distributions only from
+the built wheels; the third-party distributions they require, and only those, are this
+environment's, linked rather than installed again) and runs the slider-crank there against
+its closed form. The editable install of requirements-dev.txt on a fresh clone is what CI runs
+(.ci/run, the README's install command).
 """
 
 from __future__ import annotations
@@ -113,15 +114,28 @@ def run(*args, timeout=600, **kw):
     return r
 
 
+#: A PEP 517 build of a wheel, in the distribution's folder, by the backend named: what pip
+#: wheel --no-build-isolation and python -m build --no-isolation call, without their own
+#: start-up and metadata step (a second and a half each, per distribution)
+BUILD_WHEEL = ("import importlib, sys; "
+               "print(importlib.import_module(sys.argv[1]).build_wheel(sys.argv[2]))")
+
+
 def build_wheels(tmp_path: Path) -> Path:
-    """Each distribution's wheel, built from a copy of the tree (setuptools writes build/ and
-    *.egg-info beside the sources: not into the working tree, and not racing another run)."""
+    """Each distribution's wheel, built by the backend its pyproject.toml names, from a copy
+    of the tree (setuptools writes build/ and *.egg-info beside the sources: not into the
+    working tree, and not racing another run)."""
     source, wheels = tmp_path / "src", tmp_path / "wheels"
     shutil.copytree(ROOT, source, ignore=IGNORED)
+    wheels.mkdir()
+
+    def build(folder: Path):
+        backend = tomllib.loads((folder / "pyproject.toml").read_text())["build-system"]
+        run(sys.executable, "-c", BUILD_WHEEL, backend["build-backend"], wheels,
+            cwd=source / folder.relative_to(ROOT))
+
     with ThreadPoolExecutor(os.cpu_count() or 2) as pool:
-        list(pool.map(lambda d: run(sys.executable, "-m", "pip", "wheel", "--no-deps",
-                                    "--no-build-isolation", "-q", "-w", wheels,
-                                    source / d.relative_to(ROOT)), DISTRIBUTIONS))
+        list(pool.map(build, DISTRIBUTIONS))
     return wheels
 
 
@@ -147,6 +161,43 @@ def clean_env() -> dict:
             and not k.startswith("MECHDSL_")} | {"PYTHONNOUSERSITE": "1"}
 
 
+def share_distributions(requirements: set[str], folder: Path) -> list[str]:
+    """A folder of links to this environment's installed distributions that ``requirements``
+    name, with what those require in turn (markers and extras evaluated here), and nothing
+    else: a fresh venv reads them from there (a .pth file) instead of installing them again,
+    and its code still finds no module that the wheels do not require. The links are to the
+    files that each distribution's RECORD lists (its packages, modules and .dist-info); a pip
+    run by the venv never uninstalls them (they are outside its prefix). Returns the names of
+    the distributions shared."""
+    from importlib.metadata import distribution
+
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+
+    folder.mkdir()
+    todo, done, shared = [Requirement(r) for r in requirements], set(), {}
+    while todo:
+        req = todo.pop()
+        name = canonicalize_name(req.name)
+        if (name, frozenset(req.extras)) in done:
+            continue
+        done.add((name, frozenset(req.extras)))
+        dist = distribution(req.name)
+        assert req.specifier.contains(dist.version, prereleases=True), (str(req), dist.version)
+        if name not in shared:
+            shared[name] = dist
+            assert dist.files is not None, f"{name}: no RECORD, its files are not known"
+            for top in {f.parts[0] for f in dist.files if f.parts[0] != ".."}:
+                link = folder / top
+                if top != "__pycache__" and not top.endswith(".pth") and not link.exists():
+                    link.symlink_to(dist.locate_file(top))
+        for r in map(Requirement, dist.requires or ()):
+            if r.marker is None or any(r.marker.evaluate({"extra": e})
+                                       for e in {"", *req.extras}):
+                todo.append(r)
+    return sorted(shared)
+
+
 def read_csv(path: Path) -> tuple[list[str], np.ndarray]:
     """Header names (any unit after a space dropped) and rows; comment lines skipped."""
     lines = [ln for ln in path.read_text().splitlines() if ln and not ln.startswith("#")]
@@ -156,9 +207,9 @@ def read_csv(path: Path) -> tuple[list[str], np.ndarray]:
 
 @pytest.fixture
 def scratch(tmp_path):
-    """tmp_path, without the copied tree and the venv (360 MB) once the test is over."""
+    """tmp_path, without the copied tree, the venv and the links once the test is over."""
     yield tmp_path
-    for big in ("src", "venv"):
+    for big in ("src", "venv", "third-party"):
         shutil.rmtree(tmp_path / big, ignore_errors=True)
 
 
@@ -181,20 +232,25 @@ def test_the_core_wheel_alone_brings_the_library_and_runs_the_slider_crank(scrat
         assert f"mechdsl=={VERSION}" in requires, name
         assert "[mechdsl]\n" in entry_points, name
 
-    # a fresh venv: first the third-party dependencies (index or pip's cache), then the core
-    # by name from the built wheels only (--no-index: pip never asks the index for ours)
+    # a fresh venv that sees the third-party distributions the wheels require, then the core
+    # installed in it by name from the built wheels only (--no-index: pip never asks the
+    # index for ours, and finds the third-party requirements already satisfied)
     venv, env = tmp_path / "venv", clean_env()
-    run(sys.executable, "-m", "venv", venv, env=env)
+    run(sys.executable, "-m", "venv", "--without-pip", venv, env=env)
     python = venv / BIN / "python"
     third_party = {r for name in ["mechdsl", *LIBRARY_NAMES]
                    for r in wheel_metadata(built[name])[1]
                    if not requirement(r)[0].startswith("mechdsl")}
-    run(python, "-m", "pip", "install", "-q", *sorted(third_party), env=env)
-    r = run(python, "-m", "pip", "install", "--no-index", "--find-links", wheels, "mechdsl",
-            env=env)
+    shared = share_distributions(third_party, tmp_path / "third-party")
+    assert not any(n.startswith("mechdsl") for n in shared)
+    purelib = Path(run(python, "-c", "import sysconfig; print(sysconfig.get_path('purelib'))",
+                       env=env).stdout.strip())
+    (purelib / "third-party.pth").write_text(f"{tmp_path / 'third-party'}\n")
+    pip = [sys.executable, "-m", "pip", "--python", python]  # this pip, run by the venv's python
+    r = run(*pip, "install", "--no-index", "--find-links", wheels, "mechdsl", env=env)
     installed = re.search(r"^Successfully installed (.*)$", r.stdout, re.M)[1].split()
     assert sorted(installed) == sorted(f"{n}-{VERSION}" for n in ["mechdsl", *LIBRARY_NAMES])
-    run(python, "-m", "pip", "check", env=env)          # the cycle is consistent
+    run(*pip, "check", env=env)          # the cycle is consistent
 
     # what the venv imports is the wheels' code, in its site-packages
     probe = run(python, "-c", "import json, mechdsl, importlib.metadata as m; print(json.dumps("
