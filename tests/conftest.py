@@ -14,6 +14,23 @@ ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples"
 
 
+def pytest_configure(config):
+    """mechdsl and its plugins byte-compiled once, before any test (and, under xdist, by the
+    controller, before its workers start). The tests start several hundred interpreters (the
+    command line, the fuzzer, the language server, the view), each importing mechdsl: where
+    no bytecode was written, as in a fresh clone with PYTHONDONTWRITEBYTECODE set, each would
+    compile its hundred modules from source again, about a quarter of a second a process. The
+    files go where Python itself would write them (__pycache__, ignored by git); a tree that
+    cannot be written is left as it is."""
+    import compileall
+
+    if hasattr(config, "workerinput"):
+        return
+    for folder in (ROOT / "mechdsl", *ROOT.glob("plugins/*/mechdsl_*"),
+                   *ROOT.glob("examples/plugins/*/mechdsl_*")):
+        compileall.compile_dir(folder, quiet=2)
+
+
 def load_fuzzer():
     """benchmarks/fuzz.py as a module: its generators of mutated and generated files."""
     import importlib.util
