@@ -352,9 +352,12 @@ def test_a_page_that_does_not_read_holds_up_no_other_page():
     viewer = Viewer(EXAMPLES / "slider_crank.mech")
     try:
         url, origin = viewer.socket_url, viewer.origin
-        # max_queue=1: the client stops reading from the socket after one message
+        # max_queue=1: the client stops reading from the socket after one message. Nor does
+        # it read the server's reply to its close, queued behind megabytes of runs: its close
+        # ends by dropping the connection once close_timeout is over (websockets' default, 10
+        # s, was a pure wait; the server sees the same dropped connection either way)
         with connect(url, origin=origin, max_size=2**26, max_queue=1, ping_interval=None,
-                     open_timeout=20) as frozen, \
+                     open_timeout=20, close_timeout=0.5) as frozen, \
                 connect(url, origin=origin, max_size=2**26, ping_interval=None,
                         open_timeout=20) as page:
             page.recv(timeout=20)
