@@ -97,19 +97,26 @@ def model_meaning(obj):
     return obj
 
 
-#: The longest tests (about 10 to 50 s each, most of it in subprocesses: a wheel installed
-#: in a fresh venv, a cluster started and interrupted, numba compiling), started first: the
-#: parallel workers (-n auto) then end together instead of one of them running a long test
-#: alone at the end. (Tests that share a module's fixture stay in their order: moved apart,
-#: two workers would each build it.)
+#: The longest tests (about 7 to 20 s each, most of it numba compiling, an optimisation's
+#: search, a wheel built and installed, a cluster started and interrupted), started first:
+#: the parallel workers (-n auto) then end together instead of one of them running a long
+#: test alone at the end. Tests that share a module's fixture stay together and in their
+#: order: moved apart, two workers would each build it. Here whole modules are moved for
+#: that reason (test_optimize.py's coupler synthesis, 17-20 s, and its slider-crank search;
+#: test_cluster.py's cluster; test_docs_site.py's site): pytest-xdist's load scheduling
+#: sends the first worker the first quarter of its share of the tests (about 170 of 1420
+#: with two workers) in one piece, and all of these, some 90 tests, are in it.
 SLOW_FIRST = (
-    "test_packaging.py::test_the_core_wheel_alone",
-    "test_cluster_trust.py::test_ctrl_c_at_a_terminal",
-    "test_stress_fuzz.py::",
+    "test_optimize.py::",
     "test_native.py::test_the_compiled_model_is_cached_on_disk",
-    "test_view.py::test_a_page_that_does_not_read",
-    "test_dynamics_budget.py::test_a_run_on_a_terminal",
     "test_cluster.py::",
+    "test_packaging.py::test_the_core_wheel_alone",
+    "test_dynamics_budget.py::test_a_run_on_a_terminal",
+    "test_stress_fuzz.py::",
+    "test_docs_site.py::",
+    "test_model_is_data.py::test_the_memory_limit_bounds_the_whole_process",
+    "test_outputs_safety.py::test_the_csv_writer_holds_bounded_memory",
+    "test_cluster_trust.py::test_ctrl_c_at_a_terminal",
 )
 
 
