@@ -169,9 +169,19 @@ def test_the_run_at_the_optimum_has_the_files_outputs(slider_best):
                                rtol=1e-8, atol=1e-8 * OMEGA**2)
 
 
-def test_same_seed_same_params(slider_best):
-    mech, best = slider_best
-    again = optimize(mech, run=False)
+@pytest.fixture(scope="module")
+def slider_again(slider_best):
+    """The same search once more, its progress recorded: (the best so far, variants, sweep)
+    after every sweep. A progress callback only watches: the search is the same one."""
+    mech, _ = slider_best
+    seen = []
+    again = optimize(mech, run=False, progress=lambda b, v, s: seen.append((b, v, s)))
+    return again, seen
+
+
+def test_same_seed_same_params(slider_best, slider_again):
+    _, best = slider_best
+    again, _ = slider_again
     assert again.params == best.params
     assert again.objective == best.objective
     assert again.requirements == best.requirements
@@ -514,10 +524,9 @@ def test_the_api_method_is_the_command(slider_best):
     assert slow.run is not None and len(slow.run["t"]) == 65
 
 
-def test_the_search_reports_its_progress_after_every_sweep(slider_best):
-    mech, best = slider_best
-    seen = []
-    again = optimize(mech, run=False, progress=lambda b, v, s: seen.append((b, v, s)))
+def test_the_search_reports_its_progress_after_every_sweep(slider_best, slider_again):
+    _, best = slider_best
+    again, seen = slider_again
     assert again.params == best.params
     assert [s for _, _, s in seen] == list(range(1, again.sweeps + 1))
     assert seen[-1][1] == again.variants
