@@ -34,7 +34,6 @@ from __future__ import annotations
 import os
 import re
 from typing import Callable
-from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
@@ -325,6 +324,10 @@ def _vtu(meshio, stem, pos, vel, acc, times, blocks, bodies, ks) -> list[str]:
         with atomic_path(name) as tmp:
             mesh.write(tmp, file_format="vtu")
         files.append(name)
+    # (imported here: xml.sax.saxutils brings urllib.request and http.client, 20 ms of
+    # every run's start-up)
+    from xml.sax.saxutils import quoteattr
+
     index = stem + ".pvd"
     entries = "\n".join(
         f'    <DataSet timestep="{t:.17g}" part="0" file={quoteattr(os.path.basename(f))}/>'
