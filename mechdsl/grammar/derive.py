@@ -10,8 +10,8 @@ from dataclasses import replace
 from typing import Callable
 
 from .expr import (
-    Binary, Call, Compare, Cond, Expr, Logic, Name, Num, Table, Unary, add, call, children,
-    cond, div, mul, neg, postorder, power, sub,
+    DERIVATIVES, TREE, Binary, Call, Compare, Cond, Expr, Logic, Name, Num, Table, Unary, add,
+    atan2_partials, call, children, cond, div, mul, neg, postorder, power, sub,
 )
 
 
@@ -101,38 +101,18 @@ def _call_derivative(e: Call, d: Callable[[Expr], Expr]) -> Expr:
             running = Call(f, (running, a))
         return out
     if f == "atan2":
-        y, x = args  # (x y' - y x') / (x^2 + y^2)
-        return div(sub(mul(x, d(y)), mul(y, d(x))),
-                   add(power(x, Num(2.0)), power(y, Num(2.0))))
+        y, x = args
+        dy, dx = atan2_partials(TREE, y, x)
+        return add(mul(dy, d(y)), mul(dx, d(x)))
     (u,) = args
     du = d(u)
-    if f == "sin":
-        outer = call("cos", u)
-    elif f == "cos":
-        outer = neg(call("sin", u))
-    elif f == "tan":
-        outer = add(Num(1.0), power(call("tan", u), Num(2.0)))
-    elif f == "asin":
-        outer = div(Num(1.0), call("sqrt", sub(Num(1.0), power(u, Num(2.0)))))
-    elif f == "acos":
-        outer = neg(div(Num(1.0), call("sqrt", sub(Num(1.0), power(u, Num(2.0))))))
-    elif f == "atan":
-        outer = div(Num(1.0), add(Num(1.0), power(u, Num(2.0))))
-    elif f == "sqrt":
-        outer = div(Num(0.5), e)
-    elif f == "exp":
-        outer = e
-    elif f == "log":
-        outer = div(Num(1.0), u)
-    elif f == "abs":
+    if f == "abs":
         # branch by branch, as a conditional: sign(u) would give 0 at u = 0 even where
         # abs(u)^2 and the like are smooth
         return cond(Compare(">=", u, Num(0.0)), du, neg(du))
-    elif f == "sign":
-        outer = Num(0.0)
-    else:  # pragma: no cover - FUNCTIONS and this table are kept in step by the tests
+    if f not in DERIVATIVES:  # pragma: no cover - FUNCTIONS and the table kept in step (tests)
         raise ValueError(f"no derivative rule for {f}")
-    return mul(outer, du)
+    return mul(DERIVATIVES[f](TREE, u, e), du)
 
 
 def total_derivative(e: Expr, functions: set[str], rates: dict[str, str],

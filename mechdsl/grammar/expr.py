@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields, replace
-from typing import Callable, Generator, Mapping, Union
+from types import MappingProxyType
+from typing import Callable, Generator, Mapping, NamedTuple, Union
 
 import numpy as np
 
@@ -339,6 +340,55 @@ def cond(test: Expr, then: Expr, orelse: Expr) -> Expr:
     if equal(then, orelse):
         return then
     return Cond(test, then, orelse)
+
+
+# ---------------------------------------------------------------------------------------------
+# The functions' derivatives, written once for both derivative engines
+
+class Ops(NamedTuple):
+    """The arithmetic a derivative rule is written in: on expression trees (:data:`TREE`,
+    :mod:`mechdsl.grammar.derive`) or on a traced graph's nodes
+    (:meth:`mechdsl.symbolic.graph.Graph.local`). ``call(name, x)`` applies the language's
+    function ``name``."""
+
+    add: Callable
+    sub: Callable
+    mul: Callable
+    div: Callable
+    neg: Callable
+    square: Callable
+    call: Callable
+    const: Callable
+
+
+#: the tree arithmetic, simplifying as it builds
+TREE = Ops(add, sub, mul, div, neg, lambda x: power(x, Num(2.0)), call, Num)
+
+#: d f(u) / du of the language's smooth functions of one argument, from u and f(u), in the
+#: arithmetic ``o`` of the engine that asks: the drives' and outputs' derivatives
+#: (:func:`mechdsl.grammar.derive.derivative`) and the plugins' traced equations
+#: (:meth:`mechdsl.symbolic.graph.Graph.local`) both read this table. (``abs``, ``min``,
+#: ``max`` are piecewise: the trees differentiate them branch by branch.)
+DERIVATIVES: Mapping[str, Callable] = MappingProxyType({
+    "sin": lambda o, u, fu: o.call("cos", u),
+    "cos": lambda o, u, fu: o.neg(o.call("sin", u)),
+    "tan": lambda o, u, fu: o.add(o.const(1.0), o.square(fu)),
+    "asin": lambda o, u, fu: o.div(o.const(1.0),
+                                   o.call("sqrt", o.sub(o.const(1.0), o.square(u)))),
+    "acos": lambda o, u, fu: o.neg(o.div(o.const(1.0),
+                                         o.call("sqrt", o.sub(o.const(1.0), o.square(u))))),
+    "atan": lambda o, u, fu: o.div(o.const(1.0), o.add(o.const(1.0), o.square(u))),
+    "sqrt": lambda o, u, fu: o.div(o.const(0.5), fu),
+    "exp": lambda o, u, fu: fu,
+    "log": lambda o, u, fu: o.div(o.const(1.0), u),
+    "sign": lambda o, u, fu: o.const(0.0),
+})
+
+
+def atan2_partials(o: Ops, y, x) -> tuple:
+    """d atan2(y, x) / dy = x / (x^2 + y^2) and d / dx = -y / (x^2 + y^2), in ``o``."""
+    r2 = o.add(o.square(x), o.square(y))
+    return o.div(x, r2), o.neg(o.div(y, r2))
 
 
 # ---------------------------------------------------------------------------------------------

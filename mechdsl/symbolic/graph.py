@@ -23,6 +23,8 @@ from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from ..grammar.expr import DERIVATIVES, atan2_partials
+
 #: the operations of a node besides "const", "var", "call" and "select": one operand, two
 UNARY = ("neg", "sin", "cos", "tan", "sqrt", "exp", "log", "arctan", "abs", "sign")
 BINARY = ("add", "sub", "mul", "div", "pow", "arctan2", "mod")
@@ -49,6 +51,41 @@ _FOLD = {
 _NO_BRANCH = ("an equation may not branch on or compare the value of a coordinate (if, ==, <, "
               "min, max): write it as arithmetic; the traced equations must be the same for "
               "every state")
+
+
+#: the graph's names of the language's functions that it spells otherwise (numpy's), and back
+_LANGUAGE_NAME = {"arctan": "atan", "arctan2": "atan2"}
+_GRAPH_NAME = {v: k for k, v in _LANGUAGE_NAME.items()}
+
+
+class _NodeOps:
+    """The arithmetic of :class:`mechdsl.grammar.expr.Ops` on the nodes of ``graph``: what
+    the language's table of derivatives (:data:`mechdsl.grammar.expr.DERIVATIVES`) is
+    written in."""
+
+    def __init__(self, graph: "Graph") -> None:
+        self.op, self.const = graph.op, graph.const
+
+    def add(self, x, y):
+        return self.op("add", x, y)
+
+    def sub(self, x, y):
+        return self.op("sub", x, y)
+
+    def mul(self, x, y):
+        return self.op("mul", x, y)
+
+    def div(self, x, y):
+        return self.op("div", x, y)
+
+    def neg(self, x):
+        return self.op("neg", x)
+
+    def square(self, x):
+        return self.op("mul", x, x)
+
+    def call(self, name: str, x):
+        return self.op(_GRAPH_NAME.get(name, name), x)
 
 
 class GraphError(ValueError):
@@ -329,32 +366,17 @@ class Graph:
             return (a[1], a[0])
         if op == "div":
             return (g("div", self.one, a[1]), g("neg", g("div", node, a[1])))
-        if op == "sin":
-            return (g("cos", a[0]),)
-        if op == "cos":
-            return (g("neg", g("sin", a[0])),)
-        if op == "tan":
-            return (g("add", self.one, g("mul", node, node)),)
-        if op == "sqrt":
-            return (g("div", self.const(0.5), node),)
-        if op == "exp":
-            return (node,)
-        if op == "log":
-            return (g("div", self.one, a[0]),)
-        if op == "arctan":
-            return (g("div", self.one, g("add", self.one, g("mul", a[0], a[0]))),)
+        rule = DERIVATIVES.get(_LANGUAGE_NAME.get(op, op))
+        if rule is not None:  # the language's functions: their one table of derivatives
+            return (rule(_NodeOps(self), a[0], node),)
         if op == "abs":
             return (g("sign", a[0]),)
-        if op == "sign":
-            return (self.zero,)
         if op == "mod":  # x mod c for a constant period: slope 1 wherever it is smooth
             if a[1].op != "const":
                 raise GraphError("x mod y is differentiable only for a constant y")
             return (self.one, self.zero)
         if op == "arctan2":  # atan2(y, x)
-            y, x = a
-            r2 = g("add", g("mul", x, x), g("mul", y, y))
-            return (g("div", x, r2), g("neg", g("div", y, r2)))
+            return atan2_partials(_NodeOps(self), *a)
         if op == "pow":
             base, ex = a
             d_base = g("mul", ex, g("pow", base, g("sub", ex, self.one)))
