@@ -206,22 +206,23 @@ def work_precision(rep: Report, quick: bool) -> None:
     rows = []
     for ci, (name, build, errors) in enumerate(cases):
         for step, order in settings:
-            system = build(step)
+            kernels = build(step)
+            times = kernels.system.times
             pts = []
             for tol in tols:
                 opts = SolverOptions(newton_tol=tol, predictor_order=order)
-                t, res = median_time(lambda: simulate(system, opts), 1 if quick else 3)
+                t, res = median_time(lambda: simulate(kernels, opts), 1 if quick else 3)
                 if not res.ok:
                     continue
                 pts.append((t, *errors(res)))
-                rows.append([name, f"{system.system.times[1] - system.system.times[0]:g}", str(order),
+                rows.append([name, f"{times[1] - times[0]:g}", str(order),
                              f"{tol:g}", f"{1e3 * t:.1f}",
                              *(f"{e:.1e}" for e in pts[-1][1:])])
             pts = np.array(pts)
             for k, what in enumerate(("position", "velocity", "acceleration")):
                 ax = axes[ci, k]
                 ax.loglog(pts[:, 0], np.maximum(pts[:, 1 + k], 1e-17), "o-",
-                          label=f"step {system.system.times[1] - system.system.times[0]:g}, predictor {order}")
+                          label=f"step {times[1] - times[0]:g}, predictor {order}")
                 ax.set_title(f"{name}: {what}")
                 # less than a decade of run time: minor tick labels would overlap
                 ax.xaxis.set_minor_formatter(NullFormatter())
@@ -458,18 +459,19 @@ def levers(rep: Report, quick: bool) -> None:
         settings.append(("compiled backend (numba)", COMPILED))
     rows = []
     for step in (1e-3, 1e-4):
-        system = slider_crank_system(step)
+        kernels = slider_crank_system(step)
         times: dict[str, list[float]] = {name: [] for name, _ in settings}
         errs = {}
         # one instant at a time is ~100 times slower: measured on the 1001 instants only
         chosen = [(n, o) for n, o in settings
                   if step == 1e-3 or isinstance(o, str) or o.max_block > 1]
-        plain = fuse(list(system.system.groups), system.system.n_bodies, system.system.m, force="group")
-        unfused = dataclasses.replace(system, fused=plain, pattern=Pattern.from_entries(
-            plain.rows, plain.cols, (system.system.m, system.system.n)))
+        data = kernels.system
+        plain = fuse(list(data.groups), data.n_bodies, data.m, force="group")
+        unfused = dataclasses.replace(kernels, fused=plain, system=dataclasses.replace(
+            data, pattern=Pattern.from_entries(plain.rows, plain.cols, (data.m, data.n))))
         for _ in range(repeat + 1):  # the first round warms up
             for name, opts in chosen:
-                run_system, run_opts = system, opts
+                run_system, run_opts = kernels, opts
                 if opts == "unfused":
                     run_system, run_opts = unfused, NUMPY
                 saved = mechdsl_equations.LU_BATCH
@@ -483,7 +485,7 @@ def levers(rep: Report, quick: bool) -> None:
         base = statistics.median(times["default (numpy)"][1:])
         for name, _ in chosen:
             t = statistics.median(times[name][1:])
-            rows.append([f"{len(system.system.times)}", name, f"{1e3 * t:.1f}", f"{t / base:.2f}",
+            rows.append([f"{len(kernels.system.times)}", name, f"{1e3 * t:.1f}", f"{t / base:.2f}",
                          f"{errs[name]:.1e}"])
     rep.table("Levers: the slider-crank with one speed lever off at a time",
               ["instants", "setting", "ms", "x default", "max err (x, vx, ax)"], rows)

@@ -30,7 +30,7 @@ from .plugins.manager import allowed_plugins, build_registry
 from .plugins.registry import Registry
 from .results import Results
 from .solve import SolverOptions, assemble, simulate
-from .solve.diagnose import col_scale, one_variant, singularity
+from .solve.diagnose import col_scale, singularity
 from .solve.linalg import factor
 from .solve.mobility import Freedom, freedom, redundancy_warning, report
 from .solve.newton import use_sparse
@@ -334,7 +334,7 @@ class Mechanism:
                          zip(asm.q[0, 3 * i : 3 * i + 3], (system.scale[0], system.scale[0], 1)))
             lines.append(f"  {b:<{width}}  x = {x:< 12.6g} y = {y:< 12.6g} phi = {phi:.6g}")
         D = col_scale(system)
-        mobility, rank, redundant = report(one_variant(kernels, 0), asm.q[0], D[0, 0])
+        mobility, rank, redundant = report(kernels.variant(0), asm.q[0], D[0, 0])
         equations = system.m - drives
         extra = f", {equations - rank} redundant" if equations > rank else ""
         lines.append(f"mobility {mobility} = {system.n} coordinates - {rank} independent joint "
@@ -364,9 +364,9 @@ class Mechanism:
     def _check_dynamic(self, kernels: Kernels, lines: list[str], done, opts) -> "CheckReport":
         """:meth:`check` of a mechanism with free degrees of freedom and masses: its
         assembly, its mobility, and whether its equations of motion can be solved at t0."""
-        system = kernels.system
         from .solve.dynamic import DynamicRun
 
+        system = kernels.system
         run = DynamicRun(kernels, opts)
         q0, trouble = run.initial_state()
         if q0 is None:
@@ -378,10 +378,10 @@ class Mechanism:
             x, y, phi = q0[3 * i : 3 * i + 3]
             lines.append(f"  {b:<{width}}  x = {x:< 12.6g} y = {y:< 12.6g} phi = {phi:.6g}")
         D = col_scale(system)
-        mobility, rank, redundant = report(one_variant(kernels, 0), q0, D[0, 0])
+        mobility, rank, redundant = report(kernels.variant(0), q0, D[0, 0])
         # the drives fix some of the joints' degrees of freedom: n - rank of the joints' and
         # drives' equations together are left
-        dof = freedom(one_variant(kernels, 0), q0, D[0, 0])
+        dof = freedom(kernels.variant(0), q0, D[0, 0])
         lines.append(_freedom_line(dof))
         found = dict(mobility=mobility, rank=rank, redundant=redundant, free=dof.free)
         warnings = list(run.warnings)

@@ -17,12 +17,12 @@ from mechdsl.solve.newton import newton
 OPTS = SolverOptions()
 
 
-def _crank_states(system, lengths, t, noise=1e-6, seed=3):
+def _crank_states(kernels, lengths, t, noise=1e-6, seed=3):
     """The closed-form states of slider-cranks with rods ``lengths`` at ``t``, perturbed."""
     th = np.pi / 4 + 4 * np.pi * t
     V, b = len(lengths), len(t)
-    q = np.zeros((V, b, system.system.n))
-    names = system.system.body_names
+    q = np.zeros((V, b, kernels.system.n))
+    names = kernels.system.body_names
     for v, l in enumerate(lengths):
         x, _, _ = slider_crank(2.0, l, th, 4 * np.pi, 0.0)
         c, s = np.cos(th), np.sin(th)
@@ -45,13 +45,14 @@ def sweep(load_example):
 
 
 def test_settled_states_are_the_closed_form(sweep):
-    system, lengths = sweep
+    kernels, lengths = sweep
     t = np.linspace(0.0, 0.5, 40)
-    pred, th = _crank_states(system, lengths, t)
+    pred, th = _crank_states(kernels, lengths, t)
     T = np.broadcast_to(t, (len(lengths), len(t)))
-    out = batch.settle(system, pred, T, col_scale(system.system), np.ones(3, bool), OPTS, rates=True)
+    out = batch.settle(kernels, pred, T, col_scale(kernels.system), np.ones(3, bool), OPTS,
+                       rates=True)
     assert out is not None and out.converged.all()
-    k = system.system.body_names.index("slider")
+    k = kernels.system.body_names.index("slider")
     for v, l in enumerate(lengths):
         x, vx, ax = slider_crank(2.0, l, th, 4 * np.pi, 0.0)
         np.testing.assert_allclose(out.q[v, :, 3 * k], x, rtol=1e-14, atol=1e-14)
@@ -60,14 +61,14 @@ def test_settled_states_are_the_closed_form(sweep):
 
 
 def test_settle_agrees_with_the_step_by_step_path(sweep):
-    system, lengths = sweep
+    kernels, lengths = sweep
     t = np.linspace(0.1, 0.4, 30)
-    pred, _ = _crank_states(system, lengths, t, seed=8)
+    pred, _ = _crank_states(kernels, lengths, t, seed=8)
     T = np.broadcast_to(t, (len(lengths), len(t)))
-    D, active = col_scale(system.system), np.ones(3, bool)
-    out = batch.settle(system, pred, T, D, active, OPTS, rates=True)
-    q, ok, _ = newton(system, pred, T, D, active, OPTS, np.arange(system.system.m))
-    fac = factor(eq.solver_jacobian(system, q, np.arange(system.system.m), False), D)
+    D, active = col_scale(kernels.system), np.ones(3, bool)
+    out = batch.settle(kernels, pred, T, D, active, OPTS, rates=True)
+    q, ok, _ = newton(kernels, pred, T, D, active, OPTS, np.arange(kernels.system.m))
+    fac = factor(eq.solver_jacobian(kernels, q, np.arange(kernels.system.m), False), D)
     assert ok.all()
     np.testing.assert_allclose(out.q, q, atol=1e-14)
     np.testing.assert_allclose(out.fac.rcond, fac.rcond, rtol=1e-9)
@@ -78,37 +79,38 @@ def test_settle_agrees_with_the_step_by_step_path(sweep):
 
 
 def test_without_rates_only_the_factorisation_comes_back(sweep):
-    system, lengths = sweep
+    kernels, lengths = sweep
     t = np.linspace(0.0, 0.3, 30)
-    pred, _ = _crank_states(system, lengths, t)
+    pred, _ = _crank_states(kernels, lengths, t)
     T = np.broadcast_to(t, (3, len(t)))
-    out = batch.settle(system, pred, T, col_scale(system.system), np.ones(3, bool), OPTS, rates=False)
+    out = batch.settle(kernels, pred, T, col_scale(kernels.system), np.ones(3, bool), OPTS,
+                       rates=False)
     assert out.qd is None and out.qdd is None and out.converged.all()
 
 
 def test_an_inactive_variant_is_left_as_it_is(sweep):
-    system, lengths = sweep
+    kernels, lengths = sweep
     t = np.linspace(0.0, 0.3, 30)
-    pred, _ = _crank_states(system, lengths, t)
+    pred, _ = _crank_states(kernels, lengths, t)
     T = np.broadcast_to(t, (3, len(t)))
     active = np.array([True, False, True])
-    out = batch.settle(system, pred, T, col_scale(system.system), active, OPTS, rates=True)
+    out = batch.settle(kernels, pred, T, col_scale(kernels.system), active, OPTS, rates=True)
     np.testing.assert_array_equal(out.q[1], pred[1])
     assert out.converged.all()
 
 
 def test_a_small_batch_or_a_lost_pivot_goes_to_the_general_path(sweep):
-    system, lengths = sweep
+    kernels, lengths = sweep
     t = np.linspace(0.0, 0.3, 10)  # 3 x 10 states: below the generated LU's batch
-    pred, _ = _crank_states(system, lengths, t)
+    pred, _ = _crank_states(kernels, lengths, t)
     T = np.broadcast_to(t, (3, len(t)))
-    assert batch.settle(system, pred, T, col_scale(system.system), np.ones(3, bool), OPTS,
+    assert batch.settle(kernels, pred, T, col_scale(kernels.system), np.ones(3, bool), OPTS,
                         rates=True) is None
     t = np.linspace(0.0, 0.3, 40)
-    pred, _ = _crank_states(system, lengths, t)
+    pred, _ = _crank_states(kernels, lengths, t)
     pred[0, 5] = np.nan  # a state the fixed pivot order cannot take
     T = np.broadcast_to(t, (3, len(t)))
-    assert batch.settle(system, pred, T, col_scale(system.system), np.ones(3, bool), OPTS,
+    assert batch.settle(kernels, pred, T, col_scale(kernels.system), np.ones(3, bool), OPTS,
                         rates=True) is None
 
 
@@ -117,16 +119,16 @@ def test_the_residual_and_correction_ratio_are_measured_where_the_run_measures_t
     # motion from each state's predecessor are what the step-by-step path measures
     from mechdsl.solve.newton import correction_ratio
 
-    system, lengths = sweep
+    kernels, lengths = sweep
     t = np.linspace(0.1, 0.3, 30)
-    pred, _ = _crank_states(system, lengths, t, noise=1e-5)
-    before, _ = _crank_states(system, lengths, np.array([0.09]), noise=0.0)
+    pred, _ = _crank_states(kernels, lengths, t, noise=1e-5)
+    before, _ = _crank_states(kernels, lengths, np.array([0.09]), noise=0.0)
     T = np.broadcast_to(t, (len(lengths), len(t)))
-    D = col_scale(system.system)
-    out = batch.settle(system, pred, T, D, np.ones(3, bool), OPTS, rates=False,
+    D = col_scale(kernels.system)
+    out = batch.settle(kernels, pred, T, D, np.ones(3, bool), OPTS, rates=False,
                        before=before[:, 0], floor=1e-5)
     assert out is not None and out.converged.all()
-    phi = np.abs(eq.constraint_values(system, out.q, T)).max(axis=-1)
+    phi = np.abs(eq.constraint_values(kernels, out.q, T)).max(axis=-1)
     np.testing.assert_allclose(out.residual, phi, rtol=0, atol=1e-16)
     assert out.residual.max() <= 1e-14
     previous = np.concatenate((before, out.q[:, :-1]), axis=1)

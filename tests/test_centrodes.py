@@ -71,10 +71,10 @@ def test_the_four_bars_instant_centre_is_where_crank_and_rocker_lines_meet(loads
     """Kennedy: I(coupler, ground) is on the line O2-A (crank) and on O4-B (rocker)."""
     from mechdsl.outputs.draw import world
 
-    system, res, fr = _run(loads, FOURBAR)
+    kernels, res, fr = _run(loads, FOURBAR)
     (c,) = fr.centrodes
-    names = list(system.system.body_names)
-    sk = system.system.sketch
+    names = list(kernels.system.body_names)
+    sk = kernels.system.sketch
     crank_a = world(res.poses, names.index("crank"), sk.outlines[names.index("crank")][:, 1])
     rocker_b = world(res.poses, names.index("rocker"), sk.outlines[names.index("rocker")][:, 0])
     o2, o4 = np.array([0.0, 0.0]), np.array([4.0, 0.0])

@@ -94,11 +94,11 @@ def test_mp4_needs_ffmpeg(tmp_path):
         assert r.returncode == 1 and "needs ffmpeg" in r.stderr
 
 
-def _coupler_p_index(system) -> int:
+def _coupler_p_index(kernels) -> int:
     from mechdsl.outputs.export import _layout
 
-    owners, _, _ = _layout(system.system)
-    coupler = system.system.body_names.index("coupler")
+    owners, _, _ = _layout(kernels.system)
+    coupler = kernels.system.body_names.index("coupler")
     return next(j for j, (body, s) in enumerate(owners)
                 if body == coupler and np.allclose(s[0], [0.0, 1.0]))
 

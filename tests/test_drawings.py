@@ -132,9 +132,9 @@ def test_bodies_pinned_at_their_origin_are_drawn_through_it_in_a_snapshot(loads,
                                                                           tmp_path):
     from mechdsl.outputs.draw import snapshot
 
-    system, res = solve(loads, PINNED)
+    kernels, res = solve(loads, PINNED)
     assert res.ok
-    snapshot(res, system.system, str(tmp_path / "s.png"), at=[0.3])
+    snapshot(res, kernels.system, str(tmp_path / "s.png"), at=[0.3])
     (fig,) = figures
     check_pinned_drawing(fig.axes[0], 0.3)
     # one instant, drawn once: no other bar, plate or support
@@ -145,8 +145,8 @@ def test_bodies_pinned_at_their_origin_are_drawn_through_it_in_an_animation(load
                                                                             tmp_path):
     from mechdsl.outputs.draw import animate
 
-    system, res = solve(loads, PINNED)
-    animate(res, system.system, str(tmp_path / "a.gif"), max_frames=5)
+    kernels, res = solve(loads, PINNED)
+    animate(res, kernels.system, str(tmp_path / "a.gif"), max_frames=5)
     (fig,) = figures
     check_pinned_drawing(fig.axes[0], 1.0)  # the artists hold the last frame, t = 1
 
@@ -172,8 +172,8 @@ def test_outlines_put_attached_points_first_then_the_declared_ones(loads):
 def test_exported_cells_join_the_origin_and_none_has_zero_length(loads, tmp_path, ext):
     from mechdsl.outputs.export import export
 
-    system, res = solve(loads, PINNED)
-    export(res, system.system, str(tmp_path / f"e{ext}"))
+    kernels, res = solve(loads, PINNED)
+    export(res, kernels.system, str(tmp_path / f"e{ext}"))
     k = 7
     t = res["t"][k]
     if ext == ".vtu":
@@ -188,7 +188,7 @@ def test_exported_cells_join_the_origin_and_none_has_zero_length(loads, tmp_path
     lines = points[cells["line"]]  # (cells, 2, 2)
     assert (np.linalg.norm(lines[:, 1] - lines[:, 0], axis=-1) > 1e-9).all()
     exact = pose(t)
-    index = {name: i for i, name in enumerate(system.system.body_names)} | {"ground": -1}
+    index = {name: i for i, name in enumerate(kernels.system.body_names)} | {"ground": -1}
     by_body = {name: [lines[j] for j in np.flatnonzero(body["line"] == i)]
                for name, i in index.items()}
     assert len(by_body["crank"]) == 1 and has(by_body["crank"], exact["crank"], 1e-11)
@@ -201,7 +201,7 @@ def test_exported_cells_join_the_origin_and_none_has_zero_length(loads, tmp_path
     # the slider, a body of one point, is a vertex cell where the rod's end is
     (vertex,) = cells["vertex"]
     np.testing.assert_allclose(points[vertex[0]], exact["slider"], atol=1e-11)
-    assert list(body["vertex"]) == [system.system.body_names.index("slider")]
+    assert list(body["vertex"]) == [kernels.system.body_names.index("slider")]
 
 
 def read_xdmf(path, k: int):
@@ -296,11 +296,11 @@ def test_a_sweep_snapshot_names_its_variants_and_draws_their_supports(load_examp
 def test_a_sweep_without_traces_has_a_legend_and_no_warning(loads, figures, tmp_path):
     from mechdsl.outputs.draw import animate, snapshot
 
-    system, res = solve(loads, PINNED, l=[3.5, 4.0])
+    kernels, res = solve(loads, PINNED, l=[3.5, 4.0])
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        snapshot(res, system.system, str(tmp_path / "s.png"))
-        animate(res, system.system, str(tmp_path / "a.gif"), max_frames=3)
+        snapshot(res, kernels.system, str(tmp_path / "s.png"))
+        animate(res, kernels.system, str(tmp_path / "a.gif"), max_frames=3)
         # without a sweep or a trace there is nothing to name: no legend (and no warning)
         system1, res1 = solve(loads, PINNED)
         snapshot(res1, system1.system, str(tmp_path / "s1.png"))
@@ -381,8 +381,8 @@ def test_a_guide_is_a_rail_over_the_sliders_travel_and_its_reference_no_pivot(lo
                           "ground { point Q = (6, 0)  point G = (1, 0) }")
     text = text.replace("prismatic(ground.origin,", "prismatic(ground.G,")
     text += 'units length = "m", time = "s"\n'
-    system, res = solve(loads, text)
-    snapshot(res, system.system, str(tmp_path / "s.png"), at=[0.3])
+    kernels, res = solve(loads, text)
+    snapshot(res, kernels.system, str(tmp_path / "s.png"), at=[0.3])
     ax = figures[0].axes[0]
     sides = rails(ax)
     assert len(sides) == 2
@@ -400,8 +400,8 @@ def test_a_guide_is_a_rail_over_the_sliders_travel_and_its_reference_no_pivot(lo
 def test_a_snapshots_instants_are_told_apart_by_a_colour_bar_of_time(loads, figures, tmp_path):
     from mechdsl.outputs.draw import snapshot
 
-    system, res = solve(loads, PINNED + 'units length = "m", time = "s"\n')
-    snapshot(res, system.system, str(tmp_path / "s.png"), at=[0, 0.5, 1])
+    kernels, res = solve(loads, PINNED + 'units length = "m", time = "s"\n')
+    snapshot(res, kernels.system, str(tmp_path / "s.png"), at=[0, 0.5, 1])
     fig = figures[0]
     ax, bar = fig.axes
     assert bar.get_ylabel() == "t [s]"
@@ -414,9 +414,9 @@ def test_a_snapshots_instants_are_told_apart_by_a_colour_bar_of_time(loads, figu
 def test_labels_name_the_bodies_and_the_joints(loads, figures, tmp_path):
     from mechdsl.outputs.draw import animate, snapshot
 
-    system, res = solve(loads, PINNED)
-    snapshot(res, system.system, str(tmp_path / "s.png"), at=[0.3], labels=True)
-    animate(res, system.system, str(tmp_path / "a.gif"), max_frames=3, labels=True)
+    kernels, res = solve(loads, PINNED)
+    snapshot(res, kernels.system, str(tmp_path / "s.png"), at=[0.3], labels=True)
+    animate(res, kernels.system, str(tmp_path / "a.gif"), max_frames=3, labels=True)
     for fig, t in zip(figures, (0.3, 1.0)):
         texts = {a.get_text(): np.asarray(a.xy) for a in fig.axes[0].texts
                  if hasattr(a, "xy")}

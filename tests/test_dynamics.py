@@ -213,7 +213,8 @@ def test_a_spring_is_drawn_between_its_points():
 
     kernels = mechdsl.load(EXAMPLES / "andrews.mech").compile()
     ((b1, xy1, b2, xy2),) = kernels.system.sketch.links
-    assert kernels.system.body_names[b1] == "triangle" and b2 == kernels.system.n_bodies  # to the ground
+    assert kernels.system.body_names[b1] == "triangle"
+    assert b2 == kernels.system.n_bodies  # to the ground
     np.testing.assert_allclose(xy1[0], [0.02, -0.018])
     np.testing.assert_allclose(xy2[0], [0.014, 0.072])
     p, q = np.array([1.0, 2.0]), np.array([4.0, 6.0])

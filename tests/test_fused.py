@@ -42,11 +42,11 @@ def compiled(registry):
 MODELS = EXAMPLE_FILES + ["chain5", "chain20"]
 
 
-def _states(system, seed: int, b: int = 4, spread: float = 0.05):
+def _states(kernels, seed: int, b: int = 4, spread: float = 0.05):
     """q (V, b, n) near the guess and qd (V, b, n) of order one."""
     rng = np.random.default_rng(seed)
-    V, n = system.system.n_variants, system.system.n
-    q = system.system.guess[:, None, :] + spread * rng.normal(size=(V, b, n))
+    V, n = kernels.system.n_variants, kernels.system.n
+    q = kernels.system.guess[:, None, :] + spread * rng.normal(size=(V, b, n))
     qd = rng.normal(size=(V, b, n))
     return q, qd
 
@@ -61,15 +61,15 @@ def test_layouts_chosen_by_size(compiled):
 
 @pytest.mark.parametrize("name", MODELS)
 def test_jacobian_is_the_derivative_of_phi(compiled, name):
-    system = compiled[name]
-    f = system.fused
-    q, _ = _states(system, 1)
+    kernels = compiled[name]
+    f = kernels.fused
+    q, _ = _states(kernels, 1)
     values = f.evaluate_jac(q)
     assert values.shape == q.shape[:-1] + (len(f.rows),)
     jac = f.dense(values)
-    assert jac.shape == q.shape[:-1] + (system.system.m, system.system.n)
+    assert jac.shape == q.shape[:-1] + (kernels.system.m, kernels.system.n)
     fd = np.empty_like(jac)
-    for k in range(system.system.n):
+    for k in range(kernels.system.n):
         h = 1e-6 * max(1.0, float(np.abs(q[..., k]).max()))
         qp, qm = q.copy(), q.copy()
         qp[..., k] += h
@@ -78,7 +78,7 @@ def test_jacobian_is_the_derivative_of_phi(compiled, name):
     # the whole dense matrix: the entries outside the pattern are zero in the differences too
     np.testing.assert_allclose(jac, fd, rtol=1e-6, atol=1e-7)
     # the pattern is sorted by (row, column), without repeats
-    keys = f.rows * system.system.n + f.cols
+    keys = f.rows * kernels.system.n + f.cols
     assert (np.diff(keys) > 0).all()
 
 
@@ -102,15 +102,15 @@ def _second_derivative_along(phi, q, qd, h):
 KNOT = 2 * np.pi / 180  # the spacing of examples/data/cam_pitch.csv's psi
 
 
-def _gamma_states(system, name: str, seed: int):
+def _gamma_states(kernels, name: str, seed: int):
     """States for the second-difference check. The cam's pitch curve is a cubic spline, only
     C2 at its knots: there, the cam's angle is set so that the polar angle psi of the roller
     (cam_roller's definition: the angle of follower - cam in the cam's frame) lies mid-way
     between two knots, and the speeds are small enough that q + qd s stays in that piece."""
-    q, qd = _states(system, seed)
+    q, qd = _states(kernels, seed)
     if name != "cam_roller.mech":
         return q, qd
-    assert system.system.body_names == ("cam", "follower")
+    assert kernels.system.body_names == ("cam", "follower")
     rng = np.random.default_rng(seed + 100)
     psi0 = np.arctan2(q[..., 4] - q[..., 1], q[..., 3] - q[..., 0])
     q[..., 2] = psi0 - (rng.integers(0, 180, size=psi0.shape) + 0.5) * KNOT
@@ -123,15 +123,15 @@ def _psi(q):
 
 @pytest.mark.parametrize("name", MODELS)
 def test_gamma_is_minus_the_second_derivative_along_the_motion(compiled, name):
-    system = compiled[name]
-    f = system.fused
-    q, qd = _gamma_states(system, name, 3)
+    kernels = compiled[name]
+    f = kernels.fused
+    q, qd = _gamma_states(kernels, name, 3)
     h = 2e-3
     if name == "cam_roller.mech":  # the path stays inside one piece of the spline
         assert (np.abs(_psi(q + h * qd) - _psi(q)) < 0.4 * KNOT).all()
         assert (np.abs(_psi(q - h * qd) - _psi(q)) < 0.4 * KNOT).all()
     gamma = f.evaluate_gamma(q, qd)
-    assert gamma.shape == q.shape[:-1] + (system.system.m,)
+    assert gamma.shape == q.shape[:-1] + (kernels.system.m,)
     want = -_second_derivative_along(f.evaluate_phi, q, qd, h)
     np.testing.assert_allclose(gamma, want, rtol=1e-6, atol=1e-6)
     # and gamma is not identically zero (the check has something to compare)
@@ -154,9 +154,10 @@ def test_gamma_is_minus_the_jacobians_derivative_along_qd(compiled, name):
     np.testing.assert_allclose(f.evaluate_gamma(q, qd), want, rtol=1e-6, atol=1e-6)
 
 
-def _both_layouts(system):
-    member = fuse(list(system.system.groups), system.system.n_bodies, system.system.m, force="member")
-    group = fuse(list(system.system.groups), system.system.n_bodies, system.system.m, force="group")
+def _both_layouts(kernels):
+    data = kernels.system
+    member = fuse(list(data.groups), data.n_bodies, data.m, force="member")
+    group = fuse(list(data.groups), data.n_bodies, data.m, force="group")
     assert (member.layout, group.layout) == ("member", "group")
     return member, group
 
@@ -184,19 +185,19 @@ def test_a_body_attached_twice_gets_the_derivative_of_phi(compiled):
     group layout cannot scatter two values into one entry and falls back to the member
     layout. (Revolute derives its Jacobian: the gradient in the shared variables is already
     the total derivative, for either slot.)"""
-    system = compiled["slider_crank.mech"]
-    groups = list(system.system.groups)
+    kernels = compiled["slider_crank.mech"]
+    groups = list(kernels.system.groups)
     revolute = next(g for g in groups if g.ctype.name == "revolute")
     slots = np.array(revolute.slots)
     slots[1] = [0, 0]  # joint B: the crank to itself
     groups[groups.index(revolute)] = replace(revolute, slots=slots)
-    q, _ = _states(system, 11)
+    q, _ = _states(kernels, 11)
     for force in ("member", "group"):
-        f = fuse(groups, system.system.n_bodies, system.system.m, force=force)
+        f = fuse(groups, kernels.system.n_bodies, kernels.system.m, force=force)
         assert f.layout == "member"
         jac = f.dense(f.evaluate_jac(q))
         fd = np.empty_like(jac)
-        for k in range(system.system.n):
+        for k in range(kernels.system.n):
             qp, qm = q.copy(), q.copy()
             qp[..., k] += 1e-6
             qm[..., k] -= 1e-6
@@ -288,15 +289,16 @@ def long_chain(registry):
 
 
 def test_band_plan_of_a_long_chain_is_narrow(long_chain):
-    system = long_chain
-    p = band_plan(system.system.pattern.rows, system.system.pattern.cols, system.system.n)
-    assert p is not None and p.n == system.system.n == 363
+    kernels = long_chain
+    p = band_plan(kernels.system.pattern.rows, kernels.system.pattern.cols, kernels.system.n)
+    assert p is not None and p.n == kernels.system.n == 363
     assert p.kl <= 6 and p.ku <= 6
     # prow, pcol are permutations, and every entry lies inside the band after them
-    assert sorted(p.prow) == list(range(system.system.n)) and sorted(p.pcol) == list(range(system.system.n))
+    n = kernels.system.n
+    assert sorted(p.prow) == list(range(n)) and sorted(p.pcol) == list(range(n))
     rank_r = np.argsort(p.prow)
     rank_c = np.argsort(p.pcol)
-    d = rank_c[system.system.pattern.cols] - rank_r[system.system.pattern.rows]
+    d = rank_c[kernels.system.pattern.cols] - rank_r[kernels.system.pattern.rows]
     assert d.min() >= -p.kl and d.max() <= p.ku
 
 
@@ -315,15 +317,15 @@ def _check_band(p, values, A, b):
 
 
 def test_band_lu_on_the_chains_jacobian(long_chain):
-    system = long_chain
-    f = system.fused
-    p = band_plan(system.system.pattern.rows, system.system.pattern.cols, system.system.n)
-    q, _ = _states(system, 7, b=3)
+    kernels = long_chain
+    f = kernels.fused
+    p = band_plan(kernels.system.pattern.rows, kernels.system.pattern.cols, kernels.system.n)
+    q, _ = _states(kernels, 7, b=3)
     values = f.evaluate_jac(q)[0]
     rng = np.random.default_rng(8)
     for i in range(values.shape[0]):
         A = f.dense(values[i])
-        _check_band(p, values[i], A, rng.normal(size=system.system.n))
+        _check_band(p, values[i], A, rng.normal(size=kernels.system.n))
 
 
 def test_band_lu_on_random_values_of_the_pattern():

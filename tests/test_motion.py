@@ -178,10 +178,10 @@ def a02():
 
 @pytest.mark.parametrize("theta", [1.0, 0.4, 0.05, np.pi - 0.05])
 def test_a02_regular_positions_follow_the_parallelogram_branch(a02, theta):
-    system, motion = a02
+    kernels, motion = a02
     rate = -2.0
     y = a02_state(N_A02, theta, rate)
-    qdd, _ = motion.accelerations(0.0, y[:system.system.n], y[system.system.n:])
+    qdd, _ = motion.accelerations(0.0, y[:kernels.system.n], y[kernels.system.n:])
     expect = a02_accelerations(theta, rate, -BRANCH * np.cos(theta))
     assert np.abs(qdd - expect).max() <= 1e-9 * np.abs(expect).max()
 
@@ -196,14 +196,14 @@ def test_a02_at_its_singular_position_gives_the_gauss_principle(a02, theta):
     branch is the limit from the regular positions on either side: the end rockers carry
     less of the couplers' weight than the inner ones, and instantaneously the windows may
     shear), which the test shows too."""
-    system, motion = a02
-    n = system.system.n
+    kernels, motion = a02
+    n = kernels.system.n
     rate = -2.0
     y = a02_state(N_A02, theta, rate)
     q, qd = y[:n], y[n:]
     phi, jac = motion.phi_jac(0.0, q)
     jac = jac.toarray()
-    assert np.linalg.matrix_rank(jac) == system.system.m - N_A02
+    assert np.linalg.matrix_rank(jac) == kernels.system.m - N_A02
     qdd, lam = motion.accelerations(0.0, q, qd)
     assert np.isfinite(qdd).all() and np.isfinite(lam).all()
     gamma = motion.gamma(0.0, q, qd)
@@ -219,8 +219,8 @@ def test_a02_at_its_singular_position_gives_the_gauss_principle(a02, theta):
 
 @pytest.mark.parametrize("theta, dq", [(1.0, 1e-3), (0.0, 1e-9), (np.pi, 1e-9)])
 def test_projections_restore_both_constraint_levels_mass_orthogonally(a02, theta, dq):
-    system, motion = a02
-    n = system.system.n
+    kernels, motion = a02
+    n = kernels.system.n
     rng = np.random.default_rng(7)
     y = a02_state(N_A02, theta, -2.0)
     y[:n] += dq * rng.normal(size=n)

@@ -176,17 +176,17 @@ def test_the_angles_cosines_are_carried_across_a_step_to_round_off():
     assert worst <= 4e-16
 
 
-def _carried(system, options):
+def _carried(kernels, options):
     from mechdsl.solve import assembly
     from mechdsl.solve.diagnose import col_scale
     from mechdsl.solve.single import OneState
 
-    D, t0 = col_scale(system.system), float(system.system.times[0])
-    q1, ok, _ = assembly.gauss_newton(system, system.system.guess.reshape(1, 1, system.system.n),
-                                      np.full((1, 1), t0), D, system.system.joint_rows, options)
+    D, t0 = col_scale(kernels.system), float(kernels.system.times[0])
+    q1, ok, _ = assembly.gauss_newton(kernels, kernels.system.guess.reshape(1, 1, kernels.system.n),
+                                      np.full((1, 1), t0), D, kernels.system.joint_rows, options)
     assert ok.all()
-    fast = assembly._continue_compiled(system, q1[0, 0], t0, D[0, 0], options)
-    slow = assembly._continue_one(OneState(system, system.one_state, D[0, 0], options),
+    fast = assembly._continue_compiled(kernels, q1[0, 0], t0, D[0, 0], options)
+    slow = assembly._continue_one(OneState(kernels, kernels.one_state, D[0, 0], options),
                                   q1[0, 0], t0, options)
     return fast, slow
 

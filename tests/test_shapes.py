@@ -45,8 +45,8 @@ def write_rectangle_mesh(path, x0, y0, w, h, nx=7, ny=3, quads=False):
                                                  np.array(cells))])
 
 
-def props(system, body="link"):
-    return system.system.mass[system.system.body_names.index(body)]
+def props(kernels, body="link"):
+    return kernels.system.mass[kernels.system.body_names.index(body)]
 
 
 @pytest.mark.parametrize("ext, quads", [(".vtu", False), (".msh", False), (".vtk", True)])

@@ -22,9 +22,9 @@ def crank(load_example):
     return load_example("slider_crank.mech").compile(Overrides())
 
 
-def _states(system, count: int, seed: int = 5) -> np.ndarray:
+def _states(kernels, count: int, seed: int = 5) -> np.ndarray:
     rng = np.random.default_rng(seed)
-    return system.system.guess[0] + 0.05 * rng.normal(size=(count, system.system.n))
+    return kernels.system.guess[0] + 0.05 * rng.normal(size=(count, kernels.system.n))
 
 
 def test_float_kernels_agree_with_the_batched_ones(crank):
@@ -203,7 +203,8 @@ def test_float_and_batched_assembly_agree_from_guesses_off_the_closure(load_exam
     k = crank.system.body_names.index("slider")
     assert a.q[0, 3 * k] == pytest.approx(slider_crank(2.0, 3.5, np.pi / 4, 0, 0)[0], abs=1e-12)
     # the factorisation handed to the first instant is the one at the configuration reached
-    fresh = OneState(crank, crank.one_state, col_scale(crank.system)[0, 0], opts).factor(a.q[0].tolist())
+    fresh = OneState(crank, crank.one_state, col_scale(crank.system)[0, 0], opts).factor(
+        a.q[0].tolist())
     assert a.start.fac.sign == fresh.sign and a.start.fac.rcond == pytest.approx(fresh.rcond)
     res = simulate(crank)
     x, vx, ax = slider_crank(2.0, 3.5, np.pi / 4 + 4 * np.pi * res["t"], 4 * np.pi, 0)

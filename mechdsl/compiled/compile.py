@@ -233,7 +233,6 @@ class _Compiler:
             pattern=pattern,
             sketch=self._sketch(groups),
             mass=tuple(mass_properties(b, self.var) for b in self.bodies),
-            masses=dynamics is not None,
             time_unit=self.units.time,
             tolerances=self._tolerances(),
             reductions=tuple(self.reductions),
@@ -293,8 +292,7 @@ class _Compiler:
         # the equations only: no masses, outputs or reductions (it is assembled, never run)
         augmented = replace(system, m=m, constraints=tuple(constraints), groups=tuple(groups),
                             drive_rows=_readonly(np.asarray(drive_rows, dtype=np.intp)),
-                            pattern=pattern, masses=False, outputs=(), reductions=(),
-                            start=None)
+                            pattern=pattern, outputs=(), reductions=(), start=None)
         rows = np.arange(system.m, m, dtype=np.intp)
         rated = np.array([c.rate is not None for c in initials], dtype=bool)
         start = Start(_readonly(guessed), augmented, _readonly(rows), _readonly(rated))

@@ -54,9 +54,9 @@ def curvature(kernels: Kernels) -> Curvature | None:
     """The :class:`Curvature` of ``kernels`` (a compiled model of one variant), or None where
     its constraints are linear in q. The constraints are traced member by member (whatever
     the layout of ``kernels.fused``) and only their Jacobian's gradient is compiled."""
-    system = kernels.system
     from ..symbolic.codegen import scalar_functions, scalar_kernel
 
+    system = kernels.system
     f = kernels.fused
     if f.layout == "member" and f.graph is not None:
         graph, jac, rows, cols = f.graph, f.jac_nodes, f.rows, f.cols

@@ -72,14 +72,12 @@ def constraint_values(kernels: Kernels, q: np.ndarray, t: np.ndarray,
 
 def jacobian_entries(kernels: Kernels, q: np.ndarray) -> np.ndarray:
     """The non-zero entries of Phi_q in ``system.pattern``'s order, shape ``(V, b, nnz)``."""
-    system = kernels.system
     with np.errstate(all="ignore"):
         return kernels.fused.evaluate_jac(q)
 
 
 def jacobian(kernels: Kernels, q: np.ndarray) -> np.ndarray:
     """Phi_q, shape ``(V, b, m, n)``."""
-    system = kernels.system
     return kernels.fused.dense(jacobian_entries(kernels, q))
 
 
@@ -92,7 +90,6 @@ def jacobian_values(kernels: Kernels, q: np.ndarray) -> SparseJac:
 def solver_jacobian(kernels: Kernels, q: np.ndarray, rows: np.ndarray, sparse: bool):
     """Phi_q (rows ``rows``) as the solver factorises it: dense ``(V, b, len(rows), n)``, or
     sparse (all rows) for a large mechanism."""
-    system = kernels.system
     if sparse:
         return jacobian_values(kernels, q)
     return jacobian_for(kernels, jacobian_entries(kernels, q), rows)
@@ -224,7 +221,6 @@ def output_values(kernels: Kernels, spec, q: np.ndarray, qd: np.ndarray | None,
     params, t and the quantities it reads. The value is reported in the column's unit (times
     ``spec.scale``: degrees for an angle where the model asks for them).
     """
-    system = kernels.system
     values = _values(kernels, spec, q, qd, qdd, t, cache)
     return values * spec.scale if spec.scale != 1.0 else values
 

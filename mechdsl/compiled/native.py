@@ -581,7 +581,6 @@ def load(kernels: Kernels):
     """The compiled module of ``kernels``: its ``march`` and its ``carry`` (numba imported,
     the module compiled or loaded from the cache), or None where the backend does not apply
     or numba is missing."""
-    system = kernels.system
     text = source(kernels)
     if text is None or not available():
         return None
@@ -744,7 +743,6 @@ def accel(t, q, qd, p, pd, qdd, lam):
 
 def load_dynamics(kernels: Kernels) -> Callable | None:
     """The compiled ``accel`` of ``kernels`` (see :func:`dynamics_source`), or None."""
-    system = kernels.system
     text = dynamics_source(kernels)
     if text is None or not available():
         return None

@@ -83,7 +83,6 @@ def one_state(kernels: Kernels, v: int = 0) -> OneState | None:
     """Variant ``v`` of ``kernels`` as float code; None where it does not apply: a model
     traced type by type (the group layout of a large mechanism) or without a square
     generated LU."""
-    system = kernels.system
     f, lu = kernels.fused, kernels.lu
     if f is None or lu is None or f.layout != "member" or f.graph is None:
         return None

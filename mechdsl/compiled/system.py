@@ -196,8 +196,6 @@ class System:
     sketch: Sketch | None = None
     #: per moving body, the mass properties of its shape, or None where it has none
     mass: tuple[MassProperties | None, ...] = ()
-    #: whether the model has masses and loads (its kernels' ``dynamics``)
-    masses: bool = False
     #: the unit of time, from the model's ``units`` statement ("" where none is given)
     time_unit: str = ""
     #: the simulate statement's options (rtol, atol)

@@ -14,7 +14,7 @@ from ..compiled.lu import THRESHOLD
 from ..compiled.sparse import SparseJac
 from ..compiled.system import System
 from .diagnose import (
-    col_scale, constraint_names, jacobian_defects, one_variant, variant_label,
+    col_scale, constraint_names, jacobian_defects, variant_label,
 )
 from .linalg import factor
 from .mobility import Mobility, analyse, count_check, square
@@ -138,7 +138,7 @@ def assemble(kernels: Kernels, t0: float, options: SolverOptions | None = None,
         first = int(np.flatnonzero(ok1)[0])
         if system.m > n:
             # more equations than coordinates: find the redundant ones before going on
-            mob = analyse(one_variant(kernels, first), q1[first, 0], D[first, 0])
+            mob = analyse(kernels.variant(first), q1[first, 0], D[first, 0])
         else:
             mob = square(system)
         q, ok, it2, start = _continue_drives(kernels, q1, t, D, ok1, opts, mob.rows, compiled)

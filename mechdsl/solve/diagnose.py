@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
 
 import numpy as np
 
@@ -59,7 +58,7 @@ def singularity(kernels: Kernels, q: np.ndarray, v: int) -> tuple[float, str]:
     and drives whose equations take part in its near-dependency: the largest components of
     the left singular vector of the smallest singular value."""
     system = kernels.system
-    one = one_variant(kernels, v)
+    one = kernels.variant(v)
     if system.m == system.n and system.n > DENSE_ANALYSIS_MAX:
         return _sparse_singularity(one, q)
     jac = eq.jacobian(one, q.reshape(1, 1, -1))[0, 0] * col_scale(one.system)[0]
@@ -131,11 +130,6 @@ def _sparse_singularity(one: Kernels, q: np.ndarray) -> tuple[float, str]:
     return cond, loop_names(one.system, u)
 
 
-def one_variant(kernels: Kernels, v: int) -> Kernels:
-    """The kernels and system restricted to variant ``v``."""
-    return kernels.variant(v)
-
-
 def failure(kernels: Kernels, q_last: np.ndarray, t_last: float, v: int, target: float,
             k: int, why: str, q_next: np.ndarray | None = None) -> str:
     """The message for variant ``v`` failing on its way from ``t_last`` to ``target``, before
@@ -145,7 +139,7 @@ def failure(kernels: Kernels, q_last: np.ndarray, t_last: float, v: int, target:
     system = kernels.system
     times = system.times
     if why == "diverged" and q_next is not None:
-        one = one_variant(kernels, v)
+        one = kernels.variant(v)
         with np.errstate(all="ignore"):
             phi = eq.constraint_values(one, q_next.reshape(1, 1, -1), np.full((1, 1), target))
         undefined = np.flatnonzero(~np.isfinite(phi[0, 0]))
@@ -231,7 +225,7 @@ def _nonfinite_cause(kernels: Kernels, v: int, q: np.ndarray, qd: np.ndarray, t:
     """', from the right-hand side of ...': the equations whose nu (order 1) or gamma
     (order 2) is not finite at that state, if any."""
     system = kernels.system
-    one = one_variant(kernels, v)
+    one = kernels.variant(v)
     tt = np.full((1, 1), t)
     with np.errstate(all="ignore"):
         if order == 1:
@@ -269,7 +263,7 @@ def jacobian_defects(kernels: Kernels, q: np.ndarray, t: float, v: int) -> str |
     supplied = [g.rows.ravel() for g in system.groups if g.ctype.supplies("jacobian_terms")]
     if not supplied:
         return None
-    one = one_variant(kernels, v)
+    one = kernels.variant(v)
     D = col_scale(one.system)[0, 0]
     rng = np.random.default_rng(12345)
     h = 1e-6

@@ -640,11 +640,11 @@ class _Evaluator:
 
     def __init__(self, kernels: Kernels, D: np.ndarray, compiled=None) -> None:
         # scipy.linalg is imported by the forward dynamics only (0.1 s of start-up)
-        system = kernels.system
         from scipy.linalg.lapack import dgesv, dpotrf, dpotrs
 
         from ..symbolic.codegen import scalar_functions
 
+        system = kernels.system
         self.dgesv, self.dpotrf, self.dpotrs = dgesv, dpotrf, dpotrs
         self.system, self.kernels, self.D = system, kernels, D
         #: the compiled accel of the backend (mechdsl.compiled.native), or None

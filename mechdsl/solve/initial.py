@@ -38,7 +38,7 @@ from ..compiled.kernels import Kernels
 from ..compiled.system import System
 from ..errors import MechError, listing
 from .assembly import gauss_newton
-from .diagnose import MAX_NAMED, one_variant, variant_label
+from .diagnose import MAX_NAMED, variant_label
 from .mobility import RANK_TOL, independent_rows
 from .options import SolverOptions
 
@@ -89,7 +89,7 @@ def _free_coordinates(kernels: Kernels, q: np.ndarray, ok: np.ndarray, D: np.nda
     """n - the rank of the joints' and drives' equations at the first assembled variant."""
     system = kernels.system
     v = int(np.flatnonzero(ok)[0])
-    one = one_variant(kernels, v) if system.n_variants > 1 else kernels
+    one = kernels.variant(v) if system.n_variants > 1 else kernels
     with np.errstate(all="ignore"):
         jac = eq.jacobian(one, q[v : v + 1])[0, 0] * D[v, 0]
     kept, _ = independent_rows(jac)
@@ -107,7 +107,7 @@ def _with_initials(kernels: Kernels, q: np.ndarray, ok: np.ndarray, t: np.ndarra
     # order, at the configuration that closes the joints (the rank there is the rank at the
     # start wherever that is not a singular position)
     v = int(np.flatnonzero(ok)[0])
-    one = one_variant(code, v) if aug.n_variants > 1 else code
+    one = code.variant(v) if aug.n_variants > 1 else code
     with np.errstate(all="ignore"):
         jac = eq.jacobian(one, q[v : v + 1])[0, 0] * D[v, 0]
     _, dropped = independent_rows(jac)
@@ -197,7 +197,7 @@ def velocities(kernels: Kernels, v: int, t0: float, q0: np.ndarray, D: np.ndarra
     qd_given = np.array(d.v0[v], dtype=float)
     code = kernels.start if start is not None and kernels.start is not None else kernels
     aug = code.system
-    one = one_variant(code, v) if aug.n_variants > 1 else code
+    one = code.variant(v) if aug.n_variants > 1 else code
     rows = np.arange(system.m)
     if aug is not system:
         rows = np.concatenate((rows, start.rows[start.rated]))

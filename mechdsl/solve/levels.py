@@ -82,9 +82,9 @@ def coarse_march(kernels: Kernels, start: tuple[np.ndarray, ...], sign: np.ndarr
     full tolerance and checked as a level checks its states: a single mechanism, marched
     on floats by :func:`mechdsl.solve.single.coarse_march_one`); the variants not
     ``active`` stay where they are."""
-    system = kernels.system
     from .newton import correction_ratio
 
+    system = kernels.system
     if kernels.one_state is not None and active[0]:
         # a single mechanism: one state per step, on floats (numpy's per-call overhead
         # would be nearly all of its cost)

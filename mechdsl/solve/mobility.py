@@ -159,7 +159,7 @@ def independent_rows(a: np.ndarray, tol: float = RANK_TOL) -> tuple[list[int], l
 
 def analyse(kernels: Kernels, q: np.ndarray, col_scale: np.ndarray) -> Mobility:
     """The mobility at the joints' configuration ``q`` (n,), and the equations to solve;
-    ``kernels`` holds one variant (see :func:`mechdsl.solve.diagnose.one_variant`).
+    ``kernels`` holds one variant (see :meth:`mechdsl.compiled.kernels.Kernels.variant`).
 
     Raises MechError when the drives do not match the mobility (too few, too many, or a drive
     on a coordinate the joints already fix), and NumericalError when the rank falls short of

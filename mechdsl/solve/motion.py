@@ -78,7 +78,7 @@ M-orthogonal projection of qd* onto Phi_q qd = nu (first AL iterate: A qd = M qd
 W nu). Both tolerate redundant and singular Phi_q where the constraints are consistent.
 
 Small models (the constraint-by-constraint layout) are evaluated by the one-state scalar
-kernels (:attr:`mechdsl.compiled.system.System.scalar_kernels`), as :mod:`dynamic` does; the
+kernels (:attr:`mechdsl.compiled.kernels.Kernels.scalar_kernels`), as :mod:`dynamic` does; the
 others by the array kernels, one state at a time.
 """
 
@@ -91,10 +91,9 @@ import numpy as np
 
 from ..compiled import equations as eq
 from ..compiled.kernels import Kernels
-from ..compiled.system import System
 from ..errors import MechError
 from .augmented import Factor, plan
-from .diagnose import col_scale, one_variant
+from .diagnose import col_scale
 from ..symbolic.codegen import first_floats
 from .options import SolverOptions
 from .triplets import Triplets
@@ -112,14 +111,14 @@ class Motion:
 
     def __init__(self, kernels: Kernels, options: SolverOptions | None = None,
                  variant: int = 0) -> None:
-        system = kernels.system
         from scipy.linalg.lapack import dgetrf, dgetrs, dpbtrf, dpbtrs
 
+        system = kernels.system
         if kernels.dynamics is None:
             raise MechError("the mechanism has no masses: give its bodies mass and inertia "
                             "to simulate its motion", source=system.source)
         if system.n_variants > 1:
-            kernels = one_variant(kernels, variant)
+            kernels = kernels.variant(variant)
             system = kernels.system
         self.system, self.kernels = system, kernels
         self.opts = opts = options or SolverOptions()

@@ -856,7 +856,6 @@ def _settle_in_batches(kernels: Kernels, pred: np.ndarray, T: np.ndarray, D: np.
     """:func:`mechdsl.solve.batch.settle` of a level, ``cap`` instants at a time (a batch
     that fits the processor's cache, as the last step's), joined; None where it does not
     apply to some batch. ``values``: the drives' f, f', f'' at ``T`` (:func:`_drive_values`)."""
-    system = kernels.system
     c = pred.shape[1]
     if c <= cap:
         return batch.settle(kernels, pred, T, D, active, opts, rates=True, drive_values=values)
@@ -972,7 +971,6 @@ def _undefined_drives(kernels: Kernels, T: np.ndarray,
                       values: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
     """(V, b): where some drive's function, or its derivatives, is not a finite number
     (``values``: f, f', f'' at ``T`` where the caller has them, from :func:`_drive_values`)."""
-    system = kernels.system
     if not kernels.drive_functions:
         return np.zeros(T.shape, bool)
     values = values or _drive_values(kernels, T)
@@ -986,7 +984,6 @@ def _undefined_drives(kernels: Kernels, T: np.ndarray,
 
 def _drive_values(kernels: Kernels, T: np.ndarray) -> tuple[np.ndarray, ...] | None:
     """f, f', f'' of every drive at ``T`` (V, b), each (V, b, drives); None without drives."""
-    system = kernels.system
     if not kernels.drive_functions:
         return None
     return _derivatives(eq.drive_table(kernels, T, T.shape))

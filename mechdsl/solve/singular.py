@@ -43,7 +43,6 @@ def singular_step(kernels: Kernels, q_pred: np.ndarray, t: np.ndarray, qd_pred: 
     """Positions (V, 1, n), velocities and accelerations at an instant on a singular
     position, from predictions of all three; and a (V,) mask of where the positions
     converged."""
-    system = kernels.system
     # converge as far as a regular instant would: the assembly's residual test is too loose
     tight = replace(opts, assembly_residual=min(opts.assembly_residual, 1e-14),
                     assembly_tol=min(opts.assembly_tol, opts.newton_tol))

@@ -85,13 +85,14 @@ def test_a_parallelogram_continues_as_a_parallelogram_if_asked(load_example):
 def test_three_crank_coupling_rods_have_mobility_one(load_example):
     """Redundant bar: Grubler counts 0 degrees of freedom, the rank says 1."""
     from mechdsl.solve import assemble
-    from mechdsl.solve.diagnose import col_scale, one_variant
+    from mechdsl.solve.diagnose import col_scale
     from mechdsl.solve.mobility import report
 
     mech = load_example("parallelogram.mech")
     kernels = mech.compile()
     asm = assemble(kernels, 0.0)
-    mobility, rank, redundant = report(one_variant(kernels, 0), asm.q[0], col_scale(kernels.system)[0, 0])
+    mobility, rank, redundant = report(kernels.variant(0), asm.q[0],
+                                       col_scale(kernels.system)[0, 0])
     assert (mobility, rank) == (1, 11)
     assert redundant == "joint A3 (1 of 2 equations, line 20)"
 
