@@ -310,32 +310,45 @@ def test_a_range_of_a_swept_param_is_checked_in_every_variant():
 
 
 def test_the_parser_positions_are_larks():
-    """The parser's own position callbacks (parser._Positions, faster) give every node of
-    the tree the line, column and offsets lark's propagate_positions gives, on every example
-    and on text whose containers matter (parentheses, a keyword before a name, comments)."""
+    """The parser's own position callbacks (parser._Positions, faster) and its one-loop
+    driver of lark's tables (grammar/lalr.py, faster still) give the tree lark's parser
+    gives, every node with the line, column, offsets and containers of lark's
+    propagate_positions, on every example and on text whose containers matter
+    (parentheses, a keyword before a name, comments, an empty file)."""
     from pathlib import Path
 
     from mechdsl.grammar import parser as P
 
     def positions(tree):
         return [(t.data, t.meta.empty, *(getattr(t.meta, a, None) for a in (
-            "line", "column", "start_pos", "end_line", "end_column", "end_pos")))
+            "line", "column", "start_pos", "end_line", "end_column", "end_pos",
+            "container_line", "container_column", "container_start_pos",
+            "container_end_line", "container_end_column", "container_end_pos")))
             for t in tree.iter_subtrees()]
 
     fast, lark_own = P._build_parser(), P._build_parser(fast=False)
+    loop = P._fast()
+    assert loop is not None
     assert any(isinstance(c, P._Positions) for c in fast.parser.parser.parser.callbacks.values())
     texts = [p.read_text() for p in sorted(Path(__file__).parent.parent.glob("examples/*.mech"))]
     texts.append("param a = ((1 + 2)) * (3) - -(4)^2  # c\nparam b = if a > 1 then (a) else -a\n"
                  "body  # note\n  bar { guess = ((0), 0, 0)  point P = (1, (2)) }\n"
                  "output x = max(abs((bar.P.x))), bar.P\n")
+    texts += ["", "# only a comment", "\n\n  \n"]
     assert len(texts) > 10
     for text in texts:
-        assert positions(fast.parse(text, start="start")) == \
-            positions(lark_own.parse(text, start="start"))
+        expected = lark_own.parse(text, start="start")
+        for tree in (fast.parse(text, start="start"), loop.parse(text, "start")):
+            assert tree == expected
+            assert positions(tree) == positions(expected)
     # the start points of the command line's values (--set, --sweep, --reduce, --trace)
     for start, text in (("expr_only", "-(2 * (l + 1))^2"), ("expr_list", "(1), 2 * (3 + r)"),
                         ("output_list", "peak = max(abs((slider.ax))), range(s.x)"),
                         ("trace_list", "coupler.P, ic(coupler, ground)")):
-        tree = fast.parse(text, start=start)
-        assert positions(tree) == positions(lark_own.parse(text, start=start))
-        assert tree.meta.end_column == len(text) + 1, start
+        expected = lark_own.parse(text, start=start)
+        for tree in (fast.parse(text, start=start), loop.parse(text, start)):
+            assert positions(tree) == positions(expected)
+            assert tree.meta.end_column == len(text) + 1, start
+    # where lark's parser finds an error, the loop gives up and lark's parser says it
+    for text in ("body b { guess = (0, 0 }", "param = 1", "param a = 1 $", "joint j: ("):
+        assert loop.parse(text, "start") is None

@@ -1,0 +1,190 @@
+"""lark's LALR(1) parse of a whole text, driven by one loop over lark's own tables.
+
+lark parses a model file token by token through several layers of Python calls per token
+(the lexer thread, the contextual lexer's ``next_token``, the parser state's ``feed_token``)
+and per reduction (a position callback around each rule's tree builder); on the 300-link
+chain (44 KB, 15,000 tokens, 46,000 reductions) that is 180 ms. :class:`FastLALR` runs the
+same automaton in one loop:
+
+* **the tokens** are matched by the regular expressions lark compiled for each parser state
+  (its contextual lexer's per-state scanners, with their keyword callbacks), so a word is a
+  keyword or a name exactly where lark's lexer would say so, with lark's lines and columns;
+* **the actions** are read from lark's parse table, and each reduction calls lark's own tree
+  builder of the rule (token filtering, ``?rule`` inlining, ``_rule`` expansion), so the tree
+  is lark's;
+* **the positions** are kept on a stack beside the values: a node's extent is its first
+  positioned child's start and its last one's end (a token's own, a tree's container), which
+  is the rule of lark's ``propagate_positions`` with the positions at hand instead of
+  searched for.
+
+The grammar stays defined once, in ``mech.lark``: nothing here knows a rule or a token. On any
+input it cannot take (a character no token matches, a token the state does not expect, a
+lark configuration of another shape), :meth:`FastLALR.parse` returns None and the caller runs
+lark's parser, whose exception says what is wrong and where.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from lark import Lark, Token, Tree
+from lark.grammar import NonTerminal
+from lark.parse_tree_builder import ExpandSingleChild
+from lark.parsers.lalr_analysis import Shift
+
+#: a value's extent: (line, column, offset) of its start and of its end, or None
+_Extent = tuple[tuple[int, int, int], tuple[int, int, int]] | None
+
+
+class FastLALR:
+    """The LALR(1) automaton and contextual lexer of ``parser`` (a lark parser built with
+    ``parser="lalr"``, ``lexer="contextual"`` and ``propagate_positions``), run in one loop
+    (module docstring). ``builders`` maps each rule to its tree builder without position
+    callbacks (:func:`mechdsl.grammar.parser._fast_positions` unwraps them)."""
+
+    def __init__(self, parser: Lark, builders: dict) -> None:
+        frontend = parser.parser
+        table = frontend.parser.parser.parse_table
+        self.states = table.states
+        self.start_states = table.start_states
+        self.end_states = table.end_states
+        # a ``?rule`` of one rule symbol (``?sum: product``) hands its child on unchanged:
+        # its reduction only changes the state (on the chain, 31,000 of 46,000 reductions)
+        # (keyed by identity: a Rule's hash is a Python method, called per reduction)
+        self.rules = {id(rule): (len(rule.expansion), rule.origin.name,
+                             None if _hands_on(rule, build) else build)
+                      for rule, build in builders.items()}
+        if any(kind is not Shift and id(arg) not in self.rules
+               for actions in self.states.values() for kind, arg in actions.values()):
+            raise TypeError("a rule of the table has no builder")
+        self.token_callbacks = {k: v for k, v in frontend.parser.parser.callbacks.items()
+                                if isinstance(k, str)}
+        shared: dict[int, tuple] = {}
+        self.lexers: dict[Any, tuple] = {}
+        for state, lexer in frontend.lexer.lexers.items():
+            key = id(lexer)
+            if key not in shared:
+                scanner = lexer.scanner  # (built on first use: compiles the state's regex)
+                shared[key] = (tuple(scanner._mres), dict(lexer.callback),
+                               frozenset(lexer.ignore_types), frozenset(lexer.newline_types))
+            self.lexers[state] = shared[key]
+
+    def parse(self, text: str, start: str) -> Any:
+        """The tree of ``text`` from the rule ``start`` (lark's, with its positions), or None
+        where lark's own parser must say what is wrong."""
+        states, lexers, rules = self.states, self.lexers, self.rules
+        token_callbacks = self.token_callbacks
+        end_state = self.end_states[start]
+        state_stack: list = [self.start_states[start]]
+        values: list = []
+        extents: list[_Extent] = []
+        pos, line, line_start, size = 0, 1, 0, len(text)
+        last = None
+        while True:
+            if pos < size:  # the next token, lexed in the current state (lark's contextual)
+                mres, callbacks, ignore, newline = lexers[state_stack[-1]]
+                for mre in mres:
+                    m = mre.match(text, pos)
+                    if m is not None:
+                        break
+                else:
+                    return None
+                value, type_ = m.group(0), m.lastgroup
+                end = pos + len(value)
+                end_line, end_start = line, line_start
+                if type_ in newline:
+                    k = value.count("\n")
+                    if k:
+                        end_line += k
+                        end_start = pos + value.rindex("\n") + 1
+                if type_ in ignore:
+                    if type_ in callbacks:
+                        return None  # (a callback on ignored text: lark's path)
+                    pos, line, line_start = end, end_line, end_start
+                    continue
+                token = Token(type_, value, pos, line, pos - line_start + 1, end_line,
+                              end - end_start + 1, end)
+                if type_ in callbacks:
+                    token = callbacks[type_](token)
+                pos, line, line_start = end, end_line, end_start
+                last = token
+                at_end = False
+            else:
+                token = Token.new_borrow_pos("$END", "", last) if last is not None else \
+                    Token("$END", "", 0, 1, 1)
+                at_end = True
+            type_ = token.type
+            while True:  # feed it: reduce as the table says, then shift it
+                action = states[state_stack[-1]].get(type_)
+                if action is None:
+                    return None
+                kind, arg = action
+                if kind is Shift:
+                    if at_end:
+                        return None
+                    state_stack.append(arg)
+                    values.append(token if type_ not in token_callbacks
+                                  else token_callbacks[type_](token))
+                    extents.append(((token.line, token.column, token.start_pos),
+                                    (token.end_line, token.end_column, token.end_pos)))
+                    break
+                n, origin, build = rules[id(arg)]
+                if build is None:
+                    state_stack[-1] = states[state_stack[-2]][origin][1]
+                    continue
+                if n:
+                    children = values[-n:]
+                    spans = extents[-n:]
+                    del state_stack[-n:], values[-n:], extents[-n:]
+                else:
+                    children, spans = [], []
+                res = build(children)
+                values.append(res)
+                extents.append(_place(res, children, spans))
+                kind, goto = states[state_stack[-1]][origin]
+                state_stack.append(goto)
+                if at_end and goto == end_state:
+                    return values[-1]
+
+
+def _hands_on(rule, build) -> bool:
+    """Whether reducing by ``rule`` gives its one child unchanged: an inlined ``?rule``
+    without alias whose expansion is one rule that is itself kept (``_rule`` children are
+    spliced into their parent, so their count is not known)."""
+    return (len(rule.expansion) == 1 and rule.options.expand1 and not rule.alias
+            and type(build) is ExpandSingleChild and isinstance(rule.expansion[0], NonTerminal)
+            and not rule.expansion[0].name.startswith("_"))
+
+
+def _place(res: Any, children: list, spans: list) -> _Extent:
+    """Set the positions of the node ``res`` built from ``children`` (with extents
+    ``spans``) as lark's ``propagate_positions`` does, and return its extent as its parent
+    sees it: a tree's container, a token's own, a passed-on child's unchanged."""
+    if len(children) == 1 and res is children[0]:
+        return spans[0]
+    if not isinstance(res, Tree):
+        if isinstance(res, Token):
+            return ((res.line, res.column, res.start_pos),
+                    (res.end_line, res.end_column, res.end_pos))
+        return None
+    first = spans[0] if spans else None
+    if first is None:
+        first = next((s for s in spans if s is not None), None)
+    meta = res.meta
+    if first is None:
+        if meta.empty:
+            return None
+        return ((meta.container_line, meta.container_column, meta.container_start_pos),
+                (meta.container_end_line, meta.container_end_column, meta.container_end_pos))
+    last = spans[-1]
+    if last is None:
+        last = next(s for s in reversed(spans) if s is not None)
+    a, b = first[0], last[1]
+    if not hasattr(meta, "line"):
+        meta.line, meta.column, meta.start_pos = a
+    if not hasattr(meta, "end_line"):
+        meta.end_line, meta.end_column, meta.end_pos = b
+    meta.empty = False
+    meta.container_line, meta.container_column, meta.container_start_pos = a
+    meta.container_end_line, meta.container_end_column, meta.container_end_pos = b
+    return (a, b)
