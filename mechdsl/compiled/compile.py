@@ -22,7 +22,7 @@ from ..grammar.model import (
     BODY_QUANTITIES, DRIVE_QUANTITIES, ENERGY_QUANTITIES, GROUND, JOINT_QUANTITIES, ORIGIN, POINT_QUANTITIES, Body,
     CentrodeTrace, Drive, Force, Initial, Joint, Model, NamedOutput, ReducedOutput, Vector,
 )
-from ..memory import BYTES, resident_bytes, within
+from ..memory import BYTES, collection_paused, resident_bytes, within
 from ..plugins.contract import REQUIRED, ArgError, ConstraintType
 from ..plugins.derived import EquationError
 from ..plugins.manager import PLUGIN_FAILURES
@@ -79,7 +79,8 @@ def compile_model(model: Model, registry: Registry, overrides: Overrides | None 
     overrides = read_tables(overrides or Overrides(), model.source)
     compiler = _Compiler(model, registry, overrides, fold, reuse, memo)
     try:
-        kernels = compiler.run(need_times)
+        with collection_paused():
+            kernels = compiler.run(need_times)
     except MechError as err:
         raise err.with_source(model.source) from None
     if compiler.reuse is not None:  # its code was taken (not traced anew): and its plans

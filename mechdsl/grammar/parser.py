@@ -30,6 +30,7 @@ from lark.lexer import TerminalDef
 from lark.tree import SlottedTree
 
 from ..errors import MechError, Source, Span, cut
+from ..memory import collection_paused
 from . import expr as E
 from . import statements as S
 from .cache import cached_tables
@@ -668,11 +669,12 @@ def parse(text: str, name: str = "<string>") -> Model:
     that can be found without the plugin registry.
     """
     source = Source(name, normalise(text))
-    statements, files = _lark_parse(source, "start")
-    try:
-        return build_model(source, statements, files)
-    except MechError as err:
-        raise err.with_source(source) from None
+    with collection_paused():
+        statements, files = _lark_parse(source, "start")
+        try:
+            return build_model(source, statements, files)
+        except MechError as err:
+            raise err.with_source(source) from None
 
 
 def parse_expr(text: str, name: str, params: Iterable[str]) -> E.Expr:

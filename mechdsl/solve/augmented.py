@@ -85,19 +85,19 @@ class Plan:
 
 
 def _pairs(jac_rows: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
-    """Every ordered pair (k1, k2) of Phi_q entries in the same row (k1 == k2 included)."""
+    """Every ordered pair (k1, k2) of Phi_q entries in the same row (k1 == k2 included), row
+    by row, k1 then k2 in the order of the entries (array arithmetic: a Python loop over
+    the rows took 48 ms on a chain of 300 links)."""
     order = np.argsort(jac_rows, kind="stable")
     starts = np.searchsorted(jac_rows[order], np.arange(m + 1))
-    k1, k2 = [], []
-    for r in range(m):
-        ks = order[starts[r]:starts[r + 1]]
-        if len(ks):
-            a, b = np.meshgrid(ks, ks, indexing="ij")
-            k1.append(a.ravel())
-            k2.append(b.ravel())
-    if not k1:
+    count = np.diff(starts)[jac_rows[order]]  # the length of each entry's row
+    if not count.size:
         return np.zeros(0, np.intp), np.zeros(0, np.intp)
-    return np.concatenate(k1), np.concatenate(k2)
+    k1 = np.repeat(order, count)
+    block = np.repeat(np.cumsum(count) - count, count)  # where each entry's pairs begin
+    row_start = np.repeat(starts[:-1][jac_rows[order]], count)
+    k2 = order[row_start + np.arange(k1.size) - block]
+    return k1.astype(np.intp), k2.astype(np.intp)
 
 
 def plan(n: int, m: int, mass_rows: np.ndarray, mass_cols: np.ndarray,

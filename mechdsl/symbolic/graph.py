@@ -37,14 +37,23 @@ _NUMPY = {
     np.square: "square", np.hypot: "hypot", np.positive: "pos",
 }
 
+def _quiet(f: Callable) -> Callable:
+    """``f`` with numpy's floating-point warnings off (its NaN or inf is the folded value)."""
+    def folded(*args: float) -> float:
+        with np.errstate(all="ignore"):
+            return f(*args)
+    return folded
+
+
+#: constant folding: Python's float arithmetic (no warnings), numpy's only where it is needed
 _FOLD = {
     "neg": lambda a: -a, "sin": math.sin, "cos": math.cos, "tan": math.tan,
     "sqrt": lambda a: math.sqrt(a) if a >= 0 else math.nan,
     "exp": math.exp, "log": lambda a: math.log(a) if a > 0 else math.nan,
     "arctan": math.atan, "abs": abs, "sign": lambda a: float(np.sign(a)),
     "add": lambda a, b: a + b, "sub": lambda a, b: a - b, "mul": lambda a, b: a * b,
-    "div": lambda a, b: a / b if b != 0 else math.nan, "pow": lambda a, b: float(np.power(a, b)),
-    "arctan2": math.atan2, "mod": lambda a, b: float(np.remainder(a, b)),
+    "div": lambda a, b: a / b if b != 0 else math.nan, "pow": _quiet(lambda a, b: float(np.power(a, b))),
+    "arctan2": math.atan2, "mod": _quiet(lambda a, b: float(np.remainder(a, b))),
 }
 
 
@@ -206,7 +215,7 @@ class Graph:
         self.one = self.const(1.0)
 
     def _make(self, op: str, args: tuple[Node, ...], value=None) -> Node:
-        key = (op, tuple(a.id for a in args), value)
+        key = (op, tuple([a.id for a in args]), value)
         node = self._table.get(key)
         if node is None:
             node = Node(self, len(self.nodes), op, args, value)
@@ -255,13 +264,14 @@ class Graph:
 
     def op(self, name: str, *operands) -> Node:
         """The node of operation ``name`` on ``operands``, simplified and folded."""
-        args = tuple(self.lift(a) for a in operands)
-        if all(a.op == "const" for a in args):
-            with np.errstate(all="ignore"):
-                try:
-                    value = _FOLD[name](*(self.constant_value(a) for a in args))
-                except (OverflowError, ValueError, ZeroDivisionError):
-                    value = math.nan
+        # (lists, not generators: this runs for every operation a model's equations trace)
+        args = tuple([a if type(a) is Node and a.graph is self else self.lift(a)
+                      for a in operands])
+        if all([a.op == "const" for a in args]):
+            try:
+                value = _FOLD[name](*[self.constant_value(a) for a in args])
+            except (OverflowError, ValueError, ZeroDivisionError):
+                value = math.nan
             return self.const(value)
         simple = self._simplify(name, args)
         if simple is not None:
