@@ -95,6 +95,10 @@ class Dynamics:
     graph: Graph | None = None
     load_nodes: tuple = ()
     mass_nodes: tuple = ()
+    #: Q's nodes with the force elements' loads only (gravity's and the bodies' inertia
+    #: terms not added): the bodies' part is then evaluated for all bodies at once
+    #: (:mod:`mechdsl.solve.body_terms`)
+    force_load_nodes: tuple = ()
     #: the force groups traced (their structure: what :func:`rebind` may serve)
     force_groups: tuple = ()
     #: the values' leaves in the order traced: the constant folded, or None for P[j]
@@ -261,6 +265,7 @@ def build(n_bodies: int, mass: np.ndarray, inertia: np.ndarray, centroid: np.nda
                         args, t))
             except GraphError as err:
                 raise ForceError(f"the force type '{ftype.name}': {err}") from None
+    force_loads = tuple(Q)
     entries: list = []
     rows, cols = [], []
     for i in range(n_bodies):
@@ -287,5 +292,6 @@ def build(n_bodies: int, mass: np.ndarray, inertia: np.ndarray, centroid: np.nda
         rows=np.array(rows, dtype=np.intp), cols=np.array(cols, dtype=np.intp),
         params=tuple(params.arrays), functions=tuple(graph.functions), forces=elements,
         v0=v0, v0_given=v0_given, n=n, graph=graph, load_nodes=tuple(Q),
+        force_load_nodes=force_loads,
         mass_nodes=tuple(entries), force_groups=tuple(force_groups),
         leaves=tuple(params.leaves))

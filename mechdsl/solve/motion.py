@@ -93,6 +93,7 @@ from ..compiled import equations as eq
 from ..compiled.kernels import Kernels
 from ..errors import MechError
 from .augmented import Factor, plan
+from .body_terms import BodyTerms
 from .diagnose import col_scale
 from ..symbolic.codegen import first_floats
 from .options import SolverOptions
@@ -159,16 +160,22 @@ class Motion:
         constant ones stored once: a body's M is constant where its frame is at its centre
         of mass, gravity's load always, and the generated code of the member layout writes
         each output by one numpy operation (A02's 81 constant mass blocks cost more than
-        its constraints' Jacobian)."""
-        nodes = [*d.mass_nodes, *d.load_nodes]
-        const = np.array([nd.op == "const" for nd in nodes])
+        its constraints' Jacobian). Where the bodies' part is traced apart from the force
+        elements' (:class:`~mechdsl.solve.body_terms.BodyTerms`), the kernel is of the
+        force elements' loads only and the bodies' terms are array arithmetic on all of
+        them at once."""
+        self._bodies = BodyTerms(d) if BodyTerms.applies(d) else None
+        nodes = [*d.force_load_nodes] if self._bodies is not None else \
+            [*d.mass_nodes, *d.load_nodes]
+        const = np.array([nd.op == "const" for nd in nodes], dtype=bool)
         values = np.array([float(d.graph.constant_value(nd)) if c else 0.0
                            for nd, c in zip(nodes, const)])
         varying = np.flatnonzero(~const)
-        #: the constant entries of [M's entries, Q], and where the kernel's go
+        #: the constant entries of [M's entries, Q] (or Q's force part), and where the
+        #: kernel's go
         self._mq_fixed, self._mq_varying = values, varying
         self._mq_nodes = [nodes[k] for k in varying]
-        self._n_mass = len(d.mass_nodes)
+        self._n_mass = 0 if self._bodies is not None else len(d.mass_nodes)
         # the same on Python floats: one state at a time, the array kernel's numpy call per
         # operation costs a microsecond where a float operation costs a few dozen
         # nanoseconds (a chain of 300 links: 8.5 ms an evaluation against about 1 ms)
@@ -193,21 +200,25 @@ class Motion:
     def _mass_loads(self, q: np.ndarray, qd: np.ndarray, t: float
                     ) -> tuple[np.ndarray, np.ndarray]:
         """M's entries and Q at one state, by the array path."""
-        d = self.kernels.dynamics
         out = self._mq_fixed.copy()
+        done = False
         if self._mq_scalar is not None:
             try:
                 out[self._mq_varying] = self._mq_scalar(q.tolist(), qd.tolist(), t,
                                                         self._mq_p, self._mq_F)
-                return out[:self._n_mass], out[self._n_mass:]
+                done = True
             except (ValueError, ZeroDivisionError, OverflowError):
                 pass  # outside a function's domain: the array kernel says nan or inf
-        if self._mq_kernel is not None:
+        if not done and self._mq_kernel is not None:
+            d = self.kernels.dynamics
             with np.errstate(all="ignore"):
                 out[self._mq_varying] = self._mq_kernel(
                     q[None, None], qd[None, None], np.full((1, 1), t), d.params,
                     d.functions)[0, 0]
-        return out[:self._n_mass], out[self._n_mass:]
+        mass, loads = out[:self._n_mass], out[self._n_mass:]
+        if self._bodies is not None:
+            mass = self._bodies.evaluate(q, qd, loads)
+        return mass, loads
 
     def _penalty(self, q: np.ndarray) -> None:
         """w_r = kappa mbar / |(J D)_r|^2 (the module's argument), from the state q (the
