@@ -69,17 +69,36 @@ class FastLALR:
                                frozenset(lexer.ignore_types), frozenset(lexer.newline_types))
             self.lexers[state] = shared[key]
 
+    def _hand_on(self, below: Any, origin: str, type_: str) -> Any:
+        """The state on top of ``below`` after reducing to ``origin`` and every further
+        hand-on reduction the lookahead ``type_`` makes there."""
+        states, rules = self.states, self.rules
+        top = states[below][origin][1]
+        while True:
+            action = states[top].get(type_)
+            if action is None or action[0] is Shift:
+                return top
+            build = rules[id(action[1])][2]
+            if build is not None:
+                return top
+            top = states[below][rules[id(action[1])][1]][1]
+
     def parse(self, text: str, start: str) -> Any:
         """The tree of ``text`` from the rule ``start`` (lark's, with its positions), or None
         where lark's own parser must say what is wrong."""
         states, lexers, rules = self.states, self.lexers, self.rules
         token_callbacks = self.token_callbacks
+        # lark's constructor behind its keyword handling (the public one where it has none)
+        new_token = getattr(Token, "_future_new", Token)
         end_state = self.end_states[start]
         state_stack: list = [self.start_states[start]]
         values: list = []
         extents: list[_Extent] = []
         pos, line, line_start, size = 0, 1, 0, len(text)
         last = None
+        # (state below, state, token) -> the state after the ?rule hand-ons this token
+        # makes there: an expression's number or name is handed on through nine levels
+        chains: dict[tuple, Any] = {}
         while True:
             if pos < size:  # the next token, lexed in the current state (lark's contextual)
                 mres, callbacks, ignore, newline = lexers[state_stack[-1]]
@@ -102,8 +121,8 @@ class FastLALR:
                         return None  # (a callback on ignored text: lark's path)
                     pos, line, line_start = end, end_line, end_start
                     continue
-                token = Token(type_, value, pos, line, pos - line_start + 1, end_line,
-                              end - end_start + 1, end)
+                token = new_token(type_, value, pos, line, pos - line_start + 1, end_line,
+                                  end - end_start + 1, end)
                 if type_ in callbacks:
                     token = callbacks[type_](token)
                 pos, line, line_start = end, end_line, end_start
@@ -129,8 +148,13 @@ class FastLALR:
                                     (token.end_line, token.end_column, token.end_pos)))
                     break
                 n, origin, build = rules[id(arg)]
-                if build is None:
-                    state_stack[-1] = states[state_stack[-2]][origin][1]
+                if build is None:  # a chain of hand-ons: where it ends, looked up once
+                    below = state_stack[-2]
+                    key = (below, state_stack[-1], type_)
+                    top = chains.get(key)
+                    if top is None:
+                        top = chains[key] = self._hand_on(below, origin, type_)
+                    state_stack[-1] = top
                     continue
                 if n:
                     children = values[-n:]
