@@ -131,10 +131,42 @@ def evaluate(model: Model, ov: Overrides, memo: dict | None = None) -> Variants:
 
 def _evaluate(e: E.Expr, env: dict, memo: dict | None) -> "float | np.ndarray":
     """``e`` at ``env`` (as :func:`mechdsl.grammar.expr.evaluate`), its compiled form kept in
-    ``memo`` (:func:`remembered`)."""
-    run = remembered(memo, "expr", e, lambda: E.compile_expr(e))
+    ``memo``: a param's name is read, a small expression's form is kept under its shape
+    (``l/2`` written at 300 bodies is compiled once), any other under its identity
+    (:func:`remembered`)."""
+    if type(e) is E.Name:
+        return env[e.id]
+    shape = _shape(e, SHAPE_DEPTH) if memo is not None else None
+    if shape is None:
+        run = remembered(memo, "expr", e, lambda: E.compile_expr(e))
+    else:
+        run = memo.get(("shape", shape))
+        if run is None:
+            run = E.compile_expr(e)
+            _keep(memo, ("shape", shape), run)
     with np.errstate(all="ignore"):
         return run(env)
+
+
+#: the nesting down to which an expression's form is kept under its shape
+SHAPE_DEPTH = 3
+
+
+def _shape(e: E.Expr, depth: int) -> tuple | None:
+    """What ``e`` computes, without its spans, for a number, a name, or a sum, product,
+    difference, quotient, power or negation of such within ``depth`` levels; else None."""
+    t = type(e)
+    if t is E.Num:
+        return ("num", e.value, math.copysign(1.0, e.value))  # (-0.0 == 0.0 as keys)
+    if t is E.Name:
+        return ("name", e.id)
+    if depth and t is E.Binary:
+        a, b = _shape(e.left, depth - 1), _shape(e.right, depth - 1)
+        return None if a is None or b is None else ("bin", e.op, a, b)
+    if depth and t is E.Unary:
+        a = _shape(e.operand, depth - 1)
+        return None if a is None else ("un", e.op, a)
+    return None
 
 
 def param_ranges(model: Model, env: dict[str, np.ndarray], memo: dict | None = None
