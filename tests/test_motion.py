@@ -329,43 +329,53 @@ def test_branch_reference_reproduces_the_published_table():
 
 def test_the_bodies_terms_are_haugs_closed_form():
     """M(q) and Q(q, qd) of the array path (the bodies' terms by array arithmetic,
-    solve/body_terms.py, plus the traced force elements') against Haug's closed form for a
-    body whose centre of mass is off its frame (sec. 6.2: M = [[m, 0, -m a_y], [0, m, m a_x],
-    [-m a_y, m a_x, J + m |s'|^2]], Q = m g + m a phid^2, n = a x m g) plus a spring's
-    force written out by hand, at random states."""
-    text = """
-gravity = (0.5, -9.81)
-ground { }
-body a { guess = (0, 0, 0)  mass = 2  inertia = 0.3  centroid = (0.4, -0.1) }
-body b { guess = (1, 0, 0)  mass = 3  inertia = 0.7  centroid = (-0.2, 0.25) }
-force s: spring(ground.origin, b.origin, k = 50, length = 0.5)
-simulate t = 0 .. 1 step 0.1
-"""
-    kernels = mechdsl.loads(text, "bodies.mech").compile()
+    solve/body_terms.py, plus the traced force elements') against Haug's closed form for
+    bodies whose centres of mass are off their frames (sec. 6.2: M = [[m, 0, -m a_y], [0, m,
+    m a_x], [-m a_y, m a_x, J + m |s'|^2]], Q = m g + m a phid^2, n = a x m g) plus a
+    spring's force written out by hand, at random states; and the traced scalar code, which
+    a model of fewer bodies takes, agrees."""
+    from mechdsl.solve.body_terms import FROM_BODIES
+    from mechdsl.symbolic.codegen import scalar_kernel
+
+    nb = FROM_BODIES + 1
+    props = [(1.0 + 0.1 * i, 0.2 + 0.01 * i, (0.4 - 0.03 * i, -0.1 + 0.02 * i))
+             for i in range(nb)]
+    lines = ["gravity = (0.5, -9.81)", "ground { }"]
+    for i, (m, J, (sx, sy)) in enumerate(props):
+        lines.append(f"body b{i} {{ guess = ({i}, 0, 0)  mass = {m!r}  inertia = {J!r}  "
+                     f"centroid = ({sx!r}, {sy!r}) }}")
+    lines += [f"force s: spring(ground.origin, b{nb - 1}.origin, k = 50, length = 0.5)",
+              "simulate t = 0 .. 1 step 0.1"]
+    kernels = mechdsl.loads("\n".join(lines), "bodies.mech").compile()
     motion = Motion(kernels)
     assert motion._bodies is not None
     d = kernels.dynamics
+    n = 3 * nb
     rng = np.random.default_rng(7)
-    props = [(2.0, 0.3, (0.4, -0.1)), (3.0, 0.7, (-0.2, 0.25))]
     g = np.array([0.5, -9.81])
     for _ in range(5):
-        q, qd = rng.normal(size=6), rng.normal(size=6)
+        q, qd = rng.normal(size=n), rng.normal(size=n)
         mass, loads = motion._mass_loads(q, qd, 0.0)
-        M = np.zeros((6, 6))
+        M = np.zeros((n, n))
         M[d.rows, d.cols] = mass
-        Q = np.zeros(6)
+        Q = np.zeros(n)
+        expected_M = np.zeros((n, n))
         for i, (m, J, (sx, sy)) in enumerate(props):
             phi, w = q[3 * i + 2], qd[3 * i + 2]
             ax = np.cos(phi) * sx - np.sin(phi) * sy
             ay = np.sin(phi) * sx + np.cos(phi) * sy
             k = 3 * i
-            expected = np.array([[m, 0, -m * ay], [0, m, m * ax],
-                                 [-m * ay, m * ax, J + m * (sx * sx + sy * sy)]])
-            assert np.allclose(M[k:k + 3, k:k + 3], expected, rtol=1e-14, atol=1e-14)
+            expected_M[k:k + 3, k:k + 3] = [[m, 0, -m * ay], [0, m, m * ax],
+                                            [-m * ay, m * ax, J + m * (sx * sx + sy * sy)]]
             Q[k:k + 3] = (m * g[0] + m * ax * w * w, m * g[1] + m * ay * w * w,
                           ax * m * g[1] - ay * m * g[0])
-        r = q[3:5]  # the spring from the ground's origin to b's frame origin
+        r = q[n - 3:n - 1]  # the spring from the ground's origin to the last body's origin
         length = np.linalg.norm(r)
-        Q[3:5] -= 50 * (length - 0.5) * r / length
+        Q[n - 3:n - 1] -= 50 * (length - 0.5) * r / length
+        assert np.allclose(M, expected_M, rtol=1e-14, atol=1e-14)
         assert np.allclose(loads, Q, rtol=1e-13, atol=1e-12)
-        assert not M[:3, 3:].any()
+        # the traced scalar code of every term (the path of fewer bodies) agrees
+        fn = scalar_kernel(d.graph, [*d.mass_nodes, *d.load_nodes], "all").fn
+        traced = np.array(fn(q.tolist(), qd.tolist(), 0.0, motion._mq_p, motion._mq_F))
+        assert np.allclose(traced[:len(mass)], mass, rtol=1e-14, atol=1e-14)
+        assert np.allclose(traced[len(mass):], loads, rtol=1e-13, atol=1e-12)
