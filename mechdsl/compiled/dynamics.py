@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -77,10 +78,6 @@ class Dynamics:
     inertia: np.ndarray
     centroid: np.ndarray
     gravity: np.ndarray
-    #: (generated and compiled where first used: :class:`~mechdsl.symbolic.codegen.LazyKernel`)
-    loads: Kernel | LazyKernel
-    mass_entries: Kernel | LazyKernel
-    potential: Kernel | LazyKernel
     #: the non-zero entries of M: entry k is (rows[k], cols[k]) (both triangles)
     rows: np.ndarray
     cols: np.ndarray
@@ -91,10 +88,11 @@ class Dynamics:
     v0: np.ndarray
     v0_given: np.ndarray
     n: int
-    #: the graph and the nodes of Q and of M's entries, for one-state (scalar) kernels
+    #: the graph (for one-state (scalar) kernels), and the bodies' terms traced into it
+    #: where first needed (:class:`BodyTrace`: Q's and M's nodes, the loads, the mass
+    #: matrix and the potential as kernels)
     graph: Graph | None = None
-    load_nodes: tuple = ()
-    mass_nodes: tuple = ()
+    bodies: "BodyTrace | None" = None
     #: Q's nodes with the force elements' loads only (gravity's and the bodies' inertia
     #: terms not added): the bodies' part is then evaluated for all bodies at once
     #: (:mod:`mechdsl.solve.body_terms`)
@@ -105,6 +103,18 @@ class Dynamics:
     leaves: tuple = ()
     #: the power the force elements dissipate, P(q, qd, t) (their ``dissipation``)
     dissipation: Kernel | LazyKernel | None = None
+
+    # the bodies' terms (traced on first use: a run on the augmented Lagrangian of a large
+    # model evaluates them as arrays, solve/body_terms.py, and never needs them traced)
+    load_nodes = property(lambda self: self.bodies.terms().load_nodes,
+                          doc="Q's nodes (n,): the force elements' loads and the bodies'")
+    mass_nodes = property(lambda self: self.bodies.terms().mass_nodes,
+                          doc="the nodes of M's entries, in ``rows/cols``' order")
+    loads = property(lambda self: self.bodies.terms().loads, doc="Q as a kernel")
+    mass_entries = property(lambda self: self.bodies.terms().mass_entries,
+                            doc="M's entries as a kernel")
+    potential = property(lambda self: self.bodies.terms().potential,
+                         doc="the potential V(q) as a kernel")
 
     def variant(self, v: int) -> "Dynamics":
         """The same for sweep variant ``v`` alone."""
@@ -176,6 +186,68 @@ class Dynamics:
         with np.errstate(all="ignore"):
             out = self.potential(q, None, None, self.params, self.functions)
         return np.broadcast_to(out[..., 0], q.shape[:-1])
+
+
+class TracedBodies(NamedTuple):
+    """The bodies' terms traced: Q's and M's nodes, and the kernels of Q, M and V."""
+
+    load_nodes: tuple
+    mass_nodes: tuple
+    loads: LazyKernel
+    mass_entries: LazyKernel
+    potential: LazyKernel
+
+
+class BodyTrace:
+    """The bodies' terms of Q, M and the potential (Haug 1989, sec. 6.2, the frame off the
+    centre of mass, a = A(phi) s'),
+
+        Q_i += (m g_x + m a_x phid^2, m g_y + m a_y phid^2, a x m g),
+        M_i = [[m, 0, -m a_y], [0, m, m a_x], [-m a_y, m a_x, J + m |s'|^2]],
+        V -= m g . (r + a),
+
+    traced into the model's graph after the force elements' where first needed (the
+    tracing is about 30 ms of the 300-link chain's compilation, which a run of the
+    augmented Lagrangian, evaluating them as arrays, does not need). Once traced, they
+    are shared by every copy of the Dynamics (variants, rebound values)."""
+
+    def __init__(self, graph: Graph, bodies: list, rates: list, leaves: list, loads: list,
+                 potential) -> None:
+        import threading
+
+        self._args: tuple | None = (graph, bodies, rates, leaves, list(loads), potential)
+        self._terms: TracedBodies | None = None
+        self._lock = threading.Lock()  # (the graph grows: one thread traces)
+
+    def terms(self) -> TracedBodies:
+        """The terms, traced at the first call."""
+        with self._lock:
+            if self._terms is None:
+                self._terms, self._args = _trace_bodies(*self._args), None
+            return self._terms
+
+
+def _trace_bodies(graph: Graph, bodies: list, rates: list, leaves: list, Q: list,
+                  potential) -> TracedBodies:
+    """:class:`BodyTrace`'s terms, added to the force elements' ``Q`` and ``potential``."""
+
+    def add(k: int, value) -> None:
+        Q[k] = graph.lift(value) if Q[k] is graph.zero else graph.lift(Q[k] + value)
+
+    entries: list = []
+    for i, (body, rate) in enumerate(zip(bodies, rates)):
+        m, J, s, gx, gy = leaves[i]
+        a = body.rotate(s)
+        add(3 * i, m * gx + m * a.x * rate.phi * rate.phi)
+        add(3 * i + 1, m * gy + m * a.y * rate.phi * rate.phi)
+        add(3 * i + 2, a.cross(Vec(m * gx, m * gy)))
+        potential = graph.lift(potential - m * (gx * (body.x + a.x) + gy * (body.y + a.y)))
+        # (in the order of build's rows and cols)
+        entries += [graph.lift(v) for v in (m, m, -m * a.y, -m * a.y, m * a.x, m * a.x,
+                                            J + m * (s.x * s.x + s.y * s.y))]
+    return TracedBodies(tuple(Q), tuple(entries), LazyKernel(graph, Q, "loads"),
+                     LazyKernel(graph, entries, "mass"),
+                     LazyKernel(graph, [potential], "potential"))
 
 
 def _inputs(graph: Graph, params: _Params, n_bodies: int, mass: np.ndarray,
@@ -266,32 +338,17 @@ def build(n_bodies: int, mass: np.ndarray, inertia: np.ndarray, centroid: np.nda
             except GraphError as err:
                 raise ForceError(f"the force type '{ftype.name}': {err}") from None
     force_loads = tuple(Q)
-    entries: list = []
     rows, cols = [], []
-    for i in range(n_bodies):
-        body, rate = bodies[i], rates[i]
-        m, J, s, gx, gy = body_leaves[i]
-        a = body.rotate(s)
-        add(3 * i, m * gx + m * a.x * rate.phi * rate.phi)
-        add(3 * i + 1, m * gy + m * a.y * rate.phi * rate.phi)
-        add(3 * i + 2, a.cross(Vec(m * gx, m * gy)))
-        potential = graph.lift(potential - m * (gx * (body.x + a.x) + gy * (body.y + a.y)))
+    for i in range(n_bodies):  # M's pattern: a body's block, entries as BodyTrace writes them
         k = 3 * i
-        block = ((k, k, m), (k + 1, k + 1, m), (k, k + 2, -m * a.y), (k + 2, k, -m * a.y),
-                 (k + 1, k + 2, m * a.x), (k + 2, k + 1, m * a.x),
-                 (k + 2, k + 2, J + m * (s.x * s.x + s.y * s.y)))
-        for r, c, value in block:
-            rows.append(r)
-            cols.append(c)
-            entries.append(graph.lift(value))
+        rows += [k, k + 1, k, k + 2, k + 1, k + 2, k + 2]
+        cols += [k, k + 1, k + 2, k, k + 2, k + 1, k + 2]
     return Dynamics(
         mass=mass, inertia=inertia, centroid=centroid, gravity=gravity,
-        loads=LazyKernel(graph, Q, "loads"), mass_entries=LazyKernel(graph, entries, "mass"),
-        potential=LazyKernel(graph, [potential], "potential"),
         dissipation=LazyKernel(graph, [dissipation], "dissipation"),
         rows=np.array(rows, dtype=np.intp), cols=np.array(cols, dtype=np.intp),
         params=tuple(params.arrays), functions=tuple(graph.functions), forces=elements,
-        v0=v0, v0_given=v0_given, n=n, graph=graph, load_nodes=tuple(Q),
-        force_load_nodes=force_loads,
-        mass_nodes=tuple(entries), force_groups=tuple(force_groups),
+        v0=v0, v0_given=v0_given, n=n, graph=graph,
+        bodies=BodyTrace(graph, bodies[:n_bodies], rates[:n_bodies], body_leaves, Q, potential),
+        force_load_nodes=force_loads, force_groups=tuple(force_groups),
         leaves=tuple(params.leaves))

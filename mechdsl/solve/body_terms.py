@@ -49,7 +49,7 @@ class BodyTerms:
         :func:`~mechdsl.compiled.dynamics.build`)."""
         nb = dynamics.mass.shape[1]
         return (nb >= FROM_BODIES and len(dynamics.force_load_nodes) == dynamics.n == 3 * nb
-                and len(dynamics.mass_nodes) == BLOCK * nb)
+                and len(dynamics.rows) == BLOCK * nb)
 
     def evaluate(self, q: np.ndarray, qd: np.ndarray, loads: np.ndarray) -> np.ndarray:
         """M's entries (7 nb,) at q; the bodies' loads at (q, qd) added to ``loads`` (n,)."""
