@@ -379,3 +379,23 @@ def test_the_bodies_terms_are_haugs_closed_form():
         traced = np.array(fn(q.tolist(), qd.tolist(), 0.0, motion._mq_p, motion._mq_F))
         assert np.allclose(traced[:len(mass)], mass, rtol=1e-14, atol=1e-14)
         assert np.allclose(traced[len(mass):], loads, rtol=1e-13, atol=1e-12)
+
+
+def test_the_compressed_rows_products_equal_the_dense_ones():
+    """solve/augmented.py's Rows: the product with scipy's compiled kernel and with the
+    bincount it falls back to equal the dense matrix's, with repeated entries (summed)
+    and empty rows, for values given in the caller's order."""
+    from dataclasses import replace
+
+    from mechdsl.solve.augmented import Rows
+
+    rng = np.random.default_rng(3)
+    rows = np.array([4, 0, 0, 2, 4, 4, 0, 2])  # rows 1 and 3 empty, (0, 1) twice
+    cols = np.array([0, 1, 1, 3, 2, 0, 4, 4])
+    values, x = rng.normal(size=rows.size), rng.normal(size=5)
+    dense = np.zeros((5, 5))
+    np.add.at(dense, (rows, cols), values)
+    plan = Rows.of(rows, cols, (5, 5))
+    assert plan.matvec is not None
+    for p in (plan, replace(plan, matvec=None)):
+        assert np.allclose(p.times(values[p.order], x), dense @ x, rtol=1e-14, atol=1e-15)
