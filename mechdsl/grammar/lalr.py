@@ -25,11 +25,12 @@ lark's parser, whose exception says what is wrong and where.
 
 from __future__ import annotations
 
-from typing import Any
+import functools
+from typing import Any, Callable
 
 from lark import Lark, Token, Tree
 from lark.grammar import NonTerminal
-from lark.parse_tree_builder import ExpandSingleChild
+from lark.parse_tree_builder import ExpandSingleChild, ParseTreeBuilder, PropagatePositions
 from lark.parsers.lalr_analysis import Shift
 
 #: a value's extent: (line, column, offset) of its start and of its end, or None
@@ -59,6 +60,13 @@ class FastLALR:
             raise TypeError("a rule of the table has no builder")
         self.token_callbacks = {k: v for k, v in frontend.parser.parser.callbacks.items()
                                 if isinstance(k, str)}
+        # each rule's shaping of its children (token filtering, ``_rule`` splicing, ``?rule``
+        # hand-on), without positions: what :meth:`parse` wraps around a ``node`` callback
+        self.shapers = [(rule, tuple(w for w in chain if w is not PropagatePositions))
+                        for rule, chain in ParseTreeBuilder(
+                            parser.rules, Tree, False, False, False).rule_builders]
+        if {id(rule) for rule, _ in self.shapers} != set(self.rules):
+            raise TypeError("the rules of the tree builder are not the table's")
         shared: dict[int, tuple] = {}
         self.lexers: dict[Any, tuple] = {}
         for state, lexer in frontend.lexer.lexers.items():
@@ -83,10 +91,38 @@ class FastLALR:
                 return top
             top = states[below][rules[id(action[1])][1]][1]
 
-    def parse(self, text: str, start: str) -> Any:
+    def _transforming(self, node: Callable, cell: list) -> dict:
+        """:attr:`rules` with each builder's tree replaced by ``node(name, cell[0],
+        children)`` (the extent in ``cell``, set before the call)."""
+        rules = {}
+        for rule, chain in self.shapers:
+            n, origin, build = self.rules[id(rule)]
+            if build is not None:
+                name = rule.alias or rule.options.template_source or origin
+                if name.startswith("_"):  # (spliced into its parent: a bare tree)
+                    build = functools.partial(Tree, name)
+                else:
+                    def build(children: list, name: str = name) -> Any:
+                        return node(name, cell[0], children)
+                for wrap in chain:
+                    build = wrap(build)
+            rules[id(rule)] = (n, origin, build)
+        return rules
+
+    def parse(self, text: str, start: str, node: Callable | None = None,
+              max_depth: int = 0, too_deep: Callable | None = None) -> Any:
         """The tree of ``text`` from the rule ``start`` (lark's, with its positions), or None
-        where lark's own parser must say what is wrong."""
-        states, lexers, rules = self.states, self.lexers, self.rules
+        where lark's own parser must say what is wrong.
+
+        With ``node``, no tree: each node is ``node(name, extent, children)`` as it is
+        reduced, children first (a transformer run during the parse; extent is
+        ((line, column, offset) of the start, of the end) of lark's container, or None), and
+        nodes nested deeper than ``max_depth`` (counted as lark's trees would be: a level
+        per rule, ``_rule`` splices none) call ``too_deep(depth, extent)``, which raises."""
+        states, lexers = self.states, self.lexers
+        cell: list = [None]
+        rules = self.rules if node is None else self._transforming(node, cell)
+        depths: list[int] = []
         token_callbacks = self.token_callbacks
         # lark's constructor behind its keyword handling (the public one where it has none)
         new_token = getattr(Token, "_future_new", Token)
@@ -144,6 +180,7 @@ class FastLALR:
                     state_stack.append(arg)
                     values.append(token if type_ not in token_callbacks
                                   else token_callbacks[type_](token))
+                    depths.append(0)
                     extents.append(((token.line, token.column, token.start_pos),
                                     (token.end_line, token.end_column, token.end_pos)))
                     break
@@ -162,13 +199,58 @@ class FastLALR:
                     del state_stack[-n:], values[-n:], extents[-n:]
                 else:
                     children, spans = [], []
-                res = build(children)
+                if node is None:
+                    res = build(children)
+                    extents.append(_place(res, children, spans))
+                else:
+                    if n:
+                        below = depths[-n:]
+                        del depths[-n:]
+                    else:
+                        below = []
+                    res, extent, depth = _transformed(build, children, spans, below, origin,
+                                                      cell)
+                    if depth > max_depth and too_deep is not None:
+                        too_deep(depth, extent)
+                    extents.append(extent)
+                    depths.append(depth)
                 values.append(res)
-                extents.append(_place(res, children, spans))
                 kind, goto = states[state_stack[-1]][origin]
                 state_stack.append(goto)
                 if at_end and goto == end_state:
                     return values[-1]
+
+
+def _container(spans: list) -> _Extent:
+    """The extent of a node whose children have the extents ``spans``: the first
+    positioned one's start to the last one's end (lark's container), None if none is."""
+    if not spans:
+        return None
+    first, last = spans[0], spans[-1]
+    if first is None:
+        first = next((s for s in spans if s is not None), None)
+        if first is None:
+            return None
+    if last is None:
+        last = next(s for s in reversed(spans) if s is not None)
+    return (first[0], last[1])
+
+
+def _transformed(build: Callable, children: list, spans: list, depths: list, origin: str,
+                 cell: list) -> tuple[Any, _Extent, int]:
+    """A reduction of :meth:`FastLALR.parse` with ``node``: the value, its extent as its
+    parent sees it and its depth, as lark's tree of the same text would have them (a child
+    handed on keeps its depth; a ``_rule``, spliced into its parent, adds no level)."""
+    extent = cell[0] = _container(spans)
+    res = build(children)
+    for k, c in enumerate(children):
+        if res is c:
+            return res, (spans[0] if len(children) == 1 else extent), depths[k]
+    if isinstance(res, Token):
+        return res, ((res.line, res.column, res.start_pos),
+                     (res.end_line, res.end_column, res.end_pos)), 0
+    depth = max(depths) if depths else 0
+    return res, extent, depth if origin[0] == "_" else depth + 1
 
 
 def _hands_on(rule, build) -> bool:

@@ -1,18 +1,18 @@
 """Text -> :class:`~mechdsl.grammar.model.Model`.
 
-The lark grammar (``mech.lark``, beside this module) gives a parse tree (lark's tables run
-by the one loop of :mod:`.lalr`; lark's own parser where that loop finds an error, to say
-it); a transformer turns it into the model's dataclasses, and :mod:`.checks` checks what can be checked without
-plugins. A table or mesh file is named, never read here (:mod:`.tables`). lark's
-exceptions are translated here and nowhere else: every error leaves this module as a
-:class:`~mechdsl.errors.MechError` with a span.
+The lark grammar (``mech.lark``, beside this module) is parsed by lark's tables run in one
+loop (:mod:`.lalr`), which makes the model's dataclasses as it reduces each rule
+(:meth:`_ToModel.node`); where that loop finds a syntax error, lark's own parser runs to say
+it. :mod:`.checks` then checks what can be checked without plugins. A table or mesh file is
+named, never read here (:mod:`.tables`). lark's exceptions are translated here and nowhere
+else: every error leaves this module as a :class:`~mechdsl.errors.MechError` with a span.
 
-Nothing here recurses over the input: the LALR parser is iterative, the parse tree goes to
-the model by a bottom-up loop (:meth:`_ToModel.transform`), and the passes over expressions in
-:mod:`.expr`, :mod:`.derive` and :mod:`.checks` keep their own stacks. The nesting depth is
-bounded all the same (:data:`MAX_DEPTH`), checked while the parser builds the tree, so that
-a pathological expression is refused as soon as it goes too deep rather than after filling
-the memory.
+Nothing here recurses over the input: the LALR parser is iterative, the model is made
+bottom-up as it reduces (or from lark's tree by a loop, :meth:`_ToModel.transform`), and
+the passes over expressions in :mod:`.expr`, :mod:`.derive` and :mod:`.checks` keep their
+own stacks. The nesting depth is bounded all the same (:data:`MAX_DEPTH`), checked while
+the parser reduces, so that a pathological expression is refused as soon as it goes too
+deep rather than after filling the memory.
 """
 
 from __future__ import annotations
@@ -86,6 +86,16 @@ class _Tree(SlottedTree):
             raise MechError(f"the expression is nested too deeply: {depth + 1:,} levels here, "
                             f"more than the limit of {MAX_DEPTH:,} (a sum of n terms counts n "
                             "levels; split it with params)", _first_span(children))
+
+
+def _too_deep(depth: int, extent) -> None:
+    """The error of a node nested ``depth`` levels deep, more than :data:`MAX_DEPTH`, at
+    the start of ``extent`` (the one-loop parser's check, as :class:`_Tree`'s)."""
+    span = None if extent is None else Span(extent[0][0], extent[0][1], extent[0][0],
+                                             extent[0][1] + 1)
+    raise MechError(f"the expression is nested too deeply: {depth:,} levels here, more than "
+                    f"the limit of {MAX_DEPTH:,} (a sum of n terms counts n levels; split it "
+                    "with params)", span)
 
 
 def _first_span(children) -> Span | None:
@@ -247,7 +257,30 @@ def _tspan(tok: Token) -> Span:
 
 def _keep_tree(data: str, meta, children: list) -> Tree:
     """A node the model has no method for, kept as a tree of its transformed children."""
-    return Tree(data, children, meta)
+    return Tree(data, children, meta if not isinstance(meta, _Meta) else meta.lark())
+
+
+class _Meta:
+    """The positions a model node is made with during the parse (lark's ``meta``: the
+    line and column of its start and of its end)."""
+
+    __slots__ = ("line", "column", "start_pos", "end_line", "end_column", "end_pos", "empty")
+
+    def __init__(self, extent) -> None:
+        self.empty = extent is None
+        if extent is not None:
+            (self.line, self.column, self.start_pos), \
+                (self.end_line, self.end_column, self.end_pos) = extent
+
+    def lark(self):
+        """The same as lark's Meta."""
+        from lark.tree import Meta
+
+        meta = Meta()
+        for name in self.__slots__:
+            if hasattr(self, name):
+                setattr(meta, name, getattr(self, name))
+        return meta
 
 
 class _ToModel:
@@ -262,7 +295,6 @@ class _ToModel:
 
     def transform(self, tree: Tree):
         """The model nodes of ``tree``, bottom-up; no recursion (:data:`MAX_DEPTH`)."""
-        methods: dict[str, object] = {}
         order, stack = [], [tree]
         while stack:  # pre-order; reversed, every node comes after its descendants
             node = stack.pop()
@@ -270,16 +302,23 @@ class _ToModel:
             stack.extend(c for c in node.children if isinstance(c, Tree))
         done: dict[int, object] = {}
         for node in reversed(order):
-            data = node.data
-            f = methods.get(data)
-            if f is None:
-                f = methods[data] = getattr(self, data, None) \
-                    if not data.startswith("_") and data != "transform" else None
-                if f is None:
-                    f = methods[data] = functools.partial(_keep_tree, data)
             children = [done.pop(id(c)) if isinstance(c, Tree) else c for c in node.children]
-            done[id(node)] = f(node.meta, children)
+            done[id(node)] = self._node(node.data, node.meta, children)
         return done[id(tree)]
+
+    def node(self, name: str, extent, children: list):
+        """The model node ``name`` of ``children`` (transformed) at ``extent`` ((line,
+        column, offset) of its start and of its end, or None): what :meth:`transform` makes
+        of a tree's node, made while the parser reduces it (:mod:`.lalr`)."""
+        return self._node(name, _Meta(extent), children)
+
+    def _node(self, name: str, meta, children: list):
+        f = self._methods.get(name)
+        if f is None:
+            f = getattr(self, name, None) if not name.startswith("_") and name not in (
+                "transform", "node") else None
+            self._methods[name] = f = f or functools.partial(_keep_tree, name)
+        return f(meta, children)
 
     def start(self, meta, items):
         return [i for i in items if not isinstance(i, Token)]
@@ -299,8 +338,8 @@ class _ToModel:
         return E.Ref(tuple(str(t) for t in items), _span(meta))
 
     def __init__(self, base_dir: str) -> None:
-        super().__init__()
         self.base_dir = base_dir
+        self._methods: dict[str, object] = {}
         self.files: list[str] = []
 
     def _name_file(self, name: str, span: Span) -> None:
@@ -649,7 +688,14 @@ def _lark_parse(source: Source, start: str):
         os.path.abspath(source.name))
     to_model = _ToModel(base_dir)
     try:
-        tree = _tree(source.text, start)
+        fast = _fast()
+        if fast is not None:  # the model made while parsing (lalr.py); None: a syntax error
+            model = fast.parse(source.text, start, node=to_model.node, max_depth=MAX_DEPTH,
+                               too_deep=_too_deep)
+            if model is not None:
+                return model, tuple(to_model.files)
+            to_model = _ToModel(base_dir)
+        tree = _parser().parse(source.text, start=start)
         return to_model.transform(tree), tuple(to_model.files)
     except UnexpectedInput as err:
         raise _syntax_error(err, source) from None
