@@ -352,3 +352,9 @@ def test_the_parser_positions_are_larks():
     # where lark's parser finds an error, the loop gives up and lark's parser says it
     for text in ("body b { guess = (0, 0 }", "param = 1", "param a = 1 $", "joint j: ("):
         assert loop.parse(text, "start") is None
+    # the model made while reducing is the one made from lark's tree afterwards, spans
+    # (dataclass fields) included, on every example and the texts above
+    for text in texts:
+        made = loop.parse(text, "start", node=P._ToModel(".").node, max_depth=P.MAX_DEPTH,
+                          too_deep=P._too_deep)
+        assert made == P._ToModel(".").transform(lark_own.parse(text, start="start"))
