@@ -355,6 +355,13 @@ class RadauStepper(Stepper):
         s = np.concatenate((x[:n] / sc[:n], h * x[n:2 * n] / sc[n:]))
         return float(np.sqrt(np.mean(np.abs(s) ** 2)))
 
+    def _norm_stages(self, dZ: np.ndarray, sc: np.ndarray, h: float) -> float:
+        """sqrt(mean_j |dZ_j|^2) over the three stages, each by :meth:`_norm`."""
+        n = self.n
+        a = dZ[:, :n] / sc[:n]
+        b = h * dZ[:, n:2 * n] / sc[n:]
+        return float(np.sqrt((np.sum(np.abs(a) ** 2) + np.sum(np.abs(b) ** 2)) / (6 * n)))
+
     def _residual_norm(self, r: np.ndarray, sc: np.ndarray, h: float) -> float:
         """The stage residuals r (3, 2n + m) as errors of the state they would cause, in the
         error norm: a velocity mismatch r_q over a step moves q by h r_q; a force residual
@@ -442,7 +449,7 @@ class RadauStepper(Stepper):
                 # that never shrink; A02 at 0.72 s, rtol 1e-8)
                 return True, k + 1, Z, (rate if rate is not None else 0.0)
             dZ = solve(r)
-            dZ_norm = np.sqrt(sum(self._norm(w, sc, h) ** 2 for w in dZ) / 3)
+            dZ_norm = self._norm_stages(dZ, sc, h)
             if dZ_norm_old is not None:
                 rate = dZ_norm / dZ_norm_old
                 # at a singular position (a root where Phi_q loses rank) Newton converges

@@ -30,17 +30,26 @@ DENSE_MAX = 120
 
 
 class DenseLU:
-    """A dense matrix's LU factors, with SuperLU's ``solve(b)``."""
+    """A dense matrix's LU factors (LAPACK's getrf, real or complex), with SuperLU's
+    ``solve(b)`` (getrs). LAPACK is called directly: scipy's ``lu_factor`` and ``lu_solve``
+    wrap the same calls in checks that cost more than the arithmetic of the stiff
+    pendulum's 11 unknowns."""
 
-    __slots__ = ("factors",)
+    __slots__ = ("lu", "piv", "_getrs")
 
     def __init__(self, a: np.ndarray) -> None:
-        from scipy.linalg import lu_factor  # (lazily: the registry's import stays cheap)
-        self.factors = lu_factor(a, check_finite=False)
+        from scipy.linalg import lapack  # (lazily: the registry's import stays cheap)
+        getrf, self._getrs = (lapack.zgetrf, lapack.zgetrs) if np.iscomplexobj(a) else \
+            (lapack.dgetrf, lapack.dgetrs)
+        self.lu, self.piv, info = getrf(a)
+        if info < 0:  # pragma: no cover - an argument LAPACK refuses
+            raise ValueError(f"getrf: argument {-info} is invalid")
+        # (info > 0: a zero pivot, as lu_factor, which warns and goes on: the solve then
+        # gives inf or NaN, which the caller's tests catch)
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        from scipy.linalg import lu_solve
-        return lu_solve(self.factors, b, check_finite=False)
+        x, info = self._getrs(self.lu, self.piv, b)
+        return x
 
 
 def dense(a: object, shape: tuple[int, int]) -> np.ndarray:
