@@ -459,6 +459,11 @@ class Motion:
         """Q(q, qd, t) (n,)."""
         return self._mass_loads(q, qd, t)[1]
 
+    def mass_loads(self, t: float, q: np.ndarray, qd: np.ndarray) -> tuple[object, np.ndarray]:
+        """M(q) (n, n) and Q(q, qd, t) (n,), from one evaluation of the kernels."""
+        mv, load = self._mass_loads(q, qd, t)
+        return Triplets(mv, self.mass_rows, self.mass_cols, (self.n, self.n)), load
+
     @functools.cached_property
     def _load_jacobian(self) -> tuple:
         """The load derivatives' kernel of floats (None without varying entries) and the
