@@ -106,6 +106,9 @@ class Equations(Protocol):
                          ) -> tuple[object, object]:
         """dQ/dq and dQ/dqd (n, n), exact (derived from the traced loads)."""
 
+    # Optional (getattr): ``mass_loads(t, q, qd)``, M(q) and Q(q, qd, t) from one
+    # evaluation, which the implicit steppers' stage residuals take where it is present.
+
     def accelerations(self, t: float, q: np.ndarray, qd: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray]:
         """qdd (n,) and lambda (m,) of the index-1 form; with redundant constraints the
