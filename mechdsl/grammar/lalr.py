@@ -17,6 +17,11 @@ same automaton in one loop:
   is the rule of lark's ``propagate_positions`` with the positions at hand instead of
   searched for.
 
+* **the model**, with a ``node`` callback, is made as the parser reduces: each rule's
+  children shaped by lark's own wrappers, then handed to the callback with their extent,
+  no tree built and no second pass; the nesting depth is kept on a third stack, so that a
+  pathological expression is refused where it goes too deep.
+
 The grammar stays defined once, in ``mech.lark``: nothing here knows a rule or a token. On any
 input it cannot take (a character no token matches, a token the state does not expect, a
 lark configuration of another shape), :meth:`FastLALR.parse` returns None and the caller runs
@@ -273,24 +278,25 @@ def _place(res: Any, children: list, spans: list) -> _Extent:
             return ((res.line, res.column, res.start_pos),
                     (res.end_line, res.end_column, res.end_pos))
         return None
-    first = spans[0] if spans else None
-    if first is None:
-        first = next((s for s in spans if s is not None), None)
+    extent = _container(spans)
     meta = res.meta
-    if first is None:
+    if extent is None:
         if meta.empty:
             return None
         return ((meta.container_line, meta.container_column, meta.container_start_pos),
                 (meta.container_end_line, meta.container_end_column, meta.container_end_pos))
-    last = spans[-1]
-    if last is None:
-        last = next(s for s in reversed(spans) if s is not None)
-    a, b = first[0], last[1]
+    set_positions(meta, *extent)
+    return extent
+
+
+def set_positions(meta, first: tuple[int, int, int], last: tuple[int, int, int]) -> None:
+    """lark's ``propagate_positions`` on one node's ``meta``: its container from ``first``
+    (line, column, offset) to ``last``, and its own start and end where it has none yet (a
+    child handed on keeps its own, its container takes in the parent's filtered tokens)."""
     if not hasattr(meta, "line"):
-        meta.line, meta.column, meta.start_pos = a
+        meta.line, meta.column, meta.start_pos = first
     if not hasattr(meta, "end_line"):
-        meta.end_line, meta.end_column, meta.end_pos = b
+        meta.end_line, meta.end_column, meta.end_pos = last
     meta.empty = False
-    meta.container_line, meta.container_column, meta.container_start_pos = a
-    meta.container_end_line, meta.container_end_column, meta.container_end_pos = b
-    return (a, b)
+    meta.container_line, meta.container_column, meta.container_start_pos = first
+    meta.container_end_line, meta.container_end_column, meta.container_end_pos = last

@@ -35,7 +35,7 @@ from . import expr as E
 from . import statements as S
 from .cache import cached_tables
 from .checks import TIME, build_model, check_expr
-from .lalr import FastLALR
+from .lalr import FastLALR, set_positions
 from .model import ANGLE_UNITS, SIMULATE_OPTIONS, TRACE_FUNCTIONS, UNIT_NAMES
 from .model import (
     Arg, CentrodeTrace, Drive, Force, Initial, Joint, MeshFile, Model, NamedOutput, OutputRef, Param, Point, Polygon,
@@ -130,15 +130,7 @@ class _Positions:
         first = _edge(children, True)
         if first is None:
             return res
-        last = _edge(reversed(children), False)
-        meta = res.meta
-        if not hasattr(meta, "line"):
-            meta.line, meta.column, meta.start_pos = first
-        if not hasattr(meta, "end_line"):
-            meta.end_line, meta.end_column, meta.end_pos = last
-        meta.empty = False
-        meta.container_line, meta.container_column, meta.container_start_pos = first
-        meta.container_end_line, meta.container_end_column, meta.container_end_pos = last
+        set_positions(res.meta, first, _edge(reversed(children), False))
         return res
 
 
