@@ -246,8 +246,8 @@ def _trace_bodies(graph: Graph, bodies: list, rates: list, leaves: list, Q: list
         entries += [graph.lift(v) for v in (m, m, -m * a.y, -m * a.y, m * a.x, m * a.x,
                                             J + m * (s.x * s.x + s.y * s.y))]
     return TracedBodies(tuple(Q), tuple(entries), LazyKernel(graph, Q, "loads"),
-                     LazyKernel(graph, entries, "mass"),
-                     LazyKernel(graph, [potential], "potential"))
+                        LazyKernel(graph, entries, "mass"),
+                        LazyKernel(graph, [potential], "potential"))
 
 
 def _inputs(graph: Graph, params: _Params, n_bodies: int, mass: np.ndarray,
