@@ -151,6 +151,14 @@ def test_the_automatic_choice_reads_the_registry(monkeypatch):
     assert choose("auto", 9e-5, dopri5_from=1e-4)[0] == "vern9"
     name, why = choose("auto", 1e-8, dopri5_from=1e-4)
     assert name == "vern9" and "1e-08" in why
+    # a large or redundant model, on the augmented Lagrangian: the highest-order pair
+    # whose error estimate is robust (registry attribute), dopri5 at loose tolerances
+    name, why = choose("auto", 1e-8, dopri5_from=1e-4, large=True)
+    assert name == "dop853" and "augmented Lagrangian" in why and "radau takes over" in why
+    assert choose("auto", 1e-3, dopri5_from=1e-4, redundant=True)[0] == "dopri5"
+    monkeypatch.setattr(INTEGRATORS["dop853"], "robust", False)
+    assert choose("auto", 1e-8, dopri5_from=1e-4, large=True)[0] == "dopri5"
+    monkeypatch.undo()
     assert choose("dop853", 1e-8, dopri5_from=1e-4) == ("dop853",
                                                         "dop853, as the options name it")
     with pytest.raises(ValueError, match="method must be 'auto', .*'dopri5'.*not 'rk4'"):
@@ -172,7 +180,7 @@ def test_the_automatic_choice_reads_the_registry(monkeypatch):
     assert choose("auto", 1e-8, dopri5_from=1e-4, stiff=True)[0] == "implicit-test"
     assert choose("auto", 1e-8, dopri5_from=1e-4, large=True)[0] == "implicit-test"
     assert choose("auto", 1e-8, dopri5_from=1e-4)[0] == "vern9"
-    assert choose("auto", 1e-8, dopri5_from=1e-4, redundant=True)[0] == "vern9"
+    assert choose("auto", 1e-8, dopri5_from=1e-4, redundant=True)[0] == "dop853"
     monkeypatch.setattr(Implicit, "redundant", True)
     assert choose("auto", 1e-8, dopri5_from=1e-4, redundant=True)[0] == "implicit-test"
 

@@ -40,9 +40,13 @@ def help_text() -> str:
     high = max(explicit, key=lambda cls: cls.order).name
     threshold = f"{SolverOptions.dopri5_from:.0e}".replace("e-0", "e-")  # 1e-4
     rule = f"{low} for an rtol of {threshold} or more, else {high}"
-    implicit = [cls.name for cls in auto if cls.implicit]
-    if implicit:
-        rule += f"; {implicit[0]} for stiff, large or redundant models"
+    robust = [cls for cls in explicit if cls.robust]
+    if robust:
+        rule += (f" ({max(robust, key=lambda cls: cls.order).name} for large or redundant "
+                 "models)")
+    later = stiff_method()
+    if later is not None:
+        rule += f"; {later.name} where the run proves stiff"
     listed = ", ".join(f"{name} ({cls.summary})" if cls.summary else name
                        for name, cls in INTEGRATORS.items())
     return f"forward dynamics: the integrator, auto (default: {rule}) or one of {listed}"
@@ -59,8 +63,10 @@ def choose(method: str, rtol: float, *, dopri5_from: float, stiff: bool = False,
     otherwise, and for every other model, an explicit pair by the tolerance: at rtol >=
     ``dopri5_from`` the pair of lowest order (fewest evaluations per step: it wins where
     the steps are few and long, dopri5), below it the one of highest order (its number of
-    steps grows only as tol^(-1/(q+1)), vern9). The choice is measured on Andrews'
-    mechanism (docs/dynamics.md)."""
+    steps grows only as tol^(-1/(q+1)), vern9); but for a ``large`` or ``redundant``
+    model, integrated on the augmented Lagrangian, below ``dopri5_from`` the highest-order
+    pair among the ``robust`` ones (dop853). The choice is measured on Andrews' mechanism
+    and on A02 and the chain (docs/dynamics.md)."""
     if method != "auto":
         validate(method)
         return method, f"{method}, as the options name it"
@@ -74,6 +80,13 @@ def choose(method: str, rtol: float, *, dopri5_from: float, stiff: bool = False,
             best = max(implicit, key=lambda cls: cls.order)
             return best.name, f"{best.name}: the model {' and '.join(needs)}"
     explicit = [cls for cls in candidates if not cls.implicit]
+    if (large or redundant) and rtol < dopri5_from and any(c.robust for c in explicit):
+        # the augmented Lagrangian's accelerations (module docstring of solve/motion.py)
+        best = max((c for c in explicit if c.robust), key=lambda cls: cls.order)
+        why = (f"{best.name}: rtol {rtol:g} < {dopri5_from:g} on the augmented Lagrangian, "
+               "where the explicit pair of highest order whose error estimate stays "
+               "reliable on its accelerations takes the fewest evaluations")
+        return best.name, why + _later(needs)
     if rtol >= dopri5_from:
         best = min(explicit, key=lambda cls: cls.order)
         why = (f"{best.name}: rtol {rtol:g} >= {dopri5_from:g}, where the explicit pair of "
@@ -82,13 +95,19 @@ def choose(method: str, rtol: float, *, dopri5_from: float, stiff: bool = False,
         best = max(explicit, key=lambda cls: cls.order)
         why = (f"{best.name}: rtol {rtol:g} < {dopri5_from:g}, where the explicit pair of "
                "highest order takes the fewest evaluations")
-    if needs:
-        later = stiff_method()
-        why += (f" (the model {' and '.join(needs)}; "
-                + (f"{later.name} takes over where the run proves stiff: from the start it "
-                   "is not chosen, being slower on such models)" if later is not None else
-                   "no implicit method is registered)"))
-    return best.name, why
+    return best.name, why + _later(needs)
+
+
+def _later(needs: list[str]) -> str:
+    """What the reason adds for a model that is stiff, large or redundant: the implicit
+    method taking over where the run proves stiff."""
+    if not needs:
+        return ""
+    later = stiff_method()
+    return (f" (the model {' and '.join(needs)}; "
+            + (f"{later.name} takes over where the run proves stiff: from the start it "
+               "is not chosen, being slower on such models)" if later is not None else
+               "no implicit method is registered)"))
 
 
 def stiff_method() -> type[Stepper] | None:

@@ -135,6 +135,11 @@ class Stepper:
     summary: ClassVar[str] = ""
     auto: ClassVar[bool] = False
     constrained: ClassVar[bool] = False
+    #: an explicit pair whose error estimate stays reliable where the right-hand side is
+    #: smooth only to a tolerance (the augmented Lagrangian's accelerations: an iteration
+    #: stopped at round-off, and near a singular position the penalty's blend): the
+    #: automatic choice takes such a pair for the models integrated on it
+    robust: ClassVar[bool] = False
     #: set by the driver on the instance where it has a limit (rule 2)
     max_step: float = math.inf
     max_attempts: float = math.inf
