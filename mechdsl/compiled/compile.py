@@ -20,7 +20,7 @@ from ..grammar.checks import TIME, check_expr
 from ..grammar.derive import derivative, total_derivative
 from ..grammar.model import (
     BODY_QUANTITIES, DRIVE_QUANTITIES, ENERGY_QUANTITIES, GROUND, JOINT_QUANTITIES, ORIGIN, POINT_QUANTITIES, Body,
-    CentrodeTrace, Drive, Force, Initial, Joint, Model, NamedOutput, ReducedOutput, Vector,
+    CentrodeTrace, Drive, Force, Joint, Model, NamedOutput, ReducedOutput, Vector,
 )
 from ..memory import BYTES, collection_paused, resident_bytes, within
 from ..plugins.contract import REQUIRED, ArgError, ConstraintType
