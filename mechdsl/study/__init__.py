@@ -7,8 +7,6 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Callable
 
-import numpy as np
-
 from ..compiled.kernels import Kernels
 from ..compiled.variants import Overrides, sweep_table
 from ..errors import MechError
