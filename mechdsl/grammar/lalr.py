@@ -108,6 +108,7 @@ class FastLALR:
                     build = functools.partial(Tree, name)
                 else:
                     def build(children: list, name: str = name) -> Any:
+                        cell[1] = True  # (a node made: a level, whatever it returns)
                         return node(name, cell[0], children)
                 for wrap in chain:
                     build = wrap(build)
@@ -125,7 +126,7 @@ class FastLALR:
         nodes nested deeper than ``max_depth`` (counted as lark's trees would be: a level
         per rule, ``_rule`` splices none) call ``too_deep(depth, extent)``, which raises."""
         states, lexers = self.states, self.lexers
-        cell: list = [None]
+        cell: list = [None, False]  # the extent of the node being made; whether it was
         rules = self.rules if node is None else self._transforming(node, cell)
         depths: list[int] = []
         token_callbacks = self.token_callbacks
@@ -247,14 +248,17 @@ def _transformed(build: Callable, children: list, spans: list, depths: list, ori
     parent sees it and its depth, as lark's tree of the same text would have them (a child
     handed on keeps its depth; a ``_rule``, spliced into its parent, adds no level)."""
     extent = cell[0] = _container(spans)
+    cell[1] = False
     res = build(children)
-    for k, c in enumerate(children):
+    depth = max(depths) if depths else 0
+    if cell[1]:  # the node function made it (lark's tree would have a node here)
+        return res, extent, depth + 1
+    for k, c in enumerate(children):  # lark's wrappers handed a child on
         if res is c:
             return res, (spans[0] if len(children) == 1 else extent), depths[k]
     if isinstance(res, Token):
         return res, ((res.line, res.column, res.start_pos),
                      (res.end_line, res.end_column, res.end_pos)), 0
-    depth = max(depths) if depths else 0
     return res, extent, depth if origin[0] == "_" else depth + 1
 
 
