@@ -422,3 +422,31 @@ def test_the_parser_loop_agrees_with_lark_on_mutated_models():
                                         max_depth=P.MAX_DEPTH, too_deep=P._too_deep)) == \
             model(lambda: P._ToModel(".").transform(expected)), text
     assert parsed > 30 and refused > 30  # both kinds were exercised
+
+
+def test_a_parser_loop_that_disagrees_with_lark_is_not_used(monkeypatch):
+    """The loop reads lark's internals: where, on some version of lark, it would give other
+    trees or positions than lark's own parser on the self-check's texts, parser._fast
+    refuses it and lark parses alone, with the same model."""
+    from pathlib import Path
+
+    from mechdsl.grammar import lalr
+    from mechdsl.grammar import parser as P
+
+    text = (Path(__file__).parent.parent / "examples" / "slider_crank.mech").read_text()
+    expected = P.parse(text, "s.mech")
+    real = lalr.FastLALR.parse
+
+    def shifted(self, text, start, **kw):  # a loop one column off
+        tree = real(self, text, start, **kw)
+        if kw.get("node") is None and tree is not None:
+            tree.meta.column += 1
+        return tree
+
+    P._fast.cache_clear()
+    monkeypatch.setattr(lalr.FastLALR, "parse", shifted)
+    try:
+        assert P._fast() is None
+        assert P.parse(text, "s.mech") == expected
+    finally:
+        P._fast.cache_clear()

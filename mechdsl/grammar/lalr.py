@@ -15,8 +15,7 @@ same automaton in one loop:
 * **the positions** are kept on a stack beside the values: a node's extent is its first
   positioned child's start and its last one's end (a token's own, a tree's container), which
   is the rule of lark's ``propagate_positions`` with the positions at hand instead of
-  searched for.
-
+  searched for;
 * **the model**, with a ``node`` callback, is made as the parser reduces: each rule's
   children shaped by lark's own wrappers, then handed to the callback with their extent,
   no tree built and no second pass; the nesting depth is kept on a third stack, so that a
@@ -72,15 +71,20 @@ class FastLALR:
                             parser.rules, Tree, False, False, False).rule_builders]
         if {id(rule) for rule, _ in self.shapers} != set(self.rules):
             raise TypeError("the rules of the tree builder are not the table's")
-        shared: dict[int, tuple] = {}
+        self._state_lexers = frontend.lexer.lexers
+        #: each parser state's (regular expressions, keyword callbacks, ignored and
+        #: multi-line token types), made where the state is first met: compiling every
+        #: state's expressions at once would cost 20 ms of every process's first parse
         self.lexers: dict[Any, tuple] = {}
-        for state, lexer in frontend.lexer.lexers.items():
-            key = id(lexer)
-            if key not in shared:
-                scanner = lexer.scanner  # (built on first use: compiles the state's regex)
-                shared[key] = (tuple(scanner._mres), dict(lexer.callback),
-                               frozenset(lexer.ignore_types), frozenset(lexer.newline_types))
-            self.lexers[state] = shared[key]
+
+    def _lexer(self, state: Any) -> tuple:
+        """:attr:`lexers`' entry of ``state``, made now (the state's scanner is lark's)."""
+        lexer = self._state_lexers[state]
+        scanner = lexer.scanner  # (built on first use: compiles the state's expressions)
+        made = self.lexers[state] = (tuple(scanner._mres), dict(lexer.callback),
+                                     frozenset(lexer.ignore_types),
+                                     frozenset(lexer.newline_types))
+        return made
 
     def _hand_on(self, below: Any, origin: str, type_: str) -> Any:
         """The state on top of ``below`` after reducing to ``origin`` and every further
@@ -143,7 +147,9 @@ class FastLALR:
         chains: dict[tuple, Any] = {}
         while True:
             if pos < size:  # the next token, lexed in the current state (lark's contextual)
-                mres, callbacks, ignore, newline = lexers[state_stack[-1]]
+                lexer = lexers.get(state_stack[-1])
+                mres, callbacks, ignore, newline = lexer if lexer is not None else \
+                    self._lexer(state_stack[-1])
                 for mre in mres:
                     m = mre.match(text, pos)
                     if m is not None:

@@ -212,9 +212,38 @@ def _fast() -> FastLALR | None:
             return None
         builders[rule] = callback.build
     try:
-        return FastLALR(parser, builders)
-    except (AttributeError, TypeError):  # lark's internals of another shape
+        fast = FastLALR(parser, builders)
+        # the loop reads lark's internals: on this version of lark it must give lark's own
+        # trees and positions, or it is not used (checked once, on a text of every kind of
+        # statement and expression: about 3 ms)
+        for text, start in _SELF_CHECK:
+            if _positions(fast.parse(text, start)) != _positions(parser.parse(text, start=start)):
+                return None
+        return fast
+    except Exception:  # noqa: BLE001 - lark's internals of another shape: lark parses alone
         return None
+
+
+#: what :func:`_fast` parses both ways before the loop is used
+_SELF_CHECK = (
+    ("param l = 2.5 in 1 .. 4  # a comment\nparam r = if l > 2 and not l >= 3 then (l) else "
+     "-l^2 * sin(atan2(1, l)) / 2\ngravity = (0, -9.81)\nground { point O = (0, 0) }\n"
+     "body crank { guess = (0, 0, 0.5)  point A = (r, 0)  mass = 1  inertia = 0.1 }\n"
+     "joint j: revolute(ground.O, crank.origin)\ndrive d: angle(crank) = 2*t\n"
+     "sweep l = [1, 2]\nsimulate t = 0 .. 1 step 0.1, rtol = 1e-6\n"
+     "output x = max(crank.A.x, 0), crank.A\n", "start"),
+    ("-(2 * (l + 1))^2", "expr_only"),
+)
+
+
+def _positions(tree) -> list:
+    """Every node of ``tree`` with its positions (what the self-check compares)."""
+    return [(t.data, t.children if not t.children or not isinstance(t.children[0], Tree)
+             else len(t.children), *(getattr(t.meta, a, None) for a in (
+                 "line", "column", "start_pos", "end_line", "end_column", "end_pos",
+                 "container_line", "container_column", "container_end_line",
+                 "container_end_column")))
+            for t in tree.iter_subtrees()]
 
 
 def _tree(text: str, start: str):
