@@ -132,7 +132,7 @@ class FastLALR:
         states, lexers = self.states, self.lexers
         cell: list = [None, False]  # the extent of the node being made; whether it was
         rules = self.rules if node is None else self._transforming(node, cell)
-        depths: list[int] = []
+        depths: list[int] = []  # (with ``node``: each value's nesting depth)
         token_callbacks = self.token_callbacks
         # lark's constructor behind its keyword handling (the public one where it has none)
         new_token = getattr(Token, "_future_new", Token)
@@ -192,7 +192,8 @@ class FastLALR:
                     state_stack.append(arg)
                     values.append(token if type_ not in token_callbacks
                                   else token_callbacks[type_](token))
-                    depths.append(0)
+                    if node is not None:
+                        depths.append(0)
                     extents.append(((token.line, token.column, token.start_pos),
                                     (token.end_line, token.end_column, token.end_pos)))
                     break
@@ -216,11 +217,11 @@ class FastLALR:
                     extents.append(_place(res, children, spans))
                 else:
                     if n:
-                        below = depths[-n:]
+                        levels = depths[-n:]
                         del depths[-n:]
                     else:
-                        below = []
-                    res, extent, depth = _transformed(build, children, spans, below, origin,
+                        levels = []
+                    res, extent, depth = _transformed(build, children, spans, levels, origin,
                                                       cell)
                     if depth > max_depth and too_deep is not None:
                         too_deep(depth, extent)
