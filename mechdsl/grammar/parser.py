@@ -83,19 +83,23 @@ class _Tree(SlottedTree):
                 depth = c.depth
         self.depth = depth + 1
         if depth >= MAX_DEPTH:
-            raise MechError(f"the expression is nested too deeply: {depth + 1:,} levels here, "
-                            f"more than the limit of {MAX_DEPTH:,} (a sum of n terms counts n "
-                            "levels; split it with params)", _first_span(children))
+            raise _nested_too_deeply(depth + 1, _first_span(children))
+
+
+def _nested_too_deeply(levels: int, span: Span | None) -> MechError:
+    """The error of a node nested ``levels`` deep, more than :data:`MAX_DEPTH`, at ``span``
+    (the tree's check, :class:`_Tree`, and the one-loop parser's, :func:`_too_deep`)."""
+    return MechError(f"the expression is nested too deeply: {levels:,} levels here, more "
+                     f"than the limit of {MAX_DEPTH:,} (a sum of n terms counts n levels; "
+                     "split it with params)", span)
 
 
 def _too_deep(depth: int, extent) -> None:
-    """The error of a node nested ``depth`` levels deep, more than :data:`MAX_DEPTH`, at
-    the start of ``extent`` (the one-loop parser's check, as :class:`_Tree`'s)."""
+    """The one-loop parser's depth check (:mod:`.lalr`): the error of a node nested
+    ``depth`` levels deep, located at the start of ``extent``."""
     span = None if extent is None else Span(extent[0][0], extent[0][1], extent[0][0],
                                              extent[0][1] + 1)
-    raise MechError(f"the expression is nested too deeply: {depth:,} levels here, more than "
-                    f"the limit of {MAX_DEPTH:,} (a sum of n terms counts n levels; split it "
-                    "with params)", span)
+    raise _nested_too_deeply(depth, span)
 
 
 def _first_span(children) -> Span | None:
