@@ -408,7 +408,8 @@ def bench_chain(rep, quick: bool, out: Path) -> None:
                      _fmt_e(err_e), "-" if ratio is None else f"{ratio:.1f}", _status(rec)])
     rep.table("Chain of N links released horizontal, 0.2 s (mechdsl rtol 1e-6: loads + "
               "simulate, median of 5 in a fresh process; Exudyn gen.-alpha h = 1e-3, sparse: "
-              "build + solve, and solve alone, median of 3); error of the free end [m] against the N-angle oracle (N <= 30), else "
+              "build + solve, and solve alone, median of 3); error of the free end [m] "
+              "against the N-angle oracle (N <= 30), else "
               "mechdsl against Exudyn",
               ["N", "mechdsl", "error", "Exudyn", "Exudyn solve", "Exudyn error",
                "mechdsl / Exudyn", "mechdsl status"], rows)

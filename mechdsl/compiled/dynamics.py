@@ -199,10 +199,11 @@ class TracedBodies(NamedTuple):
 
 
 class BodyTrace:
-    """The bodies' terms of Q, M and the potential (:func:`body_terms`), traced into the model's graph after the force elements' where first needed (the
-    tracing is about 30 ms of the 300-link chain's compilation, which a run of the
-    augmented Lagrangian, evaluating them as arrays, does not need). Once traced, they
-    are shared by every copy of the Dynamics (variants, rebound values)."""
+    """The bodies' terms of Q, M and the potential (:func:`body_terms`), traced into the
+    model's graph after the force elements' where first needed (the tracing is about 30 ms
+    of the 300-link chain's compilation, which a run of the augmented Lagrangian,
+    evaluating them as arrays, does not need). Once traced, they are shared by every copy
+    of the Dynamics (variants, rebound values)."""
 
     def __init__(self, graph: Graph, bodies: list, rates: list, leaves: list, loads: list,
                  potential) -> None:

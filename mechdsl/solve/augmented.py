@@ -106,12 +106,8 @@ class Plan:
     mass_cols: np.ndarray
     jac_rows: np.ndarray
     jac_cols: np.ndarray
-    k_rows: np.ndarray
-    k_cols: np.ndarray
-    #: the flat index in K of each value of [J's entries, J^T's, M's], and the order of
-    #: those values along ``k_rows``/``k_cols`` (M's, J^T's, J's)
+    #: the flat index in K of each value of [J's entries, J^T's, M's]
     kkt_at: np.ndarray
-    kkt_order: np.ndarray
     #: the n x n identity (the dense storage's [I, J^T W]) and the flat indices of the
     #: multipliers' diagonal in the (n + m) x (n + m) matrix T
     eye: np.ndarray
@@ -181,18 +177,17 @@ def plan(n: int, m: int, mass_rows: np.ndarray, mass_cols: np.ndarray,
     at, pair_where = where(pr, pc)
     size = n * n if kd < 0 else (kd + 1) * n
     big, nnz = n + m, len(jac_rows)
-    k_rows = np.concatenate((mass_rows, jac_cols, n + jac_rows))
-    k_cols = np.concatenate((mass_cols, n + jac_rows, jac_cols))
+    # K's entries (M's, J^T's, J's) and where each is in [J's, J's again, M's]
+    k_csr = Rows.of(np.concatenate((mass_rows, jac_cols, n + jac_rows)),
+                    np.concatenate((mass_cols, n + jac_rows, jac_cols)), (big, big))
     kkt_order = np.concatenate((2 * nnz + np.arange(len(mass_rows)), nnz + np.arange(nnz),
                                 np.arange(nnz)))
-    k_csr = Rows.of(k_rows, k_cols, (big, big))
     k_csr = replace(k_csr, order=kkt_order[k_csr.order])
     return Plan(n, m, kd, perm, mass_at, k1[at], k2[at], jac_rows[k1[at]],
                 np.concatenate((mass_where, pair_where)), size,
-                mass_rows, mass_cols, jac_rows, jac_cols, k_rows, k_cols,
+                mass_rows, mass_cols, jac_rows, jac_cols,
                 np.concatenate(((n + jac_rows) * big + jac_cols, jac_cols * big + n + jac_rows,
                                 mass_rows * big + mass_cols)),
-                kkt_order,
                 np.eye(n) if kd < 0 else np.zeros((0, 0)),
                 (n + np.arange(m)) * big + n + np.arange(m),
                 Rows.of(jac_rows, jac_cols, (m, n)), Rows.of(jac_cols, jac_rows, (n, m)), k_csr)
