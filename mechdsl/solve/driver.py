@@ -25,10 +25,12 @@ and owns
   suffers (a stiff spring's oscillation followed to the tolerance: h rho well below the
   stability boundary, the step ~ 1 / rho all the same, so that its cost grows like sqrt(k))
   is found by a **trial**: after :data:`TRIAL_AFTER` accepted steps, where the rest of the
-  span would take more than :data:`TRIAL_MIN_STEPS` steps of the current size, the implicit
-  stepper takes up to :data:`TRIAL_STEPS` steps from the same state, apart (nothing of it
-  is kept); where its last accepted step is :data:`TRIAL_RATIO` times the explicit step or
-  longer, the run goes on with the implicit stepper from there, as after :data:`STIFF`.
+  span would take more than :data:`TRIAL_MIN_STEPS` steps of the pair's typical size (the
+  median of the steps it took: a stiffness holds every step small, where a passage near a
+  singular position holds a few), the implicit stepper takes up to :data:`TRIAL_STEPS`
+  steps from the same state, apart (nothing of it is kept); where its last accepted step is
+  :data:`TRIAL_RATIO` times that typical step or longer, the run goes on with the implicit
+  stepper from there, as after :data:`STIFF`.
   The decision reads step sizes only, never a clock: the same run decides the same way;
 * **progress**: ``on_output(k, t, y)`` with each output as soon as it is known, and
   ``on_step(t, attempts)`` after every accepted step (one output interval may take
@@ -146,6 +148,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         if stiff is not None and not stepper.implicit:
             s.detect_stiffness = True
         trial = stiff is not None and not stepper.implicit  # one trial at most
+        taken: list[float] = []  # the explicit steps accepted before the trial
         while k_next < n_out:
             # checked here too for steppers that take no more than one attempt per call
             if s.attempts + int(before[:2].sum()) >= max_steps:
@@ -185,6 +188,8 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             if at_output:
                 emit(k_next, t_new, y_new.copy())
                 k_next += 1
+            if trial:
+                taken.append(t_new - t)
             t = t_new
             why = None
             if message == STIFF:
@@ -193,7 +198,10 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                        f"{getattr(s, 'stiff_steps', 0)} steps in a row")
             elif trial and s.naccepted >= TRIAL_AFTER:
                 trial = False
-                why, spent = _trial(stiff, t, y_new, t_end, s.h, s.name, rtol, atol, scale)
+                # against the pair's typical step, not its last: a step held small for a
+                # while (A02 near a collinear passage) is not a stiffness
+                why, spent = _trial(stiff, t, y_new, t_end, float(np.median(taken)), s.name,
+                                    rtol, atol, scale)
                 before += spent  # the trial's work counts, kept or not
             if why is not None:
                 trial = False
