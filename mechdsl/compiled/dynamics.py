@@ -199,11 +199,17 @@ class TracedBodies(NamedTuple):
 
 
 class BodyTrace:
-    """The bodies' terms of Q, M and the potential (:func:`body_terms`), traced into the
-    model's graph after the force elements' where first needed (the tracing is about 30 ms
-    of the 300-link chain's compilation, which a run of the augmented Lagrangian,
-    evaluating them as arrays, does not need). Once traced, they are shared by every copy
-    of the Dynamics (variants, rebound values)."""
+    """The bodies' terms of Q, M and the potential (Haug 1989, sec. 6.2, the frame off the
+    centre of mass, a = A(phi) s'),
+
+        Q_i += (m g_x + m a_x phid^2, m g_y + m a_y phid^2, a x m g),
+        M_i = [[m, 0, -m a_y], [0, m, m a_x], [-m a_y, m a_x, J + m |s'|^2]],
+        V -= m g . (r + a),
+
+    traced into the model's graph after the force elements' where first needed (the
+    tracing is about 30 ms of the 300-link chain's compilation, which a run of the
+    augmented Lagrangian, evaluating them as arrays, does not need). Once traced, they
+    are shared by every copy of the Dynamics (variants, rebound values)."""
 
     def __init__(self, graph: Graph, bodies: list, rates: list, leaves: list, loads: list,
                  potential) -> None:
@@ -221,22 +227,6 @@ class BodyTrace:
             return self._terms
 
 
-def body_terms(body: Body, rate: Rate, m, J, s: Vec, gx, gy) -> tuple[tuple, tuple, Vec]:
-    """A body's terms (Haug 1989, sec. 6.2, the frame off the centre of mass, a = A(phi) s'):
-
-        Q = (m g_x + m a_x phid^2, m g_y + m a_y phid^2, a x m g),
-        M = [[m, 0, -m a_y], [0, m, m a_x], [-m a_y, m a_x, J + m |s'|^2]],
-
-    as (Q's three components, M's seven entries in the order of ``Dynamics.rows/cols``, a),
-    in any arithmetic: traced nodes (:class:`BodyTrace`) or arrays of all the bodies at
-    once (:mod:`mechdsl.solve.body_terms`)."""
-    a = body.rotate(s)
-    mgx, mgy, max_, may = m * gx, m * gy, m * a.x, m * a.y
-    loads = (mgx + max_ * rate.phi * rate.phi, mgy + may * rate.phi * rate.phi,
-             a.cross(Vec(mgx, mgy)))
-    return loads, (m, m, -may, -may, max_, max_, J + m * (s.x * s.x + s.y * s.y)), a
-
-
 def _trace_bodies(graph: Graph, bodies: list, rates: list, leaves: list, Q: list,
                   potential) -> TracedBodies:
     """:class:`BodyTrace`'s terms, added to the force elements' ``Q`` and ``potential``."""
@@ -247,12 +237,14 @@ def _trace_bodies(graph: Graph, bodies: list, rates: list, leaves: list, Q: list
     entries: list = []
     for i, (body, rate) in enumerate(zip(bodies, rates)):
         m, J, s, gx, gy = leaves[i]
-        loads, mass, a = body_terms(body, rate, m, J, s, gx, gy)
-        for c in range(3):
-            add(3 * i + c, loads[c])
-        # V = -m g . (r + a)
+        a = body.rotate(s)
+        add(3 * i, m * gx + m * a.x * rate.phi * rate.phi)
+        add(3 * i + 1, m * gy + m * a.y * rate.phi * rate.phi)
+        add(3 * i + 2, a.cross(Vec(m * gx, m * gy)))
         potential = graph.lift(potential - m * (gx * (body.x + a.x) + gy * (body.y + a.y)))
-        entries += [graph.lift(value) for value in mass]
+        # (in the order of build's rows and cols)
+        entries += [graph.lift(v) for v in (m, m, -m * a.y, -m * a.y, m * a.x, m * a.x,
+                                            J + m * (s.x * s.x + s.y * s.y))]
     return TracedBodies(tuple(Q), tuple(entries), LazyKernel(graph, Q, "loads"),
                         LazyKernel(graph, entries, "mass"),
                         LazyKernel(graph, [potential], "potential"))
