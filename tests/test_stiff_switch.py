@@ -219,6 +219,28 @@ def test_radau_passes_a02s_first_collinear_position_at_a_tight_tolerance():
     assert err.max() < 1e-7
 
 
+def test_radau_passes_a02s_next_collinear_positions_at_a_tight_tolerance():
+    """A02 to t = 7.3, past eight of its collinear positions, with radau at rtol 1e-8. It
+    stopped at two of them (the step size underflowed):
+
+    * at t = 1.244, by its step-size controller: after steps halved by Newton failures,
+      Gustafsson's prediction (h / h_prev) (err_prev / err)^1/4 read the halving as a
+      trend and shrank every following step tenfold;
+    * at t = 7.141, by Newton's rate: at a singular position it converges linearly, at
+      rates of 0.6 to 0.9 there, which the iteration gave up at 0.6.
+
+    B0 against the parallelogram branch's one-degree-of-freedom equation at every output;
+    the error grows with the phase over the run (1.7e-6 m by t = 7)."""
+    t1 = 7.3
+    res = mechdsl.loads(dm.a02_text(t1=t1, step=0.05, rtol=1e-8, atol=1e-10)).simulate(
+        options=SolverOptions(method="radau"))
+    assert res.ok, res.messages
+    ref = dm.a02_oracle(res.times)
+    assert np.sum(np.diff(np.sign(ref[:, 1])) != 0) >= 8  # the passages it went through
+    err = np.hypot(res["b0x"] - ref[:, 0], res["b0y"] - ref[:, 1])
+    assert err.max() < 5e-6
+
+
 def test_a_large_model_is_planned_with_its_banded_solver_not_a_dense_one():
     """The memory plan of a forward dynamics of many bodies counts the augmented
     Lagrangian's sparse terms, not a dense n x n matrix: a chain of 3000 links (12 s, a

@@ -49,9 +49,10 @@ position both matter: the iteration matrix is ill conditioned along the near-nul
 of Phi_q (on A02 at t = 0.7201 its smallest singular value is 2.8e-4 of the largest), so
 the residuals' rounding comes back as corrections that never shrink, while the equations
 already hold to 1e-14; and at the singular position itself Newton converges only linearly,
-by about half per iteration, so a rate at most ``singular_rate`` may go on to
-``max_newton_singular`` iterations. With both, radau passes A02's twenty collinear positions
-at rtol 1e-8, where it stopped at the first (the step size underflowed at t = 0.7201).
+at rates of 0.5 to 0.9 (A02 at t = 7.141), so a rate at most ``singular_rate`` (0.95) may
+go on to ``max_newton_singular`` (60) iterations. With both, radau passes A02's twenty
+collinear positions at rtol 1e-8, where it stopped at the first (the step size underflowed
+at t = 0.7201); with a limit of 0.6 and 20 iterations it stopped at the eighth, t = 7.141.
 
 **Redundant constraints.** Where Phi_q is rank-deficient (consistent redundant constraints, a
 parallelogram's extra link, a passage through a singular position), [[S, Phi_q^T], [Phi_q, 0]]
@@ -74,7 +75,10 @@ the velocities' error multiplied by h, the multipliers' excluded (Hairer's recom
 index-3 components). A step is accepted where |err| <= 1; the next step size comes from the
 predictive (Gustafsson) controller, h_new = h fac min(1, (h / h_prev) (err_prev / err)^1/4)
 err^-1/4 with the safety factor fac = 0.9 (2 k_max + 1) / (2 k_max + k_newton), limited to
-[``min_factor``, ``max_factor``]; a step size that would grow by less than ``keep_ratio`` is
+[``min_factor``, ``max_factor``]. Its prediction assumes that h_prev -> h was the
+controller's own change; where Newton's failures halved the step instead, the step after
+uses the standard controller alone (the prediction read the halving as a trend: on A02 at
+t = 1.244 it shrank every following step tenfold, to an underflow); a step size that would grow by less than ``keep_ratio`` is
 kept (the factorisation with it), except with the stages' own Jacobians (radau_stages),
 factorised at every step anyway (the stiff pendulum at k = 1e8: 20 % faster). Dense
 output: the collocation polynomial of the step (order 3 uniformly, exact at the stages).
@@ -154,8 +158,10 @@ class RadauStepper(Stepper):
     ``max_factor`` = 10 (bounds of one step-size change), ``safety`` = 0.9,
     ``regularization`` = 1e-10 (the relative size of the lambda block's -delta I that makes
     redundant constraints solvable), ``stage_jacobians`` = True (where the common Jacobian
-    does not converge, each stage gets its own: module radau_stages) and ``stagewise_retry``
-    = 20 (accepted steps after which the common Jacobian is tried again)."""
+    does not converge, each stage gets its own: module radau_stages), ``stagewise_retry``
+    = 20 (accepted steps after which the common Jacobian is tried again), and
+    ``singular_rate`` = 0.95 and ``max_newton_singular`` = 60 (the Newton contraction rate
+    up to which, at a singular position, the iteration goes on, and how far)."""
 
     name: ClassVar[str] = "radau"
     order: ClassVar[int] = 5
@@ -173,7 +179,7 @@ class RadauStepper(Stepper):
                  regularization: float = 1e-10, stage_jacobians: bool = True,
                  stagewise_retry: int = 20, index3_scaling: bool = True,
                  curvature: bool = True, residual_tol: float = 1.0,
-                 max_newton_singular: int = 20, singular_rate: float = 0.6) -> None:
+                 max_newton_singular: int = 60, singular_rate: float = 0.95) -> None:
         super().__init__(equations, t0, y0, t_bound, rtol=rtol, atol=atol, scale=scale,
                          first_step=first_step)
         self.n, self.m = int(equations.n), int(equations.m)
@@ -475,7 +481,7 @@ class RadauStepper(Stepper):
         t, y, n = self.t, self.y, self.n
         N = 2 * n + self.m
         h = min(self.h_abs, self.t_bound - t)
-        rejected = False
+        rejected = cut = False
         while True:
             if h < 10 * np.spacing(max(abs(t), abs(self.t_bound))):
                 return f"the step size underflowed at t = {t:.9g}"
@@ -511,7 +517,7 @@ class RadauStepper(Stepper):
                     self._stagewise, self._stagewise_steps = True, 0
                     continue
                 h *= 0.5
-                self._lu, rejected = None, True
+                self._lu, rejected, cut = None, True, True
                 continue
             # the error estimate of RADAU5 with the mass matrix B0 = diag(I, M0, 0)
             ZE = _K["E"] @ Z / h
@@ -538,7 +544,7 @@ class RadauStepper(Stepper):
                 continue
             break
         # accepted
-        if self._err_prev is None or self._h_prev is None or err_norm == 0:
+        if self._err_prev is None or self._h_prev is None or err_norm == 0 or cut:
             mult = 1.0
         else:
             mult = h / self._h_prev * (self._err_prev / err_norm) ** 0.25
