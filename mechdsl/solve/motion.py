@@ -32,8 +32,9 @@ W (J x_{i+1} - c), written in correction form (the same iterates in exact arithm
 floating point the residuals are formed afresh at each iteration, so that the ill
 conditioning of A, about the penalty's 1e8, does not reach the converged x and lambda:
 that is iterative refinement on the saddle-point system). After each iteration the first
-residual vanishes identically (M x_{i+1} + J^T lambda_{i+1} - b = A d_i - r_i - J^T W s_i
-= 0); the second contracts, in the multipliers' error e_i = lambda_i - lambda*, as
+residual vanishes in exact arithmetic (M x_{i+1} + J^T lambda_{i+1} - b = A d_i - r_i -
+J^T W s_i = 0), in floating point to about the penalty times the unit round-off, which
+the next iteration removes; the second contracts, in the multipliers' error e_i = lambda_i - lambda*, as
 
     e_{i+1} = (I + W^(1/2) J M^-1 J^T W^(1/2))^-1 e_i   (in W-weighted form; by Woodbury),
 
@@ -45,8 +46,9 @@ Gauss function 1/2 qdd^T M qdd - Q^T qdd on {J qdd = gamma}, and lambda is the l
 iteration (its component in null(J^T) is zero, from lambda_0 = 0: the least-squares
 multipliers in the W^-1 metric). The iteration stops when |J x - c|_2 is at most
 ``augmented_tol`` (1e-14) times the scale |c|_2 + | |J| |x| |_2 (what forming that
-residual rounds: the sizes of the terms it sums), or when an iteration
-no longer halves it (a direction with w sigma below one, near a singular position: there
+residual rounds: the sizes of the terms it sums) and |b - M x - J^T lambda|_2 at most
+``augmented_tol`` times |b|_2 + |J^T lambda|_2, or when an iteration no longer halves the
+larger of the two (relative to its bound) (a direction with w sigma below one, near a singular position: there
 the result is the penalty solution, bounded, whose constraint error the projections
 correct), or after ``augmented_max_iterations``. (Conjugate gradients on the multipliers,
 ``augmented_krylov_iterations``, can take over where it stalls; off by default, see
@@ -313,17 +315,28 @@ class Motion:
         o, n = self.opts, self.n
         bc = np.concatenate((b, c))
         z = fac.step(bc)  # from x = 0, lambda = 0: the first iterate
-        # the stopping test in 2-norms, squared: |J x - c| against what forming it rounds,
-        # the sizes of the terms it sums (x changes little after the first iterate)
+        # the stopping test in 2-norms, squared, on both residuals, each against what
+        # forming it rounds, the sizes of the terms it sums (x and lambda change little
+        # after the first iterate): |J x - c| against |c| + | |J| |x| |, and |b - M x -
+        # J^T lambda| against |b| + |J^T lambda|. The second vanishes in exact arithmetic
+        # after every iteration, but the factor of A rounds at about the penalty times the
+        # unit round-off, and so does the first iterate's: where the constraints' residual
+        # met its test at once (a velocity projection), x kept that error: on A02 a
+        # projection kept 2.5e-7 of |qd| at a penalty of 1e10, and at the default 1e8 B0
+        # drifted by 4.9e-9 m over the first 0.6 s at rtol 1e-10 (7e-11 with this test)
         terms = fac.j_abs(z[:n])
         limit = o.augmented_tol * (math.sqrt(c @ c) + math.sqrt(terms @ terms))
         limit *= limit
+        forces = fac.jt(z[n:])
+        limit_r = o.augmented_tol * (math.sqrt(b @ b) + math.sqrt(forces @ forces))
+        limit_r = max(limit_r * limit_r, 1e-300)
+        limit = max(limit, 1e-300)
         its, prev, krylov = 1, math.inf, False
         while True:
             rho = bc - fac.kkt(z)  # the residuals formed afresh: iterative refinement
-            s = rho[n:]
-            res = s @ s
-            if not (res > limit and its < o.augmented_max_iterations):
+            s, r = rho[n:], rho[:n]
+            res = max((s @ s) / limit, (r @ r) / limit_r)
+            if not (res > 1 and its < o.augmented_max_iterations):
                 break
             if res <= 0.25 * prev:
                 z += fac.step(rho)
