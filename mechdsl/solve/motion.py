@@ -317,20 +317,23 @@ class Motion:
         z = fac.step(bc)  # from x = 0, lambda = 0: the first iterate
         # the stopping test in 2-norms, squared, on both residuals, each against what
         # forming it rounds, the sizes of the terms it sums (x and lambda change little
-        # after the first iterate): |J x - c| against |c| + | |J| |x| |, and |b - M x -
-        # J^T lambda| against |b| + |J^T lambda|. The second vanishes in exact arithmetic
-        # after every iteration, but the factor of A rounds at about the penalty times the
-        # unit round-off, and so does the first iterate's: where the constraints' residual
-        # met its test at once (a velocity projection), x kept that error: on A02 a
-        # projection kept 2.5e-7 of |qd| at a penalty of 1e10, and at the default 1e8 B0
-        # drifted by 4.9e-9 m over the first 0.6 s at rtol 1e-10 (7e-11 with this test)
+        # after the first iterate): |J x - c| against |c| + | |J| |x| |, and, in the band
+        # storage, |b - M x - J^T lambda| against |b| + |J^T lambda|. The second vanishes
+        # in exact arithmetic after every iteration, but the Cholesky factor of A, whose
+        # entries are the penalty's size, rounds it at about the penalty times the unit
+        # round-off: where the constraints' residual met its test at once (a velocity
+        # projection), x kept that error (on A02 a projection kept 2.5e-7 of |qd| at a
+        # penalty of 1e10, and at the default 1e8 B0 drifted by 4.9e-9 m over the first
+        # 0.6 s at rtol 1e-10; 7e-11 with this test). The dense storage's LU of R, whose
+        # entries are M's and J's, is backward stable: its first residual is at round-off
         terms = fac.j_abs(z[:n])
         limit = o.augmented_tol * (math.sqrt(c @ c) + math.sqrt(terms @ terms))
-        limit *= limit
-        forces = fac.jt(z[n:])
-        limit_r = o.augmented_tol * (math.sqrt(b @ b) + math.sqrt(forces @ forces))
-        limit_r = max(limit_r * limit_r, 1e-300)
-        limit = max(limit, 1e-300)
+        limit = max(limit * limit, 1e-300)
+        limit_r = math.inf
+        if not fac.plan.dense:
+            forces = fac.jt(z[n:])
+            limit_r = o.augmented_tol * (math.sqrt(b @ b) + math.sqrt(forces @ forces))
+            limit_r = max(limit_r * limit_r, 1e-300)
         its, prev, krylov = 1, math.inf, False
         while True:
             rho = bc - fac.kkt(z)  # the residuals formed afresh: iterative refinement
