@@ -130,9 +130,9 @@ _DENSE_RANGE = 60
 def _mat(a: object) -> object:
     """A matrix as the equations gave it, sparse as CSR, dense as a 2-d float array (both
     multiply vectors with @; assembly takes their triplets)."""
-    import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
     if isinstance(a, Triplets):
         return a
+    import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
     return a.tocsr() if sp.issparse(a) else np.atleast_2d(np.asarray(a, dtype=float))
 
 
@@ -142,8 +142,11 @@ def _cat(*parts: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _amax(a: object) -> float:
-    import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
-    v = a.data if sp.issparse(a) or isinstance(a, Triplets) else a
+    if isinstance(a, Triplets):
+        v = a.data
+    else:
+        import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
+        v = a.data if sp.issparse(a) else a
     return float(np.max(np.abs(v))) if v.size else 0.0
 
 
@@ -337,6 +340,7 @@ class RadauStepper(Stepper):
         dC[n:, :n] = -G
         dI[np.arange(n, size), np.arange(n, size)] = 1.0
         self._pattern = (dM, dC, dK, dI, None, None, size)
+        self._jac = (M, Kq, Cv, G)  # dense from here on: its products are numpy's
         self._norms = (float(np.abs(M).max(initial=0.0)), float(np.abs(Cv).max(initial=0.0)),
                        float(np.abs(Kq).max(initial=0.0)),
                        float(np.abs(G).max(initial=0.0)) if m else 0.0)
@@ -419,6 +423,7 @@ class RadauStepper(Stepper):
         jacs = self._stage_jacobians(t, h, Z)
         self._jac = jacs[0]
         self._set_pattern()
+        jacs[0] = self._jac  # (made dense there for a few bodies: not again)
         self._factor(h, pair=False)
         coupled = CoupledStages(jacs, h, _K["A"], _K["Ainv"], self.n, self.m,
                                 self._delta(_K["mu_real"] / h))
@@ -490,8 +495,9 @@ class RadauStepper(Stepper):
             if self._Z is None:
                 Z0 = np.zeros((3, N))
             else:  # extrapolate the last step's collocation polynomial (Hairer)
-                x = (t + h * _K["c"] - self.t_old) / self._h_prev
-                Z0 = np.vstack([self._poly(xj) for xj in x]) - self._poly(1.0)
+                x = np.append((t + h * _K["c"] - self.t_old) / self._h_prev, 1.0)
+                Z = np.vander(x, 4, increasing=True)[:, 1:] @ (_K["P"].T @ self._Z)
+                Z0 = Z[:3] - Z[3]
             try:
                 if self._stagewise:
                     solve = self._stagewise_solve(t, h, Z0)
@@ -604,10 +610,6 @@ class RadauStepper(Stepper):
             sp.csc_matrix(np.atleast_2d(G))
         GGt = (G @ G.T + eps * sp.eye(self.m, format="csc")).tocsc()
         return splu(GGt, permc_spec="COLAMD").solve(np.asarray(rhs))
-
-    def _poly(self, x: float) -> np.ndarray:
-        """The last step's collocation polynomial of z - z_old at t_old + x h_prev."""
-        return np.array([x, x * x, x ** 3]) @ (_K["P"].T @ self._Z)
 
     def dense_output(self) -> Callable[[float], np.ndarray]:
         """Rule 3: the collocation polynomial of the last step, y(t_old + x h) =

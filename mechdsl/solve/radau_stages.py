@@ -19,6 +19,8 @@ cost still linear in the number of bodies, about three to five times the transfo
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from .triplets import Triplets
@@ -27,6 +29,14 @@ from .triplets import Triplets
 #: SuperLU: for a few bodies the sparse machinery (a CSC matrix built and checked, COLAMD)
 #: costs several times the arithmetic; the stiff pendulum's coupled system has 30 unknowns
 DENSE_MAX = 120
+
+
+@functools.cache
+def _getrf_getrs(complex_: bool) -> tuple:
+    """LAPACK's (z|d)getrf and (z|d)getrs (looked up once: an import statement in the
+    constructor cost 5 of its 12 us on the stiff pendulum's 30 unknowns)."""
+    from scipy.linalg import lapack  # (lazily: the registry's import stays cheap)
+    return (lapack.zgetrf, lapack.zgetrs) if complex_ else (lapack.dgetrf, lapack.dgetrs)
 
 
 class DenseLU:
@@ -38,9 +48,7 @@ class DenseLU:
     __slots__ = ("lu", "piv", "_getrs")
 
     def __init__(self, a: np.ndarray) -> None:
-        from scipy.linalg import lapack  # (lazily: the registry's import stays cheap)
-        getrf, self._getrs = (lapack.zgetrf, lapack.zgetrs) if np.iscomplexobj(a) else \
-            (lapack.dgetrf, lapack.dgetrs)
+        getrf, self._getrs = _getrf_getrs(np.iscomplexobj(a))
         self.lu, self.piv, info = getrf(a)
         if info < 0:  # pragma: no cover - an argument LAPACK refuses
             raise ValueError(f"getrf: argument {-info} is invalid")
@@ -83,6 +91,8 @@ class CoupledStages:
     def __init__(self, jacs: list[tuple], h: float, A: np.ndarray, Ainv: np.ndarray,
                  n: int, m: int, delta: float) -> None:
         self.jacs, self.h, self.A, self.n, self.m = jacs, h, A, n, m
+        #: (M, dQ/dq, dQ/dv, Phi_q) of the three stages stacked dense, for a small system
+        self.dense_jacs: tuple | None = None
         if 3 * (n + m) <= DENSE_MAX:
             self._dense(Ainv, delta)
             return
@@ -106,33 +116,46 @@ class CoupledStages:
         self.lu = splu(K, permc_spec="COLAMD")
 
     def _dense(self, Ainv: np.ndarray, delta: float) -> None:
-        """The same matrix dense, block by block, and its LU (:class:`DenseLU`); the stage
-        Jacobians kept dense for the products of :meth:`solve`."""
+        """The same matrix dense and its LU (:class:`DenseLU`), the nine velocity blocks
+        (A^-1_jk / h) M_j - h A_jk dQ/dq_j and the constraint blocks A_jk Phi_q,j each one
+        broadcast expression over (j, k) (block by block in Python, the assembly cost more
+        than the stiff pendulum's LU); the stage Jacobians kept dense, stacked, for the
+        products of :meth:`solve`."""
         n, m, h, A = self.n, self.m, self.h, self.A
-        jacs = [(dense(M, (n, n)), dense(Kq, (n, n)), dense(Cv, (n, n)), dense(G, (m, n)))
-                for M, Kq, Cv, G in self.jacs]
-        K = np.zeros((3 * (n + m), 3 * (n + m)))
-        for j, (M, Kq, Cv, G) in enumerate(jacs):
-            rows = slice(j * n, (j + 1) * n)
-            lam = slice(3 * n + j * m, 3 * n + (j + 1) * m)
-            for k in range(3):
-                cols = slice(k * n, (k + 1) * n)
-                K[rows, cols] = (Ainv[j, k] / h) * M - (h * A[j, k]) * Kq
-                K[lam, cols] = A[j, k] * G
-            K[rows, rows] -= Cv
-            K[rows, lam] = G.T
-        d = np.arange(3 * n, 3 * (n + m))
+        M, Kq, Cv, G = (np.stack([dense(jac[i], shape) for jac in self.jacs])
+                        for i, shape in enumerate(((n, n), (n, n), (n, n), (m, n))))
+        size = 3 * (n + m)
+        K = np.zeros((size, size))
+        blocks = (Ainv / h)[:, :, None, None] * M[:, None] \
+            - (h * A)[:, :, None, None] * Kq[:, None]  # [j, k]: rows of stage j, cols of k
+        stage = np.arange(3)
+        blocks[stage, stage] -= Cv
+        K[:3 * n, :3 * n] = blocks.transpose(0, 2, 1, 3).reshape(3 * n, 3 * n)
+        if m:
+            K[3 * n:, :3 * n] = (A[:, :, None, None] * G[:, None]).transpose(
+                0, 2, 1, 3).reshape(3 * m, 3 * n)
+            for j in range(3):
+                K[j * n:(j + 1) * n, 3 * n + j * m:3 * n + (j + 1) * m] = G[j].T
+        d = np.arange(3 * n, size)
         K[d, d] = -delta
-        self.jacs, self.lu = jacs, DenseLU(K)
+        self.dense_jacs = (M, Kq, Cv, G)
+        self.lu = DenseLU(K)
 
     def solve(self, r: np.ndarray) -> np.ndarray:
         """dZ (3, 2n + m) from the stage residuals r (3, 2n + m)."""
         n, m, h, A = self.n, self.m, self.h, self.A
         rq, rv, rl = r[:, :n], r[:, n:2 * n], r[:, 2 * n:]
         Arq = A @ rq
-        top = [-rv[j] - h * (self.jacs[j][1] @ Arq[j]) for j in range(3)]
-        bottom = [rl[j] / h + self.jacs[j][3] @ Arq[j] for j in range(3)] if m else []
-        x = self.lu.solve(np.concatenate(top + bottom))
+        if self.dense_jacs is not None:
+            _, Kq, _, G = self.dense_jacs
+            top = -rv - h * np.einsum("jab,jb->ja", Kq, Arq)
+            rhs = np.concatenate((top.ravel(), (rl / h + np.einsum("jab,jb->ja", G, Arq))
+                                  .ravel())) if m else top.ravel()
+        else:
+            top = [-rv[j] - h * (self.jacs[j][1] @ Arq[j]) for j in range(3)]
+            bottom = [rl[j] / h + self.jacs[j][3] @ Arq[j] for j in range(3)] if m else []
+            rhs = np.concatenate(top + bottom)
+        x = self.lu.solve(rhs)
         dV = x[:3 * n].reshape(3, n)
         dL = x[3 * n:].reshape(3, m)
         return np.hstack((h * (A @ (dV - rq)), dV, dL))
