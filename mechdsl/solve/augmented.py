@@ -292,6 +292,13 @@ class Factor:
             return np.abs(self._k[self.n:, :self.n]) @ np.abs(x)
         return p.j_rows.times(np.abs(self._jd), np.abs(x))
 
+    def jt_abs(self, y: np.ndarray) -> np.ndarray:
+        """|J|^T |y| (entrywise absolute values): the size of the terms that J^T y sums."""
+        p = self.plan
+        if p.dense:
+            return np.abs(self._k[:self.n, self.n:]) @ np.abs(y)
+        return p.jt_rows.times(np.abs(self._jtd), np.abs(y))
+
     def jt(self, y: np.ndarray) -> np.ndarray:
         """J^T y."""
         p = self.plan

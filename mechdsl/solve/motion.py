@@ -318,7 +318,8 @@ class Motion:
         # the stopping test in 2-norms, squared, on both residuals, each against what
         # forming it rounds, the sizes of the terms it sums (x and lambda change little
         # after the first iterate): |J x - c| against |c| + | |J| |x| |, and, in the band
-        # storage, |b - M x - J^T lambda| against |b| + |J^T lambda|. The second vanishes
+        # storage, |b - M x - J^T lambda| against |b| + | |J|^T |lambda| | (a chain's
+        # tensions cancel in J^T lambda, not in its rounding). The second vanishes
         # in exact arithmetic after every iteration, but the Cholesky factor of A, whose
         # entries are the penalty's size, rounds it at about the penalty times the unit
         # round-off: where the constraints' residual met its test at once (a velocity
@@ -331,7 +332,7 @@ class Motion:
         limit = max(limit * limit, 1e-300)
         limit_r = math.inf
         if not fac.plan.dense:
-            forces = fac.jt(z[n:])
+            forces = fac.jt_abs(z[n:])
             limit_r = o.augmented_tol * (math.sqrt(b @ b) + math.sqrt(forces @ forces))
             limit_r = max(limit_r * limit_r, 1e-300)
         its, prev, krylov = 1, math.inf, False
