@@ -312,8 +312,9 @@ def bench_a02(rep, quick: bool, out: Path) -> None:
     """A02's work against precision (module docstring)."""
     n, t1 = 40, 20.0
     ref = dm.a02_oracle([t1], n)[0]
-    runs = [(None, 1e-6)] if quick else [(None, 1e-4), (None, 1e-6), (None, 1e-8),
-                                         (None, 1e-9), ("radau", 1e-6), ("radau", 1e-8)]
+    runs = [(None, 1e-6), (None, 3e-8)] if quick else [
+        (None, 1e-4), (None, 1e-6), (None, 1e-7), (None, 3e-8), (None, 1e-8), (None, 1e-9),
+        ("radau", 1e-6), ("radau", 1e-8)]
     rows, exu_pts = [], []
     curves: dict[str, list] = {}
     for method, rtol in runs:
