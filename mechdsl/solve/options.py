@@ -85,10 +85,13 @@ class SolverOptions:
     augmented_penalty: float = 1e8
     #: ... its iteration stops when |Phi_q qdd - gamma|_2 is at most this times the scale
     #: |gamma|_2 + | |Phi_q| |qdd| |_2 (the sizes of the terms the residual sums: forming
-    #: it rounds a few 1e-16 of that), or when an iteration no longer halves it, or after
+    #: it rounds a few 1e-16 of that; in the band storage the force balance too), or after
     #: ``augmented_max_iterations`` (Andrews: qdd within 1.2e-13 of the dense solve after
     #: two iterations, 1.5e-15 after three, which this asks for).
     augmented_tol: float = 1e-14
+    #: ... and at most this many iterations: near a singular position, where it contracts
+    #: slowly, the accelerations are this iterate, a smooth blend of the two branches (at
+    #: 20 the blend is narrower and steeper, and A02 stops at a passage at rtol 1e-8)
     augmented_max_iterations: int = 12
     #: ... and where it stops contracting (near a singular position), conjugate gradients on
     #: the multipliers may take over for at most this many iterations (about one per
