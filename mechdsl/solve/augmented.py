@@ -221,7 +221,8 @@ class Factor:
     band storage (dpbtrf) and the products are formed in the fixed patterns
     (``np.bincount``, O(nnz))."""
 
-    __slots__ = ("plan", "c", "n", "m", "w", "_k", "_piv", "_jd", "_jtd", "_vals", "_solve")
+    __slots__ = ("plan", "c", "n", "m", "w", "_k", "_piv", "_jd", "_jtd", "_vals", "_solve",
+                 "_jabs")
 
     def __init__(self, plan: Plan, entries: np.ndarray, w: np.ndarray, lapack: tuple,
                  minus_inverse: np.ndarray) -> None:
@@ -252,6 +253,7 @@ class Factor:
             self._jd, self._jtd = jv[p.j_rows.order], jv[p.jt_rows.order]
             self._k = None
             self._solve = dpbtrs
+        self._jabs = None  # |J|, made where a stopping test first needs it
         if info != 0:
             # A is not positive definite: a body without mass or inertia whose motion the
             # constraints do not fix (or a NaN in the state)
@@ -288,9 +290,11 @@ class Factor:
     def j_abs(self, x: np.ndarray) -> np.ndarray:
         """|J| |x| (entrywise absolute values): the size of the terms that J x sums."""
         p = self.plan
+        if self._jabs is None:
+            self._jabs = np.abs(self._k[self.n:, :self.n]) if p.dense else np.abs(self._jd)
         if p.dense:
-            return np.abs(self._k[self.n:, :self.n]) @ np.abs(x)
-        return p.j_rows.times(np.abs(self._jd), np.abs(x))
+            return self._jabs @ np.abs(x)
+        return p.j_rows.times(self._jabs, np.abs(x))
 
     def jt_abs(self, y: np.ndarray) -> np.ndarray:
         """|J|^T |y| (entrywise absolute values): the size of the terms that J^T y sums."""

@@ -86,6 +86,8 @@ output: the collocation polynomial of the step (order 3 uniformly, exact at the 
 
 from __future__ import annotations
 
+import functools
+import math
 from typing import Callable, ClassVar
 
 import numpy as np
@@ -122,6 +124,13 @@ def _radau_constants() -> dict[str, np.ndarray | float | complex]:
 
 
 _K = _radau_constants()
+
+
+@functools.cache
+def _posv() -> Callable:
+    """LAPACK's dposv, looked up once (lazily: the registry's import stays cheap)."""
+    from scipy.linalg import lapack
+    return lapack.dposv
 
 #: up to this many equations the multipliers' range part is solved dense
 _DENSE_RANGE = 60
@@ -162,7 +171,8 @@ class RadauStepper(Stepper):
     ``regularization`` = 1e-10 (the relative size of the lambda block's -delta I that makes
     redundant constraints solvable), ``stage_jacobians`` = True (where the common Jacobian
     does not converge, each stage gets its own: module radau_stages), ``stagewise_retry``
-    = 20 (accepted steps after which the common Jacobian is tried again), and
+    = 20 (accepted steps after which the common Jacobian is tried again; doubled after
+    each retry that fails at once), and
     ``singular_rate`` = 0.95 and ``max_newton_singular`` = 60 (the Newton contraction rate
     up to which, at a singular position, the iteration goes on, and how far)."""
 
@@ -198,6 +208,11 @@ class RadauStepper(Stepper):
         self.regularization = regularization
         self.stage_jacobians, self.stagewise_retry = stage_jacobians, stagewise_retry
         self._stagewise, self._stagewise_steps = False, 0
+        # the stagewise steps before the common Jacobian is tried again: doubled after each
+        # retry that fails at once (a spring that stays stiff: the stiff pendulum tried
+        # and failed six times a run at a fixed 20), back to stagewise_retry after one
+        # that holds
+        self._retry_every, self._retrying = stagewise_retry, False
         self.index3_scaling = index3_scaling
         self.curvature = curvature
         self.residual_tol = residual_tol
@@ -254,6 +269,8 @@ class RadauStepper(Stepper):
         h = curv(t, q, lam)
         if not h.nnz:
             return dq
+        if self.n + self.m <= DENSE_MAX:  # a few bodies: made dense for the LU anyway
+            return dense(dq, (self.n, self.n)) - dense(h, (self.n, self.n))
         r, c, vals = _cat(triplets(dq), triplets(h, f=-1.0))
         return Triplets(vals, r, c, (self.n, self.n))
 
@@ -278,16 +295,22 @@ class RadauStepper(Stepper):
         """Factorise the reduced saddle-point matrices for c = gamma / h and (alpha + i
         beta) / h (module docstring; only the real one unless ``pair``), on the sparsity
         pattern fixed with the Jacobian."""
-        import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
-        from scipy.sparse.linalg import splu
-        dM, dC, dK, dI, indices, indptr, size = self._pattern
-        lus = []
+        n, size, lus = self.n, self._pattern[6], []
         for mu in (_K["mu_real"], _K["mu_complex"])[:2 if pair else 1]:
             c = mu / h
-            data = c * dM - dC - dK / c - self._delta(c) * dI
-            if indices is None:  # a few bodies: the terms dense (_set_dense), LAPACK
+            if self._pattern[4] is None:  # a few bodies: the terms dense (_set_dense)
+                M, Cv, Kq, G = self._pattern[:4]
+                data = np.zeros((size, size), dtype=np.result_type(c, M))
+                data[:n, :n] = c * M - Cv - Kq / c
+                data[:n, n:] = G.T
+                data[n:, :n] = G
+                data[range(n, size), range(n, size)] = -self._delta(c)
                 lus.append(DenseLU(data))
             else:
+                import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
+                from scipy.sparse.linalg import splu
+                dM, dC, dK, dI, indices, indptr, _ = self._pattern
+                data = c * dM - dC - dK / c - self._delta(c) * dI
                 K = sp.csc_matrix((data, indices, indptr), shape=(size, size))
                 lus.append(splu(K, permc_spec="COLAMD"))
             self.nlu += 1
@@ -327,19 +350,19 @@ class RadauStepper(Stepper):
         self._mass_diag = np.where(diag > 0, diag, max(self._norms[0], 1e-300))
 
     def _set_dense(self) -> None:
-        """:meth:`_set_pattern` for a small system: each term a dense (n + m) square, kept
-        in ``_pattern`` as (dM, dC, dK, dI, None, None, size)."""
+        """:meth:`_set_pattern` for a small system: the terms as dense arrays, kept in
+        ``_pattern`` as (M, dQ/dv, dQ/dq, Phi_q, None, None, size) (:meth:`_factor`
+        assembles each matrix from them in one pass)."""
         n, m = self.n, self.m
         size = n + m
         M, Kq, Cv, G = (dense(a, shape) for a, shape in zip(
             self._jac, ((n, n), (n, n), (n, n), (m, n))))
-        dM, dC, dK, dI = (np.zeros((size, size)) for _ in range(4))
-        dM[:n, :n], dK[:n, :n] = M, Kq
-        dC[:n, :n] = Cv
-        dC[:n, n:] = -G.T
-        dC[n:, :n] = -G
-        dI[np.arange(n, size), np.arange(n, size)] = 1.0
-        self._pattern = (dM, dC, dK, dI, None, None, size)
+        self._pattern = (M, Cv, Kq, G, None, None, size)
+        self._norms = (float(np.abs(M).max(initial=0.0)), float(np.abs(Cv).max(initial=0.0)),
+                       float(np.abs(Kq).max(initial=0.0)),
+                       float(np.abs(G).max(initial=0.0)) if m else 0.0)
+        diag = np.diagonal(M).copy()
+        self._mass_diag = np.where(diag > 0, diag, max(self._norms[0], 1e-300))
         self._jac = (M, Kq, Cv, G)  # dense from here on: its products are numpy's
         self._norms = (float(np.abs(M).max(initial=0.0)), float(np.abs(Cv).max(initial=0.0)),
                        float(np.abs(Kq).max(initial=0.0)),
@@ -365,29 +388,39 @@ class RadauStepper(Stepper):
         s = np.concatenate((x[:n] / sc[:n], h * x[n:2 * n] / sc[n:]))
         return float(np.sqrt(np.mean(np.abs(s) ** 2)))
 
-    def _norm_stages(self, dZ: np.ndarray, sc: np.ndarray, h: float) -> float:
-        """sqrt(mean_j |dZ_j|^2) over the three stages, each by :meth:`_norm`."""
+    def _stage_weights(self, sc: np.ndarray, h: float) -> tuple:
+        """The weights of :meth:`_norm_stages` and :meth:`_residual_norm` for one Newton
+        iteration's scale sc and step h (made once per iteration, not per norm: on the stiff
+        pendulum the norms' arithmetic is less than numpy's cost per call)."""
         n = self.n
-        a = dZ[:, :n] / sc[:n]
-        b = h * dZ[:, n:2 * n] / sc[n:]
-        return float(np.sqrt((np.sum(np.abs(a) ** 2) + np.sum(np.abs(b) ** 2)) / (6 * n)))
+        G = self._norms[3] if self._norms[3] > 0 else 1.0
+        dz = np.concatenate((1.0 / sc[:n], h / sc[n:]))
+        return dz, h / sc[:n], h / self._mass_diag, self._hv(h) / sc[n:], \
+            1.0 / (G * sc[:n].min())
 
-    def _residual_norm(self, r: np.ndarray, sc: np.ndarray, h: float) -> float:
+    def _norm_stages(self, dZ: np.ndarray, w: tuple) -> float:
+        """sqrt(mean_j |dZ_j|^2) over the three stages, each by :meth:`_norm` (``w`` from
+        :meth:`_stage_weights`)."""
+        x = dZ[:, :2 * self.n] * w[0]
+        return math.sqrt(float(np.vdot(x, x).real) / (6 * self.n))
+
+    def _residual_norm(self, r: np.ndarray, w: tuple) -> float:
         """The stage residuals r (3, 2n + m) as errors of the state they would cause, in the
         error norm: a velocity mismatch r_q over a step moves q by h r_q; a force residual
         r_v changes the velocities by h M^-1 r_v (M's diagonal), the positions by h times
         that; a constraint residual r_lambda is a position error of |r_lambda| / |Phi_q|
-        (one entry per stage, its largest)."""
+        (one entry per stage, its largest). ``w`` from :meth:`_stage_weights`."""
         n = self.n
-        G = self._norms[3] if self._norms[3] > 0 else 1.0
-        dv = (h / self._mass_diag) * r[:, n:2 * n]
-        total = float(np.sum(((h * r[:, :n] + h * dv) / sc[:n]) ** 2)
-                      + np.sum((self._hv(h) * dv / sc[n:]) ** 2))
+        dv = r[:, n:2 * n] * w[2]  # h M^-1 r_v
+        eq = (r[:, :n] + dv) * w[1]
+        ev = dv * w[3]
+        total = float(np.vdot(eq, eq) + np.vdot(ev, ev))
         count = 6 * n
         if self.m:
-            total += float(np.sum((np.abs(r[:, 2 * n:]).max(axis=1) / G / sc[:n].min()) ** 2))
+            e = np.abs(r[:, 2 * n:]).max(axis=1) * w[4]
+            total += float(e @ e)
             count += 3
-        return float(np.sqrt(total / count))
+        return math.sqrt(total / count)
 
     def _hv(self, h: float) -> float:
         """The factor of the velocities' error in the error norm: h (Hairer's index-3
@@ -439,6 +472,7 @@ class RadauStepper(Stepper):
         y0, lam0 = self.y, self.lam
         c = _K["c"]
         dZ_norm_old, rate, r = None, None, np.empty_like(Z)
+        w = self._stage_weights(sc, h)
         # M and Q of a state in one evaluation where the equations give both together
         mass_loads = getattr(eq, "mass_loads", None) or (
             lambda t_, q_, v_: (eq.mass(q_), eq.loads(t_, q_, v_)))
@@ -454,16 +488,16 @@ class RadauStepper(Stepper):
                 r[j, n:2 * n] = M @ D[j, n:] - Q + G.T @ lj
                 r[j, 2 * n:] = -np.asarray(phi)
                 self.nfev += 1
-            if not np.all(np.isfinite(r)):
+            if not math.isfinite(r.sum()):  # (one sum: a NaN or an inf anywhere)
                 return False, k + 1, Z, np.inf
-            if k and self._residual_norm(r, sc, h) <= self.residual_tol * self.newton_tol:
+            if k and self._residual_norm(r, w) <= self.residual_tol * self.newton_tol:
                 # the equations hold to far below the tolerance: what a further correction
                 # would change is noise (near a singular position the iteration matrix is
                 # ill conditioned and amplifies the residual's rounding into corrections
                 # that never shrink; A02 at 0.72 s, rtol 1e-8)
                 return True, k + 1, Z, (rate if rate is not None else 0.0)
             dZ = solve(r)
-            dZ_norm = self._norm_stages(dZ, sc, h)
+            dZ_norm = self._norm_stages(dZ, w)
             if dZ_norm_old is not None:
                 rate = dZ_norm / dZ_norm_old
                 # at a singular position (a root where Phi_q loses rank) Newton converges
@@ -521,6 +555,9 @@ class RadauStepper(Stepper):
                 if not self._stagewise and self.stage_jacobians:
                     # a fresh common Jacobian does not converge: the stages need their own
                     self._stagewise, self._stagewise_steps = True, 0
+                    if self._retrying:
+                        self._retry_every *= 2
+                    self._retrying = False
                     continue
                 h *= 0.5
                 self._lu, rejected, cut = None, True, True
@@ -577,10 +614,13 @@ class RadauStepper(Stepper):
         self.naccepted += 1
         self._F0 = self._F(self.t, self.y, self.lam, phi_jac)
         self._jac_current = False
+        if not self._stagewise and self._retrying:  # the common Jacobian held a step
+            self._retry_every, self._retrying = self.stagewise_retry, False
         if self._stagewise:
             self._stagewise_steps += 1
-            if self._stagewise_steps >= self.stagewise_retry:
+            if self._stagewise_steps >= self._retry_every:
                 self._stagewise, self._jac, self._lu = False, None, None
+                self._retrying = True
         elif recompute:
             self._jacobian(self.t, self.y)
             self._jac_current = True
@@ -601,7 +641,11 @@ class RadauStepper(Stepper):
             g = G.toarray() if hasattr(G, "toarray") else np.atleast_2d(np.asarray(G))
             eps = self.regularization * max(float(np.abs(g).max()), 1e-300) ** 2
             ggt = g @ g.T
-            return np.linalg.solve(ggt + eps * np.eye(self.m), ggt @ lam)
+            rhs = ggt @ lam
+            ggt[range(self.m), range(self.m)] += eps
+            # G G^T + eps I is symmetric positive definite: LAPACK's Cholesky solve
+            _, x, info = _posv()(ggt, rhs, lower=1)
+            return x if info == 0 else np.linalg.lstsq(ggt, rhs, rcond=None)[0]
         eps = self.regularization * max(_amax(G), 1e-300) ** 2
         rhs = G @ (G.T @ lam)
         import scipy.sparse as sp  # (lazily: the registry's import stays cheap)

@@ -148,9 +148,10 @@ class CoupledStages:
         Arq = A @ rq
         if self.dense_jacs is not None:
             _, Kq, _, G = self.dense_jacs
-            top = -rv - h * np.einsum("jab,jb->ja", Kq, Arq)
-            rhs = np.concatenate((top.ravel(), (rl / h + np.einsum("jab,jb->ja", G, Arq))
-                                  .ravel())) if m else top.ravel()
+            Arq3 = Arq[:, :, None]
+            top = -rv - h * (Kq @ Arq3)[:, :, 0]
+            rhs = np.concatenate((top.ravel(), (rl / h + (G @ Arq3)[:, :, 0]).ravel())) \
+                if m else top.ravel()
         else:
             top = [-rv[j] - h * (self.jacs[j][1] @ Arq[j]) for j in range(3)]
             bottom = [rl[j] / h + self.jacs[j][3] @ Arq[j] for j in range(3)] if m else []
