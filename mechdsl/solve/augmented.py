@@ -222,7 +222,7 @@ class Factor:
     (``np.bincount``, O(nnz))."""
 
     __slots__ = ("plan", "c", "n", "m", "w", "_k", "_piv", "_jd", "_jtd", "_vals", "_solve",
-                 "_jabs")
+                 "_jabs", "_jtabs")
 
     def __init__(self, plan: Plan, entries: np.ndarray, w: np.ndarray, lapack: tuple,
                  minus_inverse: np.ndarray) -> None:
@@ -253,7 +253,7 @@ class Factor:
             self._jd, self._jtd = jv[p.j_rows.order], jv[p.jt_rows.order]
             self._k = None
             self._solve = dpbtrs
-        self._jabs = None  # |J|, made where a stopping test first needs it
+        self._jabs = self._jtabs = None  # |J|, made where a stopping test first needs it
         if info != 0:
             # A is not positive definite: a body without mass or inertia whose motion the
             # constraints do not fix (or a NaN in the state)
@@ -301,7 +301,9 @@ class Factor:
         p = self.plan
         if p.dense:
             return np.abs(self._k[:self.n, self.n:]) @ np.abs(y)
-        return p.jt_rows.times(np.abs(self._jtd), np.abs(y))
+        if self._jtabs is None:
+            self._jtabs = np.abs(self._jtd)
+        return p.jt_rows.times(self._jtabs, np.abs(y))
 
     def jt(self, y: np.ndarray) -> np.ndarray:
         """J^T y."""

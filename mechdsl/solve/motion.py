@@ -342,7 +342,9 @@ class Motion:
         while True:
             rho = bc - fac.kkt(z)  # the residuals formed afresh: iterative refinement
             s, r = rho[n:], rho[:n]
-            res = max((s @ s) / limit, (r @ r) / limit_r)
+            res, res_r = (s @ s) / limit, (r @ r) / limit_r
+            if not res_r <= res:  # (a NaN in either stops the iteration below)
+                res = res_r
             if not (res > 1 and its < o.augmented_max_iterations):
                 break
             if res <= 0.25 * prev or krylov or not o.augmented_krylov_iterations:

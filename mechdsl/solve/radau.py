@@ -135,6 +135,9 @@ def _posv() -> Callable:
 #: up to this many equations the multipliers' range part is solved dense
 _DENSE_RANGE = 60
 
+#: the longest interval between two retries of the common Jacobian, in stagewise_retry's
+RETRY_CAP = 16
+
 
 def _mat(a: object) -> object:
     """A matrix as the equations gave it, sparse as CSR, dense as a 2-d float array (both
@@ -209,9 +212,9 @@ class RadauStepper(Stepper):
         self.stage_jacobians, self.stagewise_retry = stage_jacobians, stagewise_retry
         self._stagewise, self._stagewise_steps = False, 0
         # the stagewise steps before the common Jacobian is tried again: doubled after each
-        # retry that fails at once (a spring that stays stiff: the stiff pendulum tried
-        # and failed six times a run at a fixed 20), back to stagewise_retry after one
-        # that holds
+        # retry that fails at once, up to RETRY_CAP times stagewise_retry (a spring that
+        # stays stiff: the stiff pendulum tried and failed six times a run at a fixed 20),
+        # back to stagewise_retry after one that holds
         self._retry_every, self._retrying = stagewise_retry, False
         self.index3_scaling = index3_scaling
         self.curvature = curvature
@@ -364,11 +367,6 @@ class RadauStepper(Stepper):
         diag = np.diagonal(M).copy()
         self._mass_diag = np.where(diag > 0, diag, max(self._norms[0], 1e-300))
         self._jac = (M, Kq, Cv, G)  # dense from here on: its products are numpy's
-        self._norms = (float(np.abs(M).max(initial=0.0)), float(np.abs(Cv).max(initial=0.0)),
-                       float(np.abs(Kq).max(initial=0.0)),
-                       float(np.abs(G).max(initial=0.0)) if m else 0.0)
-        diag = np.diagonal(M).copy()
-        self._mass_diag = np.where(diag > 0, diag, max(self._norms[0], 1e-300))
 
     def _solve(self, which: int, c: complex, b: np.ndarray) -> np.ndarray:
         """x with E(c) x = b, E(c) = c B0 - J0, by the reduced saddle-point system."""
@@ -503,8 +501,10 @@ class RadauStepper(Stepper):
                 # at a singular position (a root where Phi_q loses rank) Newton converges
                 # only linearly, by about half per iteration: such a rate may go on to
                 # ``max_newton_singular`` iterations (A02's collinear passages at rtol 1e-8)
-                limit = self.max_newton_singular if rate <= self.singular_rate \
-                    else self.max_newton
+                # (with a Jacobian of the step's start or the stages' own: a slow rate with
+                # an older one asks for a new Jacobian, after max_newton)
+                limit = self.max_newton_singular if rate <= self.singular_rate and (
+                    self._jac_current or self._stagewise) else self.max_newton
                 if rate >= 1 or k >= limit or rate ** (limit - k) / (1 - rate) * dZ_norm \
                         > self.newton_tol:
                     return False, k + 1, Z, rate
@@ -556,7 +556,8 @@ class RadauStepper(Stepper):
                     # a fresh common Jacobian does not converge: the stages need their own
                     self._stagewise, self._stagewise_steps = True, 0
                     if self._retrying:
-                        self._retry_every *= 2
+                        self._retry_every = min(2 * self._retry_every,
+                                                RETRY_CAP * self.stagewise_retry)
                     self._retrying = False
                     continue
                 h *= 0.5
@@ -638,14 +639,16 @@ class RadauStepper(Stepper):
             return lam
         G = (phi_jac if phi_jac is not None else self.equations.phi_jac(t, y[:self.n]))[1]
         if self.m <= _DENSE_RANGE:  # a few equations: dense, no sparse bookkeeping
-            g = G.toarray() if hasattr(G, "toarray") else np.atleast_2d(np.asarray(G))
+            g = G.toarray() if hasattr(G, "toarray") else \
+                np.atleast_2d(np.asarray(G, dtype=float))
             eps = self.regularization * max(float(np.abs(g).max()), 1e-300) ** 2
             ggt = g @ g.T
             rhs = ggt @ lam
             ggt[range(self.m), range(self.m)] += eps
-            # G G^T + eps I is symmetric positive definite: LAPACK's Cholesky solve
+            # G G^T + eps I is symmetric positive definite: LAPACK's Cholesky solve (where
+            # it is not, a NaN in G: the LU's answer, NaN too, which the step's tests catch)
             _, x, info = _posv()(ggt, rhs, lower=1)
-            return x if info == 0 else np.linalg.lstsq(ggt, rhs, rcond=None)[0]
+            return x if info == 0 else np.linalg.solve(ggt, rhs)
         eps = self.regularization * max(_amax(G), 1e-300) ** 2
         rhs = G @ (G.T @ lam)
         import scipy.sparse as sp  # (lazily: the registry's import stays cheap)
