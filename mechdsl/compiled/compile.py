@@ -824,10 +824,13 @@ class _Compiler:
         ax, phi -> omega -> alpha), as far as the quantities read have derivatives."""
         columns = []
         e = out.expr
-        for k, suffix in enumerate(("", ".vel", ".acc")):
+        suffixes = ("", ".vel", ".acc")
+        for k, suffix in enumerate(suffixes):
             column = self._expr_column(out.name + suffix, e, out.span, out.name,
                                        (columns[0].dim, k) if columns else None)
             columns.append(column)
+            if k == len(suffixes) - 1:
+                break  # (the jerk: no column reads it)
             specs = dict(column.inputs)
             rates = {n: n[: n.rfind(".") + 1] + RATE[s.quantity] for n, s in specs.items()
                      if isinstance(s, OutputSpec) and s.quantity in RATE}

@@ -122,7 +122,10 @@ def total_derivative(e: Expr, functions: set[str], rates: dict[str, str],
     sum e_n n'); other names are constants. None where ``e`` depends on a function with no
     derivative given (an acceleration: the jerk is not computed)."""
     out = derivative(e, var)
-    for name in sorted(functions):
+    # (only the functions that e reads: a derivative with respect to any other is 0, and
+    # each costs two walks of e, for every coordinate of the model)
+    read = {node.id for node in postorder(e) if isinstance(node, Name)}
+    for name in sorted(functions & read):
         partial = derivative(e, name)
         if isinstance(partial, Num) and partial.value == 0.0:
             continue
