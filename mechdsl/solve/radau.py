@@ -216,6 +216,7 @@ class RadauStepper(Stepper):
         # stays stiff: the stiff pendulum tried and failed six times a run at a fixed 20),
         # back to stagewise_retry after one that holds
         self._retry_every, self._retrying = stagewise_retry, False
+        self._at_guess: tuple | None = None  # (Z, the stages' terms there): _stage_jacobians
         self.index3_scaling = index3_scaling
         self.curvature = curvature
         self.residual_tol = residual_tol
@@ -437,14 +438,23 @@ class RadauStepper(Stepper):
         return solve
 
     def _stage_jacobians(self, t: float, h: float, Z: np.ndarray) -> list[tuple]:
+        """(M, dQ/dq - curvature, dQ/dv, Phi_q) at each stage of the guess Z; the terms
+        of the stage residuals there (Phi, Phi_q, M, Q) are kept for the Newton iteration's
+        first residual (``_at_guess``), which is at the same states."""
         eq, n = self.equations, self.n
-        jacs = []
+        mass_loads = getattr(eq, "mass_loads", None) or (
+            lambda t_, q_, v_: (eq.mass(q_), eq.loads(t_, q_, v_)))
+        jacs, terms = [], []
         for j in range(3):
             tj, qj, vj = t + _K["c"][j] * h, self.y[:n] + Z[j, :n], self.y[n:] + Z[j, n:2 * n]
             dq, dv = eq.load_derivatives(tj, qj, vj)
             dq = self._stiffness(tj, qj, dq, self.lam + Z[j, 2 * n:])
-            jacs.append((_mat(eq.mass(qj)), _mat(dq), _mat(dv), _mat(eq.phi_jac(tj, qj)[1])))
+            phi, G = eq.phi_jac(tj, qj)
+            M, Q = mass_loads(tj, qj, vj)
+            terms.append((phi, G, M, Q))
+            jacs.append((_mat(M), _mat(dq), _mat(dv), _mat(G)))
             self.njev += 1
+        self._at_guess = (Z, terms)
         return jacs
 
     def _stagewise_solve(self, t: float, h: float, Z: np.ndarray
@@ -474,15 +484,22 @@ class RadauStepper(Stepper):
         # M and Q of a state in one evaluation where the equations give both together
         mass_loads = getattr(eq, "mass_loads", None) or (
             lambda t_, q_, v_: (eq.mass(q_), eq.loads(t_, q_, v_)))
+        # (the stages' terms at the guess, where the stagewise Jacobians evaluated them)
+        at_guess = self._at_guess[1] if self._at_guess is not None and \
+            self._at_guess[0] is Z else None
+        self._at_guess = None
         for k in range(max(self.max_newton, self.max_newton_singular)):
             D = _K["Ainv"] @ Z[:, :2 * n] / h  # the stages' derivatives of q and v
             for j in range(3):
                 tj = t + c[j] * h
                 qj, vj = y0[:n] + Z[j, :n], y0[n:] + Z[j, n:2 * n]
                 lj = lam0 + Z[j, 2 * n:]
-                phi, G = eq.phi_jac(tj, qj)
+                if k == 0 and at_guess is not None:
+                    phi, G, M, Q = at_guess[j]
+                else:
+                    phi, G = eq.phi_jac(tj, qj)
+                    M, Q = mass_loads(tj, qj, vj)
                 r[j, :n] = D[j, :n] - vj
-                M, Q = mass_loads(tj, qj, vj)
                 r[j, n:2 * n] = M @ D[j, n:] - Q + G.T @ lj
                 r[j, 2 * n:] = -np.asarray(phi)
                 self.nfev += 1
