@@ -99,24 +99,18 @@ class Plan:
     #: the flat index in the storage of each term (M's entries, then the pairs')
     where: np.ndarray
     size: int
-    #: the patterns of M and of Phi_q, and of the saddle-point matrix [[M, J^T], [J, 0]]
-    #: (its entries: M's, J's, J^T's): as (row, column) index arrays and, for the dense
-    #: storage, as flat indices into the (n + m) x (n + m) matrix
-    mass_rows: np.ndarray
-    mass_cols: np.ndarray
-    jac_rows: np.ndarray
-    jac_cols: np.ndarray
-    #: the flat index in K of each value of [J's entries, J^T's, M's]
+    #: the number of Phi_q's entries
+    nnz: int
+    #: the flat index in the (n + m) x (n + m) saddle-point matrix K = [[M, J^T], [J, 0]]
+    #: of each value of [J's entries, J^T's, M's] (the dense storage's K), and of the
+    #: multipliers' diagonal (where R = K - [[0, 0], [0, W^-1]] differs from it)
     kkt_at: np.ndarray
-    #: the n x n identity (the dense storage's [I, J^T W]) and the flat indices of the
-    #: multipliers' diagonal in the (n + m) x (n + m) matrix T
-    eye: np.ndarray
     w_diag: np.ndarray
     #: J, J^T and K in compressed rows (the band storage's products); K's ``order`` takes
     #: the entries [J's, J's again, M's] straight to its rows' order
-    j_rows: Rows | None = None
-    jt_rows: Rows | None = None
-    k_rows_csr: Rows | None = None
+    j_rows: Rows
+    jt_rows: Rows
+    k_rows_csr: Rows
 
     @property
     def dense(self) -> bool:
@@ -184,11 +178,9 @@ def plan(n: int, m: int, mass_rows: np.ndarray, mass_cols: np.ndarray,
                                 np.arange(nnz)))
     k_csr = replace(k_csr, order=kkt_order[k_csr.order])
     return Plan(n, m, kd, perm, mass_at, k1[at], k2[at], jac_rows[k1[at]],
-                np.concatenate((mass_where, pair_where)), size,
-                mass_rows, mass_cols, jac_rows, jac_cols,
+                np.concatenate((mass_where, pair_where)), size, nnz,
                 np.concatenate(((n + jac_rows) * big + jac_cols, jac_cols * big + n + jac_rows,
                                 mass_rows * big + mass_cols)),
-                np.eye(n) if kd < 0 else np.zeros((0, 0)),
                 (n + np.arange(m)) * big + n + np.arange(m),
                 Rows.of(jac_rows, jac_cols, (m, n)), Rows.of(jac_cols, jac_rows, (n, m)), k_csr)
 
@@ -219,7 +211,7 @@ class Factor:
     round-off, R's condition) slows the contraction a little and does not reach the fixed
     point, which the residuals formed afresh from K decide. Else A is factorised in the
     band storage (dpbtrf) and the products are formed in the fixed patterns
-    (``np.bincount``, O(nnz))."""
+    (:class:`Rows`, O(nnz))."""
 
     __slots__ = ("plan", "c", "n", "m", "w", "_k", "_piv", "_jd", "_jtd", "_vals", "_solve",
                  "_jabs", "_jtabs")
@@ -243,7 +235,7 @@ class Factor:
             # positive definite)
             self._solve = dgetrs
         else:
-            nnz = len(p.jac_rows)
+            nnz = p.nnz
             jv, mv = entries[:nnz], entries[2 * nnz:]
             vals = np.concatenate((mv[p.mass_at], w[p.pair_row] * jv[p.k1] * jv[p.k2]))
             flat = np.bincount(p.where, vals, minlength=p.size)
@@ -299,10 +291,10 @@ class Factor:
     def jt_abs(self, y: np.ndarray) -> np.ndarray:
         """|J|^T |y| (entrywise absolute values): the size of the terms that J^T y sums."""
         p = self.plan
-        if p.dense:
-            return np.abs(self._k[:self.n, self.n:]) @ np.abs(y)
         if self._jtabs is None:
-            self._jtabs = np.abs(self._jtd)
+            self._jtabs = np.abs(self._k[:self.n, self.n:]) if p.dense else np.abs(self._jtd)
+        if p.dense:
+            return self._jtabs @ np.abs(y)
         return p.jt_rows.times(self._jtabs, np.abs(y))
 
     def jt(self, y: np.ndarray) -> np.ndarray:

@@ -34,26 +34,28 @@ conditioning of A, about the penalty's 1e8, does not reach the converged x and l
 that is iterative refinement on the saddle-point system). After each iteration the first
 residual vanishes in exact arithmetic (M x_{i+1} + J^T lambda_{i+1} - b = A d_i - r_i -
 J^T W s_i = 0), in floating point to about the penalty times the unit round-off, which
-the next iteration removes; the second contracts, in the multipliers' error e_i = lambda_i - lambda*, as
+the next iteration removes; the second contracts, in the multipliers' error e_i =
+lambda_i - lambda*, as
 
     e_{i+1} = (I + W^(1/2) J M^-1 J^T W^(1/2))^-1 e_i   (in W-weighted form; by Woodbury),
 
 a factor 1 / (1 + w sigma) per iteration on each direction with eigenvalue sigma of J M^-1
 J^T: with w sigma about ``augmented_penalty`` = 1e8 on a well-conditioned mechanism, two
 to four iterations reach round-off (Andrews: 3; A02: 2; a chain of 400 links: 4). On the
-null space of J^T (redundant equations) e_i does not change, but there J^T e_i = 0 does not change x either: qdd is the unique minimiser of the
-Gauss function 1/2 qdd^T M qdd - Q^T qdd on {J qdd = gamma}, and lambda is the limit of the
-iteration (its component in null(J^T) is zero, from lambda_0 = 0: the least-squares
-multipliers in the W^-1 metric). The iteration stops when |J x - c|_2 is at most
-``augmented_tol`` (1e-14) times the scale |c|_2 + | |J| |x| |_2 (what forming that
-residual rounds: the sizes of the terms it sums) and, in the band storage, |b - M x -
-J^T lambda|_2 at most ``augmented_tol`` times |b|_2 + | |J|^T |lambda| |_2, or after
-``augmented_max_iterations`` (12). Near a singular position (directions with w sigma
-below one) it contracts slowly and ends there, at the same iterate for every state nearby:
-a bounded blend of the penalty solution, whose constraint error the projections correct,
-and a smooth function of the state (it used to stop where an iteration no longer halved the
-residual, an iteration that changed from one state to the next: the accelerations jumped
-with it and A02 took a fifth more evaluations). (Conjugate gradients on the multipliers,
+null space of J^T (redundant equations) e_i does not change, but there J^T e_i = 0 does
+not change x either: qdd is the unique minimiser of the Gauss function 1/2 qdd^T M qdd -
+Q^T qdd on {J qdd = gamma}, and lambda is the limit of the iteration (its component in
+null(J^T) is zero, from lambda_0 = 0: the least-squares multipliers in the W^-1 metric).
+The iteration stops when |J x - c|_2 is at most ``augmented_tol`` (1e-14) times the scale
+|c|_2 + | |J| |x| |_2 (what forming that residual rounds: the sizes of the terms it sums)
+and, in the band storage, |b - M x - J^T lambda|_2 at most ``augmented_tol`` times |b|_2 +
+| |J|^T |lambda| |_2, or after ``augmented_max_iterations`` (12). Near a singular
+position (directions with w sigma below one) it contracts slowly and ends there, at the
+same iterate for every state nearby: a bounded blend of the penalty solution, whose
+constraint error the projections correct, and a smooth function of the state (it used to
+stop where an iteration no longer halved the residual, an iteration that changed from one
+state to the next: the accelerations jumped with it and A02 took a fifth more
+evaluations). (Conjugate gradients on the multipliers,
 ``augmented_krylov_iterations``, can take over where it stops halving; off by default, see
 :class:`~mechdsl.solve.options.SolverOptions`.)
 

@@ -78,9 +78,10 @@ err^-1/4 with the safety factor fac = 0.9 (2 k_max + 1) / (2 k_max + k_newton), 
 [``min_factor``, ``max_factor``]. Its prediction assumes that h_prev -> h was the
 controller's own change; where Newton's failures halved the step instead, the step after
 uses the standard controller alone (the prediction read the halving as a trend: on A02 at
-t = 1.244 it shrank every following step tenfold, to an underflow); a step size that would grow by less than ``keep_ratio`` is
-kept (the factorisation with it), except with the stages' own Jacobians (radau_stages),
-factorised at every step anyway (the stiff pendulum at k = 1e8: 20 % faster). Dense
+t = 1.244 it shrank every following step tenfold, to an underflow); a step size that would
+grow by less than ``keep_ratio`` is kept (the factorisation with it), except with the
+stages' own Jacobians (radau_stages), factorised at every step anyway (the stiff pendulum
+at k = 1e8: 20 % faster). Dense
 output: the collocation polynomial of the step (order 3 uniformly, exact at the stages).
 """
 
@@ -131,6 +132,7 @@ def _posv() -> Callable:
     """LAPACK's dposv, looked up once (lazily: the registry's import stays cheap)."""
     from scipy.linalg import lapack
     return lapack.dposv
+
 
 #: up to this many equations the multipliers' range part is solved dense
 _DENSE_RANGE = 60
@@ -216,7 +218,9 @@ class RadauStepper(Stepper):
         # stays stiff: the stiff pendulum tried and failed six times a run at a fixed 20),
         # back to stagewise_retry after one that holds
         self._retry_every, self._retrying = stagewise_retry, False
-        self._at_guess: tuple | None = None  # (Z, the stages' terms there): _stage_jacobians
+        # M and Q of a state in one evaluation where the equations give both together
+        self._mass_loads = getattr(equations, "mass_loads", None) or (
+            lambda t_, q_, v_: (equations.mass(q_), equations.loads(t_, q_, v_)))
         self.index3_scaling = index3_scaling
         self.curvature = curvature
         self.residual_tol = residual_tol
@@ -437,31 +441,30 @@ class RadauStepper(Stepper):
             return _K["T"] @ np.vstack((dWr, dWc.real, dWc.imag))
         return solve
 
-    def _stage_jacobians(self, t: float, h: float, Z: np.ndarray) -> list[tuple]:
-        """(M, dQ/dq - curvature, dQ/dv, Phi_q) at each stage of the guess Z; the terms
-        of the stage residuals there (Phi, Phi_q, M, Q) are kept for the Newton iteration's
-        first residual (``_at_guess``), which is at the same states."""
+    def _stage_jacobians(self, t: float, h: float, Z: np.ndarray
+                         ) -> tuple[list[tuple], list[tuple]]:
+        """(M, dQ/dq - curvature, dQ/dv, Phi_q) at each stage of the guess Z, and the
+        terms of the stage residuals there (Phi, Phi_q, M, Q), for the Newton iteration's
+        first residual, which is at the same states."""
         eq, n = self.equations, self.n
-        mass_loads = getattr(eq, "mass_loads", None) or (
-            lambda t_, q_, v_: (eq.mass(q_), eq.loads(t_, q_, v_)))
         jacs, terms = [], []
         for j in range(3):
             tj, qj, vj = t + _K["c"][j] * h, self.y[:n] + Z[j, :n], self.y[n:] + Z[j, n:2 * n]
             dq, dv = eq.load_derivatives(tj, qj, vj)
             dq = self._stiffness(tj, qj, dq, self.lam + Z[j, 2 * n:])
             phi, G = eq.phi_jac(tj, qj)
-            M, Q = mass_loads(tj, qj, vj)
+            M, Q = self._mass_loads(tj, qj, vj)
             terms.append((phi, G, M, Q))
             jacs.append((_mat(M), _mat(dq), _mat(dv), _mat(G)))
             self.njev += 1
-        self._at_guess = (Z, terms)
-        return jacs
+        return jacs, terms
 
     def _stagewise_solve(self, t: float, h: float, Z: np.ndarray
-                         ) -> Callable[[np.ndarray], np.ndarray]:
+                         ) -> tuple[Callable[[np.ndarray], np.ndarray], list[tuple]]:
         """The coupled stage system (module radau_stages) with the stages' own Jacobians at
-        the guess Z; the common Jacobian (for the error estimate) is the first stage's."""
-        jacs = self._stage_jacobians(t, h, Z)
+        the guess Z, and the stages' terms there (:meth:`_stage_jacobians`); the common
+        Jacobian (for the error estimate) is the first stage's."""
+        jacs, terms = self._stage_jacobians(t, h, Z)
         self._jac = jacs[0]
         self._set_pattern()
         jacs[0] = self._jac  # (made dense there for a few bodies: not again)
@@ -469,25 +472,19 @@ class RadauStepper(Stepper):
         coupled = CoupledStages(jacs, h, _K["A"], _K["Ainv"], self.n, self.m,
                                 self._delta(_K["mu_real"] / h))
         self.nlu += 1
-        return coupled.solve
+        return coupled.solve, terms
 
     def _newton(self, t: float, h: float, Z: np.ndarray, sc: np.ndarray,
-                solve: Callable[[np.ndarray], np.ndarray]
+                solve: Callable[[np.ndarray], np.ndarray], at_guess: list | None = None
                 ) -> tuple[bool, int, np.ndarray, float]:
         """Simplified Newton on the stage system from the guess Z (3, 2n + m), dZ =
-        solve(residual); returns (converged, iterations, Z, contraction rate)."""
+        solve(residual); ``at_guess``: each stage's (Phi, Phi_q, M, Q) at Z where the caller
+        has them. Returns (converged, iterations, Z, contraction rate)."""
         eq, n = self.equations, self.n
         y0, lam0 = self.y, self.lam
         c = _K["c"]
         dZ_norm_old, rate, r = None, None, np.empty_like(Z)
         w = self._stage_weights(sc, h)
-        # M and Q of a state in one evaluation where the equations give both together
-        mass_loads = getattr(eq, "mass_loads", None) or (
-            lambda t_, q_, v_: (eq.mass(q_), eq.loads(t_, q_, v_)))
-        # (the stages' terms at the guess, where the stagewise Jacobians evaluated them)
-        at_guess = self._at_guess[1] if self._at_guess is not None and \
-            self._at_guess[0] is Z else None
-        self._at_guess = None
         for k in range(max(self.max_newton, self.max_newton_singular)):
             D = _K["Ainv"] @ Z[:, :2 * n] / h  # the stages' derivatives of q and v
             for j in range(3):
@@ -498,7 +495,7 @@ class RadauStepper(Stepper):
                     phi, G, M, Q = at_guess[j]
                 else:
                     phi, G = eq.phi_jac(tj, qj)
-                    M, Q = mass_loads(tj, qj, vj)
+                    M, Q = self._mass_loads(tj, qj, vj)
                 r[j, :n] = D[j, :n] - vj
                 r[j, n:2 * n] = M @ D[j, n:] - Q + G.T @ lj
                 r[j, 2 * n:] = -np.asarray(phi)
@@ -516,7 +513,7 @@ class RadauStepper(Stepper):
             if dZ_norm_old is not None:
                 rate = dZ_norm / dZ_norm_old
                 # at a singular position (a root where Phi_q loses rank) Newton converges
-                # only linearly, by about half per iteration: such a rate may go on to
+                # only linearly, at 0.5 to 0.9 per iteration: such a rate may go on to
                 # ``max_newton_singular`` iterations (A02's collinear passages at rtol 1e-8)
                 # (with a Jacobian of the step's start or the stages' own: a slow rate with
                 # an older one asks for a new Jacobian, after max_newton)
@@ -547,11 +544,12 @@ class RadauStepper(Stepper):
                 Z0 = np.zeros((3, N))
             else:  # extrapolate the last step's collocation polynomial (Hairer)
                 x = np.append((t + h * _K["c"] - self.t_old) / self._h_prev, 1.0)
-                Z = np.vander(x, 4, increasing=True)[:, 1:] @ (_K["P"].T @ self._Z)
-                Z0 = Z[:3] - Z[3]
+                at = np.vander(x, 4, increasing=True)[:, 1:] @ (_K["P"].T @ self._Z)
+                Z0 = at[:3] - at[3]
+            at_guess = None
             try:
                 if self._stagewise:
-                    solve = self._stagewise_solve(t, h, Z0)
+                    solve, at_guess = self._stagewise_solve(t, h, Z0)
                 else:
                     if self._jac is None:
                         self._jacobian(t, y)
@@ -562,7 +560,7 @@ class RadauStepper(Stepper):
             except RuntimeError:  # SuperLU: the matrix is exactly singular
                 return f"the equations are singular at t = {t:.9g}"
             sc = self._atol + self.rtol * np.abs(y)
-            ok, k, Z, rate = self._newton(t, h, Z0, sc, solve)
+            ok, k, Z, rate = self._newton(t, h, Z0, sc, solve, at_guess)
             if not ok:
                 self.nrejected += 1
                 if not self._stagewise and not self._jac_current:
@@ -647,10 +645,11 @@ class RadauStepper(Stepper):
     def _range_part(self, t: float, y: np.ndarray, lam: np.ndarray,
                     phi_jac: tuple | None = None) -> np.ndarray:
         """lambda's component in the range of Phi_q (lam (m,) or (m, k)),
-        (G G^T + eps I)^-1 G G^T lam with G = Phi_q at (t, y) and eps = ``regularization`` |G|^2: the part along redundant directions (G^T l = 0),
-        which the equations leave free and the regularised Newton lets drift (it divides the
-        curvature left in Phi along them by delta), is removed; the motion, which sees only
-        G^T lambda, is unchanged. Without redundant constraints it is the identity to
+        (G G^T + eps I)^-1 G G^T lam with G = Phi_q at (t, y) and eps = ``regularization``
+        |G|^2: the part along redundant directions (G^T l = 0), which the equations leave
+        free and the regularised Newton lets drift (it divides the curvature left in Phi
+        along them by delta), is removed; the motion, which sees only G^T lambda, is
+        unchanged. Without redundant constraints it is the identity to
         ``regularization``."""
         if not self.m:
             return lam
