@@ -16,21 +16,30 @@ and owns
 * **failures** (a stepper's message, numpy's LinAlgError from the equations: "failed", with
   the instant) and **interrupts** (a KeyboardInterrupt anywhere: "interrupted", with the
   outputs before it);
-* **stiffness**: given ``stiff = (ImplicitStepper, equations_factory)``, an explicit
-  stepper watches its own step sizes (rule 7) and, once it reports :data:`STIFF`, the
-  integration goes on from the state it reached with the implicit stepper on the equations
-  the factory builds (the index-3 terms: :class:`~mechdsl.solve.motion.Motion`); the
-  outputs, the budget and the counters run on across the switch, and the solution says
-  where it happened and why (``switched``). A stiffness the pair resolves rather than
-  suffers (a stiff spring's oscillation followed to the tolerance: h rho well below the
-  stability boundary, the step ~ 1 / rho all the same, so that its cost grows like sqrt(k))
-  is found by a **trial**: after :data:`TRIAL_AFTER` accepted steps, where the rest of the
-  span would take more than :data:`TRIAL_MIN_STEPS` steps of the pair's typical size (the
-  median of the steps it took: a stiffness holds every step small, where a passage near a
-  singular position holds a few), the implicit stepper takes up to :data:`TRIAL_STEPS`
-  steps from the same state, apart (nothing of it is kept); where its last accepted step is
-  :data:`TRIAL_RATIO` times that typical step or longer, the run goes on with the implicit
-  stepper from there, as after :data:`STIFF`.
+* **stiffness**: given ``stiff = (ImplicitStepper, equations_factory)``, the implicit
+  stepper (on the equations the factory builds: the index-3 terms,
+  :class:`~mechdsl.solve.motion.Motion`) is tried where the explicit one may be held by
+  stiffness, in a **trial**: from the state the pair reached, apart, it takes up to
+  :data:`TRIAL_STEPS` steps; where its last accepted step is :data:`TRIAL_RATIO` times the
+  pair's typical step (the median of its last :data:`TRIAL_AFTER`) or longer, the run goes on
+  with the trial's stepper from where its steps reached (their outputs emitted from their
+  dense outputs); else nothing of the trial is kept. The outputs, the budget and the
+  counters run on across the switch, and the solution says where it happened and why
+  (``switched``). A trial is made
+
+  - where the pair reports :data:`STIFF` (rule 7: h rho at its stability boundary for
+    ``STIFF_STEPS`` steps in a row) and the rest of the span would take it more than
+    :data:`STIFF_MIN_STEPS` steps. A stiff spring's oscillation that the pair resolves
+    to the tolerance holds h rho there too, and the implicit steps are then no longer: a
+    four-bar on a spring of 1e4 N/m went on with radau for 3.5 times vern9's time and 500
+    times its error. After a trial that says no, the detection pauses for
+    :data:`TRIAL_AFTER` accepted steps, twice as many after each further one;
+  - once, after :data:`TRIAL_AFTER` accepted steps, where the rest would take the pair
+    more than :data:`TRIAL_MIN_STEPS` steps: a stiffness the pair resolves rather
+    than suffers (h rho well below the boundary, the step ~ 1 / rho all the same, so that
+    its cost grows like sqrt(k)). Against the pair's typical step, not its last: a passage
+    near a singular position holds a few steps small, a stiffness all of them.
+
   The decision reads step sizes only, never a clock: the same run decides the same way;
 * **progress**: ``on_output(k, t, y)`` with each output as soon as it is known, and
   ``on_step(t, attempts)`` after every accepted step (one output interval may take
@@ -40,6 +49,7 @@ and owns
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 from typing import Callable
 
@@ -54,6 +64,11 @@ from .stepper import OUT_OF_BUDGET, STIFF, Equations, Stepper
 #: implicit step costs 3 to 10 explicit ones: one factorisation or two and Newton's
 #: iterations, against a pair's 7 to 16 evaluations)
 TRIAL_AFTER, TRIAL_MIN_STEPS, TRIAL_STEPS, TRIAL_RATIO = 50, 1000, 8, 10.0
+
+#: After a report of :data:`STIFF`, a trial is made where the rest would take the pair
+#: more than this many steps of its typical size (the trial's own steps cost 24 to 80 of
+#: the pair's: with fewer left, it cannot pay)
+STIFF_MIN_STEPS = 100
 
 
 @dataclass(frozen=True)
@@ -148,7 +163,11 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         if stiff is not None and not stepper.implicit:
             s.detect_stiffness = True
         trial = stiff is not None and not stepper.implicit  # one trial at most
-        taken: list[float] = []  # the explicit steps accepted before the trial
+        # the explicit steps accepted last (their median: the pair's typical step)
+        taken: deque[float] = deque(maxlen=TRIAL_AFTER)
+        # after a stiffness report whose trial said no: the accepted steps until the
+        # detection is on again, and the next such pause (doubled after each refusal)
+        resume_at, pause = None, TRIAL_AFTER
         while k_next < n_out:
             # checked here too for steppers that take no more than one attempt per call
             if s.attempts + int(before[:2].sum()) >= max_steps:
@@ -188,36 +207,58 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             if at_output:
                 emit(k_next, t_new, y_new.copy())
                 k_next += 1
-            if trial:
+            if stiff is not None and not stepper.implicit:
                 taken.append(t_new - t)
             t = t_new
             why = None
+            if resume_at is not None and s.naccepted >= resume_at:
+                s.detect_stiffness, resume_at = True, None
             if message == STIFF:
-                why = (f"{s.name}'s step held by stability: h rho = "
-                       f"{getattr(s, 'h_rho', float('nan')):.3g} at "
-                       f"{getattr(s, 'stiff_steps', 0)} steps in a row")
+                # tried first: a stiff spring's oscillation that the pair resolves to the
+                # tolerance holds h rho at the stability boundary too, and there the
+                # implicit stepper's steps are no longer (a four-bar on a spring of 1e4
+                # N/m: radau took 3.5 times vern9's time for 500 times its error)
+                held = (f"{s.name}'s step held by stability: h rho = "
+                        f"{getattr(s, 'h_rho', float('nan')):.3g} at "
+                        f"{getattr(s, 'stiff_steps', 0)} steps in a row")
+                why, spent, kept = _trial(stiff, t, y_new, t_end, float(np.median(taken)),
+                                          s.name, rtol, atol, scale, STIFF_MIN_STEPS)
+                if why is not None:
+                    why = f"{held}, and {why}"
+                else:
+                    before += spent
+                    s.detect_stiffness, resume_at = False, s.naccepted + pause
+                    pause *= 2
             elif trial and s.naccepted >= TRIAL_AFTER:
                 trial = False
                 # against the pair's typical step, not its last: a step held small for a
                 # while (A02 near a collinear passage) is not a stiffness
-                why, spent = _trial(stiff, t, y_new, t_end, float(np.median(taken)), s.name,
-                                    rtol, atol, scale)
-                before += spent  # the trial's work counts, kept or not
+                why, spent, kept = _trial(stiff, t, y_new, t_end, float(np.median(taken)),
+                                          s.name, rtol, atol, scale, TRIAL_MIN_STEPS)
+                if why is None:
+                    before += spent  # the trial's work counts, kept or not
             if why is not None:
+                # the run goes on with the trial's stepper from where its steps reached:
+                # their outputs (and spans) are emitted from their dense outputs
                 trial = False
-                implicit, factory = stiff  # type: ignore[misc]
                 before += (s.naccepted, s.nrejected, s.nfev, s.njev, s.nlu)
-                equations = factory()
+                s, equations, spans = kept
+                stepper = type(s)
                 project = getattr(equations, "project", None)
                 settle = getattr(equations, "settle", None) or project
-                # (s cleared first: its counters are in ``before`` now, and a failure of
-                # the implicit stepper's construction must not count them twice)
-                stepper, s = implicit, None
-                s = implicit(equations, t, y_new, t_end, rtol=rtol, atol=atol, scale=scale)
                 s.max_attempts = max_steps - int(before[:2].sum())
                 if max_step < np.inf:
                     s.max_step = max_step
-                switched = (implicit.name, t, why)
+                switched = (stepper.name, t, why)
+                for t_a, t_b, dense in spans:
+                    if on_interval is not None:
+                        on_interval(t_a, t_b, dense)
+                    while k_next < n_out and t_eval[k_next] <= t_b:
+                        te = float(t_eval[k_next])
+                        yo = dense(te)
+                        emit(k_next, te, project(te, yo) if project is not None else yo)
+                        k_next += 1
+                t = s.t
             if on_step is not None:
                 on_step(t, s.attempts + int(before[:2].sum()))
     except KeyboardInterrupt:
@@ -229,24 +270,30 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
 
 
 def _trial(stiff: tuple, t: float, y: np.ndarray, t_end: float, h: float, name: str,
-           rtol: float, atol, scale) -> tuple[str | None, np.ndarray]:
+           rtol: float, atol, scale, min_steps: int
+           ) -> tuple[str | None, np.ndarray, tuple | None]:
     """The implicit stepper tried from (t, y) apart (module docstring): why the run should
-    go on with it (None: it should not), and the trial's counters (accepted, rejected,
-    evaluations, Jacobians, factorisations). Nothing else of the trial is kept (its
-    equations are its own); a trial that fails in any way only says no."""
+    go on with it (None: it should not), the trial's counters (accepted, rejected,
+    evaluations, Jacobians, factorisations), and where it says yes, what the run goes on
+    with: (the stepper, its equations, each step's (t_old, t_new, dense output)). A trial
+    that says no leaves nothing in the run (its equations are its own); one that fails in
+    any way only says no. None is tried where the rest of the span takes the pair at
+    most ``min_steps`` steps of size h."""
     spent = np.zeros(5, dtype=int)
-    if not h > 0 or (t_end - t) / h <= TRIAL_MIN_STEPS:
-        return None, spent
+    if not h > 0 or (t_end - t) / h <= min_steps:
+        return None, spent, None
     implicit, factory = stiff
-    s, last, why = None, 0.0, None
+    s, last, why, spans = None, 0.0, None, []
     try:
-        s = implicit(factory(), t, y.copy(), t_end, rtol=rtol, atol=atol, scale=scale)
+        equations = factory()
+        s = implicit(equations, t, y.copy(), t_end, rtol=rtol, atol=atol, scale=scale)
         s.max_attempts = 4 * TRIAL_STEPS
         while s.naccepted < TRIAL_STEPS and s.t < t_end:
             t_before = s.t
             if s.step() is not None:
                 break  # the implicit stepper struggles here: the pair goes on
             last = s.t - t_before
+            spans.append((t_before, s.t, s.dense_output()))
         else:
             if s.t >= t_end or last >= TRIAL_RATIO * h:
                 why = (f"{implicit.name}'s steps {last / h:.3g} times {name}'s over a trial "
@@ -255,4 +302,4 @@ def _trial(stiff: tuple, t: float, y: np.ndarray, t_end: float, h: float, name: 
         why = None  # (SuperLU says a singular matrix by RuntimeError)
     if s is not None:
         spent[:] = (s.naccepted, s.nrejected, s.nfev, s.njev, s.nlu)
-    return why, spent
+    return why, spent, ((s, equations, spans) if why is not None else None)

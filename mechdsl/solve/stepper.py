@@ -48,7 +48,9 @@ The rules a stepper keeps:
    restart after every step cost Radau on A02 a third of its Newton iterations).
 7. **Stiffness**: a stepper whose ``detect_stiffness`` the driver sets may return
    :data:`STIFF` from ``step`` after an accepted step (``t``, ``y`` advanced): the driver
-   then continues from that state with the implicit stepper it was given (``stiff``).
+   then tries the implicit stepper it was given (``stiff``) from that state and goes on
+   with it where its steps are longer by far (:mod:`mechdsl.solve.driver`), else with this
+   stepper, its ``detect_stiffness`` cleared for a while.
 
 The equations a stepper sees are those of one mechanism (:class:`Equations`, a protocol):
 the right-hand side ``rhs(t, y) = (qd, qdd)`` of the index-1 form for explicit methods, and
