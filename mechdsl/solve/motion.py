@@ -117,6 +117,10 @@ class Motion:
     :class:`mechdsl.solve.stepper.Equations` protocol), by the augmented Lagrangian (see
     the module). Sparse matrices are returned as :class:`~mechdsl.solve.triplets.Triplets`."""
 
+    #: every evaluation of :meth:`rhs` factorises M + Phi_q^T W Phi_q (the driver's trial
+    #: of the implicit stepper reads it: :data:`mechdsl.solve.driver.TRIAL_RATIO_FACTORISED`)
+    factorises = True
+
     def __init__(self, kernels: Kernels, options: SolverOptions | None = None,
                  variant: int = 0) -> None:
         from scipy.linalg.lapack import dgetrf, dgetrs, dpbtrf, dpbtrs

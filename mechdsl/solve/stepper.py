@@ -86,7 +86,9 @@ class Equations(Protocol):
     # ``settle(t, y)``, the correction after a step that does not end at an output (to the
     # precision the next step needs: cheaper than ``project``, which it defaults to), and
     # ``carry(y, f)``, the derivative at a corrected state y from ``f`` at the state before
-    # the correction, with what of it y gives exactly (a mechanism's y' begins with qd).
+    # the correction, with what of it y gives exactly (a mechanism's y' begins with qd);
+    # ``factorises``, True where every evaluation of ``rhs`` factorises a matrix of the
+    # model's size (the driver's trial of an implicit stepper asks less of it there).
 
     # -- the terms of the index-3 form, for implicit methods (sparse matrices: CSR) ---------
     def phi_jac(self, t: float, q: np.ndarray) -> tuple[np.ndarray, object]:
