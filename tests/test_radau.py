@@ -417,3 +417,19 @@ def test_car_axis_against_the_test_set():
     print(f"car axis: scd (q, v) {scd_qv:.2f}, with lambda {scd_all:.2f}, steps "
           f"{st.naccepted}+{st.nrejected}, nfev {st.nfev}, nlu {st.nlu}, {seconds:.3f} s")
     assert scd_qv >= 6.9
+
+
+def test_radau_keeps_the_driver_s_budget():
+    """Rule 2: no attempt once ``attempts`` has reached ``max_attempts`` (the driver's trial
+    of radau caps its attempts so; it used to step on regardless), the state left as it
+    was."""
+    from mechdsl.solve.stepper import OUT_OF_BUDGET
+
+    eq, y0 = pendulum()
+    st = RadauStepper(eq, 0.0, y0, 2.0, rtol=1e-6, atol=1e-8, scale=np.ones(6))
+    st.max_attempts = st.attempts + 2
+    while st.attempts < st.max_attempts:
+        assert st.step() is None
+    t, y = st.t, st.y
+    assert st.step() == OUT_OF_BUDGET
+    assert st.attempts == st.max_attempts and st.t == t and st.y is y

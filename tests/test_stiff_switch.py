@@ -408,3 +408,28 @@ def test_a_large_stiff_model_switches_where_implicit_steps_cost_less():
     ref = _spring_chain_minimal(n, k, t1)
     assert abs(res[f"b{n - 1}.x"][-1] - ref[0]) < 1e-5
     assert abs(res[f"b{n - 1}.y"][-1] - ref[1]) < 1e-5
+
+
+def test_a_pair_counts_stiff_steps_afresh_once_its_detection_is_on_again():
+    """After a trial that said no the driver turns the detection off for a while; turned
+    on again, STIFF needs STIFF_STEPS steps in a row at the boundary anew, not the next one
+    (the count kept from before the pause made every step after it a new trial). On the
+    stiff pendulum h rho stays at the boundary for a few steps after the first report."""
+    from mechdsl.solve.explicit import STIFF_STEPS, Vern9
+    from mechdsl.solve.stepper import STIFF
+
+    motion = Motion(mechdsl.loads(dm.stiff_pendulum_text(1e8)).compile())
+    y0 = np.concatenate((motion.system.guess.reshape(-1)[:motion.n], np.zeros(motion.n)))
+    y0 = motion.project(0.0, y0)
+    s = Vern9(motion, 0.0, y0, 2.0, rtol=1e-6, atol=1e-8, scale=np.ones(2 * motion.n))
+    s.detect_stiffness = True
+    steps = 0
+    while s.step() != STIFF:
+        steps += 1
+        assert steps < 10 * STIFF_STEPS
+    assert s.stiff_steps >= STIFF_STEPS
+    s.detect_stiffness = False
+    assert s.step() is None
+    s.detect_stiffness = True
+    reports = [s.step() for _ in range(STIFF_STEPS - 1)]
+    assert reports == [None] * (STIFF_STEPS - 1)  # (before: STIFF at the first)

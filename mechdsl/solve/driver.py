@@ -36,9 +36,10 @@ and owns
     to the tolerance holds h rho there too, and the implicit steps are then no longer: a
     four-bar on a spring of 1e4 N/m went on with radau for 3.5 times vern9's time and 500
     times its error. After a trial that says no, the detection pauses for
-    :data:`TRIAL_AFTER` accepted steps, twice as many after each further one;
+    :data:`TRIAL_AFTER` accepted steps, twice as many after each further trial that ran
+    and said no, and then counts ``STIFF_STEPS`` in a row afresh;
   - after :data:`TRIAL_AFTER` accepted steps, and again after pauses that double from
-    there while it says no, where the rest would take the pair more than
+    there while it runs and says no, where the rest would take the pair more than
     :data:`TRIAL_MIN_STEPS` steps: a stiffness the pair resolves rather than suffers (h
     rho well below the boundary, the step ~ 1 / rho all the same, so that its cost grows
     like sqrt(k)). The typical step is the pair's mean over the run, not its last steps:
@@ -177,11 +178,11 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         if stiff is not None and not stepper.implicit:
             s.detect_stiffness = True
         watch = stiff is not None and not stepper.implicit
-        # the accepted steps at which the next trial is made; after a stiffness report
-        # whose trial said no, those until the detection is on again; the pause after the
-        # next refusal of either (doubled after each)
+        # the accepted steps at which the next trial is made, and after a stiffness report
+        # whose trial said no, those until the detection is on again; the pauses after the
+        # next refusal of each kind (doubled after each refusal of a trial that ran)
         next_trial = TRIAL_AFTER if watch else None
-        resume_at, pause = None, TRIAL_AFTER
+        resume_at, trial_pause, stiff_pause = None, TRIAL_AFTER, TRIAL_AFTER
         # the explicit steps accepted last (their median: the pair's typical step)
         taken: deque[float] = deque(maxlen=TRIAL_AFTER)
         # the implicit steps' length that makes a trial say yes (see TRIAL_RATIO)
@@ -246,8 +247,12 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                     why = f"{held}, and {why}"
                 else:
                     before += spent
-                    s.detect_stiffness, resume_at = False, s.naccepted + pause
-                    pause *= 2
+                    s.max_attempts = max_steps - int(before[:2].sum())
+                    s.detect_stiffness, resume_at = False, s.naccepted + stiff_pause
+                    if spent[:2].any():
+                        stiff_pause *= 2
+                    if next_trial is not None:  # not a second trial at once
+                        next_trial = max(next_trial, s.naccepted + trial_pause)
             elif next_trial is not None and s.naccepted >= next_trial:
                 # against the pair's typical step over the run, not its last ones: steps
                 # held small for a while (A02 at a collinear passage, 2e-3 of its mean)
@@ -257,12 +262,14 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                                           atol, scale, TRIAL_MIN_STEPS, ratio)
                 if why is None:
                     before += spent  # the trial's work counts, kept or not
-                    next_trial = s.naccepted + pause
-                    pause *= 2
+                    s.max_attempts = max_steps - int(before[:2].sum())
+                    next_trial = s.naccepted + trial_pause
+                    if spent[:2].any():
+                        trial_pause *= 2
             if why is not None:
                 # the run goes on with the trial's stepper from where its steps reached:
                 # their outputs (and spans) are emitted from their dense outputs
-                watch, next_trial = False, None
+                watch, next_trial, resume_at = False, None, None
                 before += (s.naccepted, s.nrejected, s.nfev, s.njev, s.nlu)
                 s, equations, spans = kept
                 stepper = type(s)
@@ -273,6 +280,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                     s.max_step = max_step
                 switched = (stepper.name, t, why)
                 for t_a, t_b, dense in spans:
+                    t = t_a  # (what a failure or an interrupt here reports)
                     if on_interval is not None:
                         on_interval(t_a, t_b, dense)
                     while k_next < n_out and t_eval[k_next] <= t_b:

@@ -202,7 +202,10 @@ class RungeKutta(Stepper):
         self.y = self._y_end = y_new
         self.f, self._sc, self._h_step, self._dense = f_new, sc, h, None
         self.h = h * factor
-        if self.detect_stiffness and self._stiff(h, y, y_new, f_new):
+        if not self.detect_stiffness:
+            # (counted afresh once it is on again: STIFF_STEPS steps in a row after that)
+            self._stiff_steps = self._calm_steps = 0
+        elif self._stiff(h, y, y_new, f_new):
             return STIFF
         return None
 

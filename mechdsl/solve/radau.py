@@ -94,7 +94,7 @@ from typing import Callable, ClassVar
 import numpy as np
 
 from .radau_stages import DENSE_MAX, CoupledStages, DenseLU, dense, triplets
-from .stepper import Equations, Stepper
+from .stepper import OUT_OF_BUDGET, Equations, Stepper
 from .triplets import Triplets
 
 
@@ -536,6 +536,9 @@ class RadauStepper(Stepper):
         h = min(self.h_abs, self.t_bound - t)
         rejected = cut = False
         while True:
+            if self.attempts >= self.max_attempts:  # rule 2: rejected attempts count too
+                self.h_abs = h
+                return OUT_OF_BUDGET
             if h < 10 * np.spacing(max(abs(t), abs(self.t_bound))):
                 return f"the step size underflowed at t = {t:.9g}"
             if self.t_bound - t - h < 1e-10 * h:  # land on t_bound, not a hair before it
