@@ -43,7 +43,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="mechdsl", description="Kinematics of planar mechanisms from .mech files.")
+    p = _Parser(prog="mechdsl", description="Kinematics and dynamics of planar mechanisms from .mech files.")
     p.add_argument("--version", action="store_true", help="print the version and exit")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 

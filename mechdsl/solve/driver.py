@@ -175,19 +175,10 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         s.max_attempts = max_steps
         if max_step < np.inf:
             s.max_step = max_step
+        watch = None
         if stiff is not None and not stepper.implicit:
             s.detect_stiffness = True
-        watch = stiff is not None and not stepper.implicit
-        # the accepted steps at which the next trial is made, and after a stiffness report
-        # whose trial said no, those until the detection is on again; the pauses after the
-        # next refusal of each kind (doubled after each refusal of a trial that ran)
-        next_trial = TRIAL_AFTER if watch else None
-        resume_at, trial_pause, stiff_pause = None, TRIAL_AFTER, TRIAL_AFTER
-        # the explicit steps accepted last (their median: the pair's typical step)
-        taken: deque[float] = deque(maxlen=TRIAL_AFTER)
-        # the implicit steps' length that makes a trial say yes (see TRIAL_RATIO)
-        ratio = TRIAL_RATIO_FACTORISED if getattr(equations, "factorises", False) \
-            else TRIAL_RATIO
+            watch = _Watch(stiff, equations, t, t_end, rtol, atol, scale)
         while k_next < n_out:
             # checked here too for steppers that take no more than one attempt per call
             if s.attempts + int(before[:2].sum()) >= max_steps:
@@ -227,49 +218,16 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             if at_output:
                 emit(k_next, t_new, y_new.copy())
                 k_next += 1
-            if watch:
-                taken.append(t_new - t)
-            t = t_new
-            why = None
-            if resume_at is not None and s.naccepted >= resume_at:
-                s.detect_stiffness, resume_at = True, None
-            if message == STIFF:
-                # tried first: a stiff spring's oscillation that the pair resolves to the
-                # tolerance holds h rho at the stability boundary too, and there the
-                # implicit stepper's steps are no longer (a four-bar on a spring of 1e4
-                # N/m: radau took 3.5 times vern9's time for 500 times its error)
-                held = (f"{s.name}'s step held by stability: h rho = "
-                        f"{getattr(s, 'h_rho', float('nan')):.3g} at "
-                        f"{getattr(s, 'stiff_steps', 0)} steps in a row")
-                why, spent, kept = _trial(stiff, t, y_new, t_end, float(np.median(taken)),
-                                          s.name, rtol, atol, scale, STIFF_MIN_STEPS, ratio)
-                if why is not None:
-                    why = f"{held}, and {why}"
-                else:
-                    before += spent
-                    s.max_attempts = max_steps - int(before[:2].sum())
-                    s.detect_stiffness, resume_at = False, s.naccepted + stiff_pause
-                    if spent[:2].any():
-                        stiff_pause *= 2
-                    if next_trial is not None:  # not a second trial at once
-                        next_trial = max(next_trial, s.naccepted + trial_pause)
-            elif next_trial is not None and s.naccepted >= next_trial:
-                # against the pair's typical step over the run, not its last ones: steps
-                # held small for a while (A02 at a collinear passage, 2e-3 of its mean)
-                # are not a stiffness
-                why, spent, kept = _trial(stiff, t, y_new, t_end,
-                                          (t - float(t_eval[0])) / s.naccepted, s.name, rtol,
-                                          atol, scale, TRIAL_MIN_STEPS, ratio)
-                if why is None:
-                    before += spent  # the trial's work counts, kept or not
-                    s.max_attempts = max_steps - int(before[:2].sum())
-                    next_trial = s.naccepted + trial_pause
-                    if spent[:2].any():
-                        trial_pause *= 2
+            t_old, t = t, t_new
+            why, spent, kept = (None, None, None) if watch is None else \
+                watch.after(s, message, t_old, t, y_new)
+            if spent is not None and why is None:  # a trial that said no: its work counts
+                before += spent
+                s.max_attempts = max_steps - int(before[:2].sum())
             if why is not None:
                 # the run goes on with the trial's stepper from where its steps reached:
                 # their outputs (and spans) are emitted from their dense outputs
-                watch, next_trial, resume_at = False, None, None
+                watch = None
                 before += (s.naccepted, s.nrejected, s.nfev, s.njev, s.nlu)
                 s, equations, spans = kept
                 stepper = type(s)
@@ -297,6 +255,67 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         return done("failed", f"the equations of motion are singular near t = {t:.10g} "
                               f"({err})")
     return done("ok")
+
+
+class _Watch:
+    """The explicit pair watched for stiffness (module docstring): when the implicit
+    stepper is tried, against which step of the pair, and the pauses after a refusal."""
+
+    def __init__(self, stiff: tuple, equations: Equations, t0: float, t_end: float,
+                 rtol: float, atol, scale) -> None:
+        self.stiff, self.t0, self.t_end = stiff, t0, t_end
+        self.tolerances = (rtol, atol, scale)
+        #: the implicit steps' length, in the pair's, that makes a trial say yes
+        self.ratio = TRIAL_RATIO_FACTORISED if getattr(equations, "factorises", False) \
+            else TRIAL_RATIO
+        #: the pair's steps accepted last (their median: its step where stability holds it)
+        self.taken: deque[float] = deque(maxlen=TRIAL_AFTER)
+        # the accepted steps at which the next periodic trial is made, and after a
+        # stiffness report whose trial said no, those until the detection is on again;
+        # the pauses after the next refusal of each kind (doubled after a trial that ran)
+        self.next_trial, self.resume_at = TRIAL_AFTER, None
+        self.trial_pause = self.stiff_pause = TRIAL_AFTER
+
+    def after(self, s: Stepper, message: str | None, t_old: float, t: float, y: np.ndarray
+              ) -> tuple[str | None, np.ndarray | None, tuple | None]:
+        """After the pair ``s`` accepted a step from t_old to (t, y) with ``message``: a
+        trial where one is due, as :func:`_trial` returns it ((None, None, None) where none
+        is made)."""
+        self.taken.append(t - t_old)
+        if self.resume_at is not None and s.naccepted >= self.resume_at:
+            s.detect_stiffness, self.resume_at = True, None
+        if message == STIFF:
+            # tried first: a stiff spring's oscillation that the pair resolves to the
+            # tolerance holds h rho at the stability boundary too, and there the implicit
+            # stepper's steps are no longer (a four-bar on a spring of 1e4 N/m: radau took
+            # 3.5 times vern9's time for 500 times its error)
+            held = (f"{s.name}'s step held by stability: h rho = "
+                    f"{getattr(s, 'h_rho', float('nan')):.3g} at "
+                    f"{getattr(s, 'stiff_steps', 0)} steps in a row")
+            why, spent, kept = _trial(self.stiff, t, y, self.t_end,
+                                      float(np.median(self.taken)), s.name,
+                                      *self.tolerances, STIFF_MIN_STEPS, self.ratio)
+            if why is not None:
+                return f"{held}, and {why}", spent, kept
+            s.detect_stiffness, self.resume_at = False, s.naccepted + self.stiff_pause
+            if spent[:2].any():
+                self.stiff_pause *= 2
+            # not a periodic trial at once after it
+            self.next_trial = max(self.next_trial, s.naccepted + self.trial_pause)
+            return None, spent, None
+        if s.naccepted >= self.next_trial:
+            # against the pair's mean step over the run, not its last ones: steps held
+            # small for a while (A02 at a collinear passage, 2e-3 of its mean) are not a
+            # stiffness
+            why, spent, kept = _trial(self.stiff, t, y, self.t_end,
+                                      (t - self.t0) / s.naccepted, s.name, *self.tolerances,
+                                      TRIAL_MIN_STEPS, self.ratio)
+            if why is None:
+                self.next_trial = s.naccepted + self.trial_pause
+                if spent[:2].any():
+                    self.trial_pause *= 2
+            return why, spent, kept
+        return None, None, None
 
 
 def _trial(stiff: tuple, t: float, y: np.ndarray, t_end: float, h: float, name: str,
