@@ -433,3 +433,29 @@ def test_a_pair_counts_stiff_steps_afresh_once_its_detection_is_on_again():
     s.detect_stiffness = True
     reports = [s.step() for _ in range(STIFF_STEPS - 1)]
     assert reports == [None] * (STIFF_STEPS - 1)  # (before: STIFF at the first)
+
+
+def test_a_chain_stiff_enough_to_be_rigid_falls_as_one_bar():
+    """Five links on rotary springs of 1e10 N m/rad: the first explicit steps are far too
+    long for the springs, and their stages' accelerations overflow. Such a stage is a
+    rejected step, not a singular model (the run stopped at t0 with "the equations of
+    motion are singular", numpy's overflow warnings printed); the pair shortens its steps,
+    the trial hands the run to radau, and the chain falls as the rigid bar it nearly is:
+    phi'' = -(3 g / (2 n)) cos(phi) (I = n^3 / 3 about the pivot, its weight n at n / 2),
+    the last link's centre at (n - 1/2)(cos phi, sin phi), within 1e-6 m (the springs bend
+    it by about g n^2 / k, 2.5e-8 rad)."""
+    import warnings
+
+    from scipy.integrate import solve_ivp
+
+    n, k, t1 = 5, 1e10, 0.5
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no overflow warning reaches the user
+        res = mechdsl.loads(_spring_chain(n, k, t1)).simulate()
+    assert res.ok, res.messages
+    assert "radau from t = " in res.method, res.method
+    bar = solve_ivp(lambda t, y: [y[1], -1.5 * 9.81 / n * np.cos(y[0])], (0.0, t1),
+                    [0.0, 0.0], method="DOP853", rtol=1e-12, atol=1e-14)
+    phi = bar.y[0, -1]
+    assert abs(res[f"b{n - 1}.x"][-1] - (n - 0.5) * np.cos(phi)) < 1e-6
+    assert abs(res[f"b{n - 1}.y"][-1] - (n - 0.5) * np.sin(phi)) < 1e-6

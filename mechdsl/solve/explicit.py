@@ -173,14 +173,27 @@ class RungeKutta(Stepper):
             h_min = 10 * np.spacing(abs(t))
             h = min(max(h, h_min), self.max_step, t_end - t)
             K[0] = fy
-            for s in range(1, stages):
-                K[s] = f(t + c[s] * h, y + h * (a[s] @ K[:s]))
-            y_new = y + h * (b @ K[:stages])
-            f_new = f(t + h, y_new)
-            K[stages] = f_new
-            sc = self.atol_v + self.rtol * np.maximum(np.abs(y), np.abs(y_new))
-            err = error(K, h, sc)
-            finite = err < np.inf and np.isfinite(f_new).all()
+            singular = None
+            try:
+                with np.errstate(over="ignore", invalid="ignore"):
+                    for s in range(1, stages):
+                        K[s] = f(t + c[s] * h, y + h * (a[s] @ K[:s]))
+                    y_new = y + h * (b @ K[:stages])
+                    f_new = f(t + h, y_new)
+            except np.linalg.LinAlgError as exc:
+                # a stage the equations cannot be solved at: rejected and shortened, as a
+                # stage whose accelerations overflow is (a step far too long for a stiff
+                # spring throws its stages where nothing holds: a chain of 5 links on
+                # rotary springs of 1e10 N m/rad stopped at t0, "singular"); a state
+                # that is singular itself ends the run once the step underflows
+                singular = str(exc)
+            finite = False
+            if singular is None:
+                K[stages] = f_new
+                sc = self.atol_v + self.rtol * np.maximum(np.abs(y), np.abs(y_new))
+                with np.errstate(over="ignore", invalid="ignore"):
+                    err = error(K, h, sc)
+                finite = err < np.inf and np.isfinite(f_new).all()
             if not finite:
                 err = np.inf
             if err <= 1.0:
@@ -190,7 +203,9 @@ class RungeKutta(Stepper):
             h *= max(_MIN_FACTOR, _SAFETY * err**exponent) if finite else _MIN_FACTOR
             if h < h_min:
                 self.h = h
-                why = ("the accelerations are not finite numbers" if not finite else
+                why = (f"the equations of motion are singular there: {singular}"
+                       if singular is not None else
+                       "the accelerations are not finite numbers" if not finite else
                        "a singular or discontinuous motion")
                 return f"the step size fell below {h_min:.3g} after t = {t:.10g} ({why})"
         self.naccepted += 1
