@@ -95,7 +95,7 @@ def move(browser, name, value):
 def test_a_slider_move_re_solves_and_shows_the_lock_up(browser, seed):
     path, viewer = seed
     browser.get(viewer.url)
-    wait_for(browser, "return window.mechdslView.header && "
+    wait_for(browser, "return window.mechdslView && window.mechdslView.header && "
                       "window.mechdslView.header.status === 'ok'")
     move(browser, "l", 3.0)
     wait_for(browser, "return window.mechdslView.latencies.length >= 1")
@@ -110,7 +110,7 @@ def test_a_slider_move_re_solves_and_shows_the_lock_up(browser, seed):
 def test_a_save_reloads_and_a_typo_shows_its_located_error(browser, seed):
     path, viewer = seed
     browser.get(viewer.url)
-    wait_for(browser, "return window.mechdslView.header && "
+    wait_for(browser, "return window.mechdslView && window.mechdslView.header && "
                       "window.mechdslView.header.status === 'ok'")
     before = events(browser)
     path.write_text(path.read_text().replace("revolute(crank.B", "revolute(cranck.B"))
@@ -144,7 +144,7 @@ def test_markup_in_the_file_is_shown_as_text(browser, tmp_path):
     viewer = Viewer(path)
     try:
         browser.get(viewer.url)
-        wait_for(browser, "return window.mechdslView.header && "
+        wait_for(browser, "return window.mechdslView && window.mechdslView.header && "
                           "window.mechdslView.header.status === 'ok'")
         label = browser.find_element("css selector", "#plots .label").text
         assert "<img src=x onerror=window.pwned=1>" in label
