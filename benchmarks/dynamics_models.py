@@ -180,8 +180,11 @@ def a02_first_horizontal(n: int = 40) -> float:
 # -- the chain ----------------------------------------------------------------------------------
 
 def chain_text(n: int, t1: float = 0.2, step: float = 0.01, rtol: float = 1e-6,
-               atol: float = 1e-8, length: float = 1.0, mass: float = 1.0) -> str:
-    """The ``.mech`` text of a chain of ``n`` uniform links hinged end to end (n bodies).
+               atol: float = 1e-8, length: float = 1.0, mass: float = 1.0,
+               springs: float | None = None) -> str:
+    """The ``.mech`` text of a chain of ``n`` uniform links hinged end to end (n bodies);
+    with ``springs``, a rotary spring of that stiffness (relaxed straight) at every pin
+    between two links.
 
     Link i: frame at its left pin, at (i l, 0) at t = 0, angle 0, tip ``E`` = (l, 0), centre
     (l/2, 0), inertia m l^2 / 12; link 0 hinged to the ground's origin, link i + 1's frame
@@ -196,6 +199,8 @@ def chain_text(n: int, t1: float = 0.2, step: float = 0.01, rtol: float = 1e-6,
     lines.append("joint P0: revolute(ground.origin, link0.origin)")
     for i in range(1, n):
         lines.append(f"joint P{i}: revolute(link{i - 1}.E, link{i}.origin)")
+        if springs is not None:
+            lines.append(f"force S{i}: rotary_spring(link{i - 1}, link{i}, k = {springs!r})")
     lines += [f"simulate t = 0 .. {t1} step {step}, rtol = {rtol}, atol = {atol}",
               f"output tipx = link{last}.E.x, tipy = link{last}.E.y"]
     return "\n".join(lines) + "\n"

@@ -341,23 +341,14 @@ def test_a_large_model_is_planned_with_its_banded_solver_not_a_dense_one():
 
 
 def _spring_chain(n: int, k: float, t1: float) -> str:
-    """n links of 1 m and 1 kg hanging from the ground's origin, horizontal at rest, each
-    pin carrying a rotary spring of stiffness k between the links it joins."""
-    lines = ["gravity = (0, -9.81)", "ground { }"]
-    for i in range(n):
-        lines.append(f"body b{i} {{ guess = ({i + 0.5}, 0, 0) mass = 1 inertia = {1 / 12!r} "
-                     "point A = (-0.5, 0) point B = (0.5, 0) }")
-    lines.append("joint j0: revolute(ground.origin, b0.A)")
-    for i in range(1, n):
-        lines.append(f"joint j{i}: revolute(b{i - 1}.B, b{i}.A)")
-        lines.append(f"force s{i}: rotary_spring(b{i - 1}, b{i}, k = {k!r})")
-    lines.append(f"simulate t = 0 .. {t1} step 0.01, rtol = 1e-6, atol = 1e-8")
-    lines.append(f"output b{n - 1}.x, b{n - 1}.y")
-    return "\n".join(lines) + "\n"
+    """n links of 1 m and 1 kg hinged end to end from the ground's origin, horizontal at
+    rest, a rotary spring of stiffness k at every pin between two links; outputs the free
+    end (tipx, tipy)."""
+    return dm.chain_text(n, t1=t1, springs=k)
 
 
 def _spring_chain_minimal(n: int, k: float, t1: float) -> np.ndarray:
-    """The last link's centre at t1 from Lagrange's equations in the links' angles phi:
+    """The free end at t1 from Lagrange's equations in the links' angles phi:
     with a_ij = 1 for j < i, 1/2 for j = i (link i's centre moves by a_ij (-sin, cos)
     phi_j' of link j's), mu_jk = sum_i a_ij a_ik,
 
@@ -387,8 +378,7 @@ def _spring_chain_minimal(n: int, k: float, t1: float) -> np.ndarray:
                     atol=1e-12)
     assert sol.success
     phi = sol.y[:n, -1]
-    return np.array([np.cos(phi[:-1]).sum() + 0.5 * np.cos(phi[-1]),
-                     np.sin(phi[:-1]).sum() + 0.5 * np.sin(phi[-1])])
+    return np.array([np.cos(phi).sum(), np.sin(phi).sum()])
 
 
 def test_a_large_stiff_model_switches_where_implicit_steps_cost_less():
@@ -396,7 +386,7 @@ def test_a_large_stiff_model_switches_where_implicit_steps_cost_less():
     Lagrangian, whose every evaluation factorises: there a radau step costs less than a
     DOP853 step (0.7 against 1.5 ms), and radau's steps 1.7 times DOP853's make the trial
     say yes (TRIAL_RATIO_FACTORISED; against TRIAL_RATIO, ten, the run kept DOP853 and took
-    5.7 times radau's time). The last link within 1e-5 m of the chain's own equations."""
+    5.7 times radau's time). The free end within 1e-5 m of the chain's own equations."""
     from mechdsl.solve.driver import TRIAL_RATIO, TRIAL_RATIO_FACTORISED
 
     n, k, t1 = 20, 1e6, 0.5
@@ -406,8 +396,8 @@ def test_a_large_stiff_model_switches_where_implicit_steps_cost_less():
     ratio = float(res.method.split("radau's steps ")[1].split(" times")[0])
     assert TRIAL_RATIO_FACTORISED <= ratio < TRIAL_RATIO
     ref = _spring_chain_minimal(n, k, t1)
-    assert abs(res[f"b{n - 1}.x"][-1] - ref[0]) < 1e-5
-    assert abs(res[f"b{n - 1}.y"][-1] - ref[1]) < 1e-5
+    assert abs(res["tipx"][-1] - ref[0]) < 1e-5
+    assert abs(res["tipy"][-1] - ref[1]) < 1e-5
 
 
 def test_a_pair_counts_stiff_steps_afresh_once_its_detection_is_on_again():
@@ -442,8 +432,8 @@ def test_a_chain_stiff_enough_to_be_rigid_falls_as_one_bar():
     motion are singular", numpy's overflow warnings printed); the pair shortens its steps,
     the trial hands the run to radau, and the chain falls as the rigid bar it nearly is:
     phi'' = -(3 g / (2 n)) cos(phi) (I = n^3 / 3 about the pivot, its weight n at n / 2),
-    the last link's centre at (n - 1/2)(cos phi, sin phi), within 1e-6 m (the springs bend
-    it by about g n^2 / k, 2.5e-8 rad)."""
+    the free end at n (cos phi, sin phi), within 1e-6 m (the springs bend it by about
+    g n^2 / k, 2.5e-8 rad)."""
     import warnings
 
     from scipy.integrate import solve_ivp
@@ -457,5 +447,5 @@ def test_a_chain_stiff_enough_to_be_rigid_falls_as_one_bar():
     bar = solve_ivp(lambda t, y: [y[1], -1.5 * 9.81 / n * np.cos(y[0])], (0.0, t1),
                     [0.0, 0.0], method="DOP853", rtol=1e-12, atol=1e-14)
     phi = bar.y[0, -1]
-    assert abs(res[f"b{n - 1}.x"][-1] - (n - 0.5) * np.cos(phi)) < 1e-6
-    assert abs(res[f"b{n - 1}.y"][-1] - (n - 0.5) * np.sin(phi)) < 1e-6
+    assert abs(res["tipx"][-1] - n * np.cos(phi)) < 1e-6
+    assert abs(res["tipy"][-1] - n * np.sin(phi)) < 1e-6

@@ -131,10 +131,12 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
     ``on_interval(t_old, t_new, dense)`` with each accepted step's span and its dense
     output, before its outputs are emitted (a quadrature along the solution); a
     KeyboardInterrupt raised there or in the equations ends the integration
-    ("interrupted") with the outputs before it. A singular system (the equations raising numpy's LinAlgError) or a
-    step the stepper cannot take (a derivative that is not finite, a step size that
-    underflows) ends it "failed", the message saying where; so does ``max_steps`` steps,
-    accepted and rejected, before the end (reason "budget")."""
+    ("interrupted") with the outputs before it. A singular system (the equations raising
+    numpy's LinAlgError where the stepper does not take it for a rejected step: the
+    explicit pairs do at a stage) or a step the stepper cannot take (a derivative that is
+    not finite, a step size that underflows) ends it "failed", the message saying where;
+    so does ``max_steps`` steps, accepted and rejected, before the end (reason
+    "budget")."""
     project = getattr(equations, "project", None)
     settle = getattr(equations, "settle", None) or project
     t_eval = np.asarray(t_eval, dtype=float)
