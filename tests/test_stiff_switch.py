@@ -171,7 +171,7 @@ def test_a_resolved_oscillation_at_the_stability_boundary_keeps_its_pair():
     tolerance by vern9 at h rho near its stability boundary, which Hairer's test reads as
     stiffness; radau's steps there are no longer (it must follow the oscillation too), so
     the trial says no and the pair goes on: 4e-7 rad from the links' own equations. (Switched
-    without a trial, radau took 3.5 times vern9's time and ended 1.9e-4 rad off.)"""
+    without a trial, radau took 2.3 times vern9's time and ended 1.9e-4 rad off.)"""
     k = 1e4
     res = mechdsl.loads(_spring_fourbar(k)).simulate()
     assert res.ok, res.messages

@@ -32,10 +32,9 @@ and owns
     ``STIFF_STEPS`` steps in a row) and the rest of the span would take it more than
     :data:`STIFF_MIN_STEPS` steps; the typical step is the median of its last
     :data:`TRIAL_AFTER`, those the stability holds. A stiff spring's oscillation that the
-    pair resolves
-    to the tolerance holds h rho there too, and the implicit steps are then no longer: a
-    four-bar on a spring of 1e4 N/m went on with radau for 3.5 times vern9's time and 500
-    times its error. After a trial that says no, the detection pauses for
+    pair resolves to the tolerance holds h rho there too, and the implicit steps are then
+    no longer: a four-bar on a spring of 1e4 N/m went on with radau for 2.3 times vern9's
+    time and 500 times its error. After a trial that says no, the detection pauses for
     :data:`TRIAL_AFTER` accepted steps, twice as many after each further trial that ran
     and said no, and then counts ``STIFF_STEPS`` in a row afresh;
   - after :data:`TRIAL_AFTER` accepted steps, and again after pauses that double from
@@ -290,7 +289,7 @@ class _Watch:
             # tried first: a stiff spring's oscillation that the pair resolves to the
             # tolerance holds h rho at the stability boundary too, and there the implicit
             # stepper's steps are no longer (a four-bar on a spring of 1e4 N/m: radau took
-            # 3.5 times vern9's time for 500 times its error)
+            # 2.3 times vern9's time for 500 times its error)
             held = (f"{s.name}'s step held by stability: h rho = "
                     f"{getattr(s, 'h_rho', float('nan')):.3g} at "
                     f"{getattr(s, 'stiff_steps', 0)} steps in a row")

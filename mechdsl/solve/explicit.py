@@ -173,27 +173,25 @@ class RungeKutta(Stepper):
             h_min = 10 * np.spacing(abs(t))
             h = min(max(h, h_min), self.max_step, t_end - t)
             K[0] = fy
-            singular = None
-            try:
-                with np.errstate(over="ignore", invalid="ignore"):
+            singular, finite = None, False
+            with np.errstate(over="ignore", invalid="ignore"):  # (overflow: tested below)
+                try:
                     for s in range(1, stages):
                         K[s] = f(t + c[s] * h, y + h * (a[s] @ K[:s]))
                     y_new = y + h * (b @ K[:stages])
                     f_new = f(t + h, y_new)
-            except np.linalg.LinAlgError as exc:
-                # a stage the equations cannot be solved at: rejected and shortened, as a
-                # stage whose accelerations overflow is (a step far too long for a stiff
-                # spring throws its stages where nothing holds: a chain of 5 links on
-                # rotary springs of 1e10 N m/rad stopped at t0, "singular"); a state
-                # that is singular itself ends the run once the step underflows
-                singular = str(exc)
-            finite = False
-            if singular is None:
-                K[stages] = f_new
-                sc = self.atol_v + self.rtol * np.maximum(np.abs(y), np.abs(y_new))
-                with np.errstate(over="ignore", invalid="ignore"):
+                except np.linalg.LinAlgError as exc:
+                    # a stage the equations cannot be solved at: rejected and shortened, as
+                    # a stage whose accelerations overflow is (a step far too long for a
+                    # stiff spring throws its stages where nothing holds: a chain of 5
+                    # links on rotary springs of 1e10 N m/rad stopped at t0, "singular");
+                    # a state that is singular itself ends the run once the step underflows
+                    singular = str(exc)
+                if singular is None:
+                    K[stages] = f_new
+                    sc = self.atol_v + self.rtol * np.maximum(np.abs(y), np.abs(y_new))
                     err = error(K, h, sc)
-                finite = err < np.inf and np.isfinite(f_new).all()
+                    finite = err < np.inf and np.isfinite(f_new).all()
             if not finite:
                 err = np.inf
             if err <= 1.0:
