@@ -107,6 +107,8 @@ class Solution:
     nlu: int = 0
     #: (the implicit stepper's name, the time, why) where the run switched to it
     switched: tuple | None = None
+    #: what the last stepper says of its course (its ``note``, rule 5), None if nothing
+    note: str | None = None
 
 
 def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
@@ -160,7 +162,8 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             (s.naccepted, s.nrejected, s.nfev, s.njev, s.nlu)))
         counts = [int(c) for c in counts]
         return Solution(np.array(outs_t), np.array(outs_y).reshape(len(outs_t), n), status,
-                        message, *counts[:3], t, reason, *counts[3:], switched)
+                        message, *counts[:3], t, reason, *counts[3:], switched,
+                        None if s is None else getattr(s, "note", None))
 
     def budget() -> Solution:
         return done("failed", f"its budget of {max_steps:,} steps (accepted and rejected) "

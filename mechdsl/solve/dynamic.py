@@ -376,6 +376,8 @@ class DynamicRun(Run):
                 self.switches.append(
                     f"{name} from t = {at:.6g}{variant_label(sysm, v)}, where the model "
                     f"proved stiff ({why})")
+            if sol.note:
+                self.switches.append(f"{sol.note}{variant_label(sysm, v)}")
             if sol.status == "failed" and sol.reason != "budget" and equations is not self.ev:
                 # the dense index-1 solve needs Phi_q of full rank: a singular position
                 # met on the way (a parallelogram's collinear one) stops it. The variant is

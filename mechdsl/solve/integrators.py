@@ -13,7 +13,7 @@ their factorisations only when they first step.
 from __future__ import annotations
 
 from .explicit import Dop853, Dopri5, Vern9
-from .radau import RadauStepper
+from .relative import Radau
 from .stepper import Stepper
 
 #: Every integrator by its name, one line each.
@@ -21,7 +21,7 @@ INTEGRATORS: dict[str, type[Stepper]] = {
     Vern9.name: Vern9,
     Dop853.name: Dop853,
     Dopri5.name: Dopri5,
-    RadauStepper.name: RadauStepper,
+    Radau.name: Radau,
 }
 
 

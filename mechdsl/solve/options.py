@@ -68,6 +68,12 @@ class SolverOptions:
     #: (a span of 1e12 s, a tolerance nothing can meet) after 7 to 22 minutes (0.4 to 1.3
     #: ms a step on numpy) instead of never.
     max_steps: int = 1_000_000
+    #: Forward dynamics by radau: a model of at most this many coordinates is integrated in
+    #: relative coordinates (each body's frame in its parent's, :mod:`mechdsl.solve.relative`),
+    #: where a stiff force between jointed bodies keeps its direction and one Jacobian serves
+    #: many steps (the stiff pendulum at k = 1e8: 44 steps instead of 134); a larger one in
+    #: the absolute coordinates, whose matrices stay sparse. 0: always absolute.
+    relative_max: int = 30
     #: Forward dynamics: the BLAS threads while it integrates a model of at least
     #: ``augmented_band_from`` coordinates (:mod:`mechdsl.solve.threads`: its many small
     #: factorisations lose by more threads, most on a busy machine; a smaller model's are
@@ -233,6 +239,8 @@ class SolverOptions:
             from .integrators import validate  # the registry: the steppers' names
 
             validate(self.method)
+        if not (isinstance(self.relative_max, int) and self.relative_max >= 0):
+            raise ValueError(f"relative_max must be an integer >= 0, not {self.relative_max!r}")
         if not 0 < self.dopri5_from <= 1:
             raise ValueError(f"dopri5_from must be in (0, 1], not {self.dopri5_from!r}")
         if self.backend not in ("auto", "numpy", "compiled"):

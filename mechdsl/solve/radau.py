@@ -222,6 +222,7 @@ class RadauStepper(Stepper):
         self._mass_loads = getattr(equations, "mass_loads", None) or (
             lambda t_, q_, v_: (equations.mass(q_), equations.loads(t_, q_, v_)))
         self.index3_scaling = index3_scaling
+        self._error_map = getattr(equations, "error_map", None)
         self.curvature = curvature
         self.residual_tol = residual_tol
         self.max_newton_singular, self.singular_rate = max_newton_singular, singular_rate
@@ -230,26 +231,41 @@ class RadauStepper(Stepper):
         self._jac_current = True  # evaluated at the current state (not an older one)
         self._lu: tuple | None = None   # factorisations for the current h
         self._lu_h = 0.0
-        self._F0 = self._F(self.t, self.y, self.lam)
+        self._F0 = self._F(self.t, self.y, self.lam, start=True)
         self._Z: np.ndarray | None = None  # the last accepted step's stage increments
         self._h_prev: float | None = None
         self._err_prev: float | None = None
         self.h_abs = float(first_step) if first_step else self._first_step()
+
+    @property
+    def stagewise(self) -> bool:
+        """Whether its steps now take each stage's own Jacobian (the common one did not
+        converge: a stiff force whose direction turns over a step)."""
+        return self._stagewise
 
     # -- evaluations ------------------------------------------------------------------------
     def _multipliers(self, t: float, y: np.ndarray) -> np.ndarray:
         self.nfev += 1
         return np.asarray(self.equations.accelerations(t, y[:self.n], y[self.n:])[1], float)
 
-    def _F(self, t: float, y: np.ndarray, lam: np.ndarray, phi_jac: tuple | None = None
-           ) -> np.ndarray:
+    def _F(self, t: float, y: np.ndarray, lam: np.ndarray, phi_jac: tuple | None = None,
+           start: bool = False) -> np.ndarray:
         """F(t, z) = (v, Q - Phi_q^T lambda, Phi); ``phi_jac``: (Phi, Phi_q) at (t, q) where
-        the caller has them."""
+        the caller has them. ``start``: z is the next step's start, whose M(q) the error
+        estimate reads (``_M0``: from the same evaluation)."""
         eq, n = self.equations, self.n
         q, v = y[:n], y[n:2 * n]
         phi, G = phi_jac if phi_jac is not None else eq.phi_jac(t, q)
         self.nfev += 1
-        return np.concatenate((v, eq.loads(t, q, v) - G.T @ lam, phi))
+        if start:
+            # M at the step's start, not the Jacobian's (kept over many steps): where M
+            # varies with q (a body's frame off its centre of mass, relative coordinates)
+            # the error estimate with an older M rejected a step in four (module relative)
+            self._M0, load = self._mass_loads(t, q, v)
+            self._M0 = _mat(self._M0)
+        else:
+            load = eq.loads(t, q, v)
+        return np.concatenate((v, load - G.T @ lam, phi))
 
     def _first_step(self) -> float:
         """Hairer's starting step size (Solving ODEs I, sec. II.4) on the index-1 form."""
@@ -275,7 +291,7 @@ class RadauStepper(Stepper):
         if curv is None or not self.curvature:
             return dq
         h = curv(t, q, lam)
-        if not h.nnz:
+        if not (h.nnz if hasattr(h, "nnz") else h.any()):
             return dq
         if self.n + self.m <= DENSE_MAX:  # a few bodies: made dense for the LU anyway
             return dense(dq, (self.n, self.n)) - dense(h, (self.n, self.n))
@@ -390,6 +406,17 @@ class RadauStepper(Stepper):
         n = self.n
         s = np.concatenate((x[:n] / sc[:n], h * x[n:2 * n] / sc[n:]))
         return float(np.sqrt(np.mean(np.abs(s) ** 2)))
+
+    def _error_norm(self, y: np.ndarray, y_new: np.ndarray, err: np.ndarray, h: float
+                    ) -> float:
+        """The step's error estimate ``err`` in the norm of :meth:`_norm`, with sc_i = atol
+        scale_i + rtol max(|y_i|, |y_new_i|); where the equations integrate in coordinates
+        of their own (``error_map``: relative coordinates), in the model's coordinates,
+        which the tolerance is given for."""
+        if self._error_map is not None:
+            y, y_new, err = self._error_map(y, y_new, err)
+        sc = self._atol + self.rtol * np.maximum(np.abs(y), np.abs(y_new))
+        return self._norm(err, sc, self._hv(h))
 
     def _stage_weights(self, sc: np.ndarray, h: float) -> tuple:
         """The weights of :meth:`_norm_stages` and :meth:`_residual_norm` for one Newton
@@ -583,19 +610,19 @@ class RadauStepper(Stepper):
                 continue
             # the error estimate of RADAU5 with the mass matrix B0 = diag(I, M0, 0)
             ZE = _K["E"] @ Z / h
-            M0 = self._jac[0]
+            M0 = self._M0
             base = self._F0.copy()
             base[n:2 * n] += M0 @ ZE[n:2 * n]
             base[:n] += ZE[:n]
             err = self._solve(0, _K["mu_real"] / h, base)
             y_new = y + Z[2, :2 * n]
-            sc = self._atol + self.rtol * np.maximum(np.abs(y), np.abs(y_new))
-            err_norm = self._norm(err, sc, self._hv(h))
+            err_norm = self._error_norm(y, y_new, err, h)
             if err_norm > 1 and (rejected or self.naccepted == 0):
                 F1 = self._F(t, y + err[:2 * n], self.lam + err[2 * n:])
                 F1[n:2 * n] += M0 @ ZE[n:2 * n]
                 F1[:n] += ZE[:n]
-                err_norm = self._norm(self._solve(0, _K["mu_real"] / h, F1), sc, self._hv(h))
+                err_norm = self._error_norm(y, y_new, self._solve(0, _K["mu_real"] / h, F1),
+                                            h)
             if not np.isfinite(err_norm):
                 err_norm = np.inf
             fac = self.safety * (2 * self.max_newton + 1) / (2 * self.max_newton + k)
@@ -631,7 +658,7 @@ class RadauStepper(Stepper):
         self._Z, self._h_prev, self._err_prev = Z, h, err_norm
         self.h_abs = h * factor
         self.naccepted += 1
-        self._F0 = self._F(self.t, self.y, self.lam, phi_jac)
+        self._F0 = self._F(self.t, self.y, self.lam, phi_jac, start=True)
         self._jac_current = False
         if not self._stagewise and self._retrying:  # the common Jacobian held a step
             self._retry_every, self._retrying = self.stagewise_retry, False
@@ -702,4 +729,4 @@ class RadauStepper(Stepper):
         if moved:
             self.lam = self._multipliers(self.t, y)
             self._jac, self._lu = None, None
-        self._F0 = self._F(self.t, y, self.lam)
+        self._F0 = self._F(self.t, y, self.lam, start=True)

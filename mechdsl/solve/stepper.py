@@ -35,7 +35,8 @@ The rules a stepper keeps:
    step's tolerance, corrected by the equations' optional ``carry``.)
 5. **Counters**: ``nfev`` (evaluations of the equations of motion), ``njev`` (of their
    derivatives), ``nlu`` (factorisations), ``naccepted`` and ``nrejected`` steps; the driver
-   reads them for the budget and the run's summary.
+   reads them for the budget and the run's summary, and an optional ``note`` (a line for
+   the summary: what the stepper changed in its own course, None if nothing).
 6. **Class attributes**: ``name`` (what ``--method`` takes), ``order``, ``implicit`` (it
    uses the derivatives of the equations: stiff models), ``redundant`` (it integrates through
    redundant constraints and singular positions), ``summary``, one line for the command

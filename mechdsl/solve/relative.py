@@ -1,0 +1,476 @@
+"""Relative coordinates for the implicit integrator: each body's frame given in its parent's.
+
+Why. A stiff force between two jointed bodies (a spring along a slider, a rotary spring at a
+pin, a bushing) acts along a direction fixed in one body's frame. In the absolute
+coordinates q = (x_i, y_i, phi_i) of Haug's formulation that direction turns with the bodies:
+the Radau IIA stages of one step see the spring's stiffness k d d^T along directions d apart
+by omega h, no common iteration matrix contracts (the rate is about omega h sqrt(k / m)),
+and each stage needs its own Jacobian (:mod:`mechdsl.solve.radau_stages`). In relative
+coordinates the same direction is one coordinate's (the slider's travel, the pin's relative
+angle): one Jacobian serves many steps, as it does on the minimal ODE (the stiff pendulum at
+k = 1e8, rtol 1e-6: 134 steps with 393 stage Jacobians in absolute coordinates, 44 steps on
+one Jacobian in relative ones; docs/dynamics.md).
+
+The coordinates. Every moving body i has a parent p(i): the ground or a body it is jointed
+to (:func:`forest`: a spanning forest of the joints and drives, a joint that a force element
+spans preferred). Its coordinates z_i = (s_i, rho_i) are its frame's position and angle in
+the parent's frame,
+
+    r_i = r_p + A(phi_p) s_i,     phi_i = phi_p + rho_i,
+
+(z_i = q_i where the parent is the ground). This is a change of variables q = g(z), one to
+one, whatever the forest: every constraint is kept, the joints along the forest's edges
+included (theirs become simple: a pin at the parent's frame origin fixes s_i), and the loops'
+closures too. With G = dg/dz (lower triangular by bodies in the forest's order),
+
+    qd = G zd,    qdd = G zdd + c,    c_i = c_p - phi_p'^2 d_i + 2 phi_p' B(phi_p) s_i'
+
+(d_i = A(phi_p) s_i, B = dA/dphi, c = 0 for a body on the ground), Haug's equations of motion
+become, multiplying the force balance by G^T,
+
+    G^T M G zdd + (Phi_q G)^T lambda = G^T (Q - M c),    Phi(g(z), t) = 0,
+    Phi_q G zdd = gamma - Phi_q c,
+
+with the same multipliers lambda (the reactions are those of the absolute coordinates).
+
+The iteration matrix. The Newton iteration of the implicit stages needs d/dz and d/dzd of
+the loads G^T (Q - M c) - (Phi_q G)^T lambda; this module gives G^T (dQ/dq) G, G^T (dQ/dqd)
+G and the constraints' curvature G^T (Phi_q^T lambda)_q G: the loads' exact derivatives
+(from the traced loads, as in absolute coordinates), which hold every stiff term. The terms
+from the derivatives of G and c themselves are left out: they scale with the loads and the
+velocities squared, not with a stiffness, so that the simplified Newton iteration contracts
+without them (it converges to the same stages; only its rate depends on the matrix), and the
+error estimate is of the converged stages.
+
+The integrator in these coordinates is :class:`mechdsl.solve.radau.RadauStepper`, unchanged;
+:class:`Radau` (the registry's ``radau``) runs it on :class:`Relative` where the model has at
+most ``SolverOptions.relative_max`` coordinates (G and G^T M G are dense) and states every
+step's end, dense output and restart in absolute coordinates, so that the driver, the
+projections at the outputs and the results see the model's own coordinates.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import numpy as np
+
+from .radau import RadauStepper
+from .stepper import Equations, Stepper
+
+__all__ = ["Radau", "Relative", "forest"]
+
+
+def forest(system, forces: tuple = ()) -> np.ndarray:
+    """The parent of each moving body (its index, -1 for the ground): a spanning forest of
+    the graph whose edges are the joints and drives between two bodies (a body that no
+    joint ties to another hangs from the ground). Bodies are added in breadth-first order
+    from the ground; among the edges that reach a new body, one that a force element also
+    spans comes first (its force then acts along the relative coordinates), then the
+    constraints' order. Any forest gives a valid change of coordinates; this one makes the
+    joints' own coordinates relative ones."""
+    names = {name: i for i, name in enumerate(system.body_names)}
+
+    def ends(bodies) -> tuple[int, ...]:
+        # the ground (every name that is not a moving body's) as -1
+        return tuple(sorted({names.get(b, -1) for b in bodies}))
+
+    edges = [e for e in (ends(c.bodies) for c in system.constraints) if len(e) == 2]
+    spanned = {ends(f) for f in forces if len(ends(f)) == 2}
+    ranked = [e for e in edges if e in spanned] + [e for e in edges if e not in spanned]
+    parent = np.full(len(names), -2)
+    placed, frontier = {-1}, [-1]
+    while frontier:
+        nxt = []
+        for edge in ranked:
+            a, b = edge
+            for here, there in ((a, b), (b, a)):
+                if here in frontier and there not in placed:
+                    parent[there] = here
+                    placed.add(there)
+                    nxt.append(there)
+        frontier = nxt
+    parent[parent == -2] = -1  # free bodies, and bodies tied to each other only by loads
+    return parent
+
+
+class Relative:
+    """Haug's equations of motion of a mechanism (``base``, in absolute coordinates) in the
+    relative coordinates z of the module docstring, on the forest ``parent``; the
+    :class:`~mechdsl.solve.stepper.Equations` protocol's index-3 terms, dense.
+
+    One evaluation of g, G and c serves the calls at one state (the stages ask for Phi,
+    Phi_q, M and Q at the same z in turn)."""
+
+    def __init__(self, base: Equations, parent: np.ndarray) -> None:
+        self.base = base
+        self.n, self.m = int(base.n), int(base.m)
+        self.parent = [int(p) for p in parent]
+        # parents before children
+        order: list[int] = []
+        placed = {-1}
+        while len(order) < len(self.parent):
+            grown = [i for i, p in enumerate(self.parent) if i not in placed and p in placed]
+            if not grown:
+                raise ValueError("the parents do not form a forest")
+            order += grown
+            placed.update(grown)
+        self.order = order
+        self._key: bytes | None = None
+        self._q = self._G = None
+        self._rates_key: bytes | None = None
+        self._qd = self._c = self._H = None
+
+    # -- the map ----------------------------------------------------------------------------
+    def _map(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """q = g(z) and G = dg/dz (n, n), kept for the next call at the same z. Body by
+        body, parents first: G's rows of body i are its parent's, plus the turn of d_i with
+        phi_p (dr_i/dphi_p = S d_i, S the rotation by a right angle), plus A(phi_p) on s_i
+        and 1 on rho_i. (A loop over the bodies: 5 us for two bodies, 18 for five, 80 for
+        twenty; numpy's array expressions cost 20 us at any of these sizes.)"""
+        key = z.tobytes()
+        if key == self._key:
+            return self._q, self._G
+        zl = z.tolist()
+        q = zl[:]
+        G = np.zeros((self.n, self.n))
+        for i in self.order:
+            p, k = self.parent[i], 3 * i
+            if p < 0:
+                G[k, k] = G[k + 1, k + 1] = G[k + 2, k + 2] = 1.0
+                continue
+            j = 3 * p
+            sx, sy = zl[k], zl[k + 1]
+            phi = q[j + 2]
+            c, s = math.cos(phi), math.sin(phi)
+            dx, dy = c * sx - s * sy, s * sx + c * sy  # d_i = A(phi_p) s_i
+            q[k], q[k + 1], q[k + 2] = q[j] + dx, q[j + 1] + dy, phi + zl[k + 2]
+            G[k:k + 3] = G[j:j + 3]
+            G[k] -= dy * G[j + 2]
+            G[k + 1] += dx * G[j + 2]
+            G[k, k], G[k, k + 1], G[k + 1, k], G[k + 1, k + 1], G[k + 2, k + 2] = c, -s, s, c, 1.0
+        out = np.array(q)
+        self._key, self._q, self._G = key, out, G
+        return out, G
+
+    def _rates(self, z: np.ndarray, zd: np.ndarray, with_h: bool = False
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """qd = G zd, the convective term c = qdd at zdd = 0 and, ``with_h``, H = dG/dt =
+        d(G zd)/dz (n, n; G's second derivatives are symmetric, and c = H zd), kept for the
+        next call at the same state. Body by body, with w = phi_p' and d_i = r_i - r_p:
+
+            qd_i = qd_p + w S d_i + A s_i',   c_i = c_p - w^2 d_i + 2 w S A s_i',
+
+        and H's rows of body i are its parent's, plus (-w d_i + S A s_i') times phi_p's row
+        of G, plus w S A on s_i (the Jacobian's velocity terms only need H)."""
+        key = z.tobytes() + zd.tobytes()
+        if key == self._rates_key and (self._H is not None or not with_h):
+            return self._qd, self._c, self._H
+        q, G = self._map(z)
+        ql, zdl = q.tolist(), zd.tolist()
+        qd, c_out = zdl[:], [0.0] * self.n
+        H = np.zeros((self.n, self.n)) if with_h else None
+        for i in self.order:
+            p, k = self.parent[i], 3 * i
+            if p < 0:
+                continue
+            j = 3 * p
+            w = qd[j + 2]
+            dx, dy = ql[k] - ql[j], ql[k + 1] - ql[j + 1]
+            c, s = math.cos(ql[j + 2]), math.sin(ql[j + 2])
+            ax, ay = c * zdl[k] - s * zdl[k + 1], s * zdl[k] + c * zdl[k + 1]  # A s_i'
+            qd[k] = qd[j] - w * dy + ax
+            qd[k + 1] = qd[j + 1] + w * dx + ay
+            qd[k + 2] = w + zdl[k + 2]
+            c_out[k] = c_out[j] - w * w * dx - 2 * w * ay
+            c_out[k + 1] = c_out[j + 1] - w * w * dy + 2 * w * ax
+            if H is not None:
+                H[k:k + 2] = H[j:j + 2]
+                H[k] += (-w * dx - ay) * G[j + 2]
+                H[k + 1] += (-w * dy + ax) * G[j + 2]
+                H[k, k] -= w * s
+                H[k, k + 1] -= w * c
+                H[k + 1, k] += w * c
+                H[k + 1, k + 1] -= w * s
+        self._rates_key, self._qd, self._c, self._H = key, np.array(qd), np.array(c_out), H
+        return self._qd, self._c, H
+
+    def absolute(self, y: np.ndarray) -> np.ndarray:
+        """(q, qd) of the state (z, zd)."""
+        n = self.n
+        q, _ = self._map(y[:n])
+        return np.concatenate((q, self._rates(y[:n], y[n:2 * n])[0]))
+
+    def relative(self, y: np.ndarray) -> np.ndarray:
+        """(z, zd) of the state (q, qd): s_i = A(phi_p)^T (r_i - r_p), rho_i = phi_i - phi_p,
+        and zd from qd = G zd (G is invertible: block triangular, rotations on its
+        diagonal)."""
+        n = self.n
+        q = np.asarray(y[:n], dtype=float).tolist()
+        z = q[:]
+        for i in self.order:
+            p, k = self.parent[i], 3 * i
+            if p < 0:
+                continue
+            j = 3 * p
+            c, s = math.cos(q[j + 2]), math.sin(q[j + 2])
+            dx, dy = q[k] - q[j], q[k + 1] - q[j + 1]
+            z[k], z[k + 1], z[k + 2] = c * dx + s * dy, -s * dx + c * dy, q[k + 2] - q[j + 2]
+        z = np.array(z)
+        _, G = self._map(z)
+        return np.concatenate((z, np.linalg.solve(G, y[n:2 * n])))
+
+    def error_map(self, y: np.ndarray, y_new: np.ndarray, err: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A step's start, end and error estimate (z, zd parts) in absolute coordinates,
+        where the tolerance is given: the error by G at the end, dq = G dz, dqd = G dzd
+        (the term dG/dz dz zd, of the error's order times the speed, left out). In relative
+        coordinates themselves a stiff joint's coordinate stays near zero and its tolerance,
+        relative to it, near atol alone: the chain of 20 links on stiff springs took twice
+        the steps of the absolute coordinates."""
+        n = self.n
+        start = self.absolute(y)
+        end = self.absolute(y_new)  # (its G kept: the error's map)
+        G = self._G
+        out = np.concatenate((G @ err[:n], G @ err[n:2 * n], err[2 * n:]))
+        return start, end, out
+
+    def _state(self, z: np.ndarray, zd: np.ndarray, with_h: bool = False):
+        """q, G, qd, H (``with_h``, else None) and c at (z, zd)."""
+        q, G = self._map(z)
+        qd, c, H = self._rates(z, zd, with_h)
+        return q, G, qd, H, c
+
+    @staticmethod
+    def _dense(a) -> np.ndarray:
+        return a.toarray() if hasattr(a, "toarray") else np.asarray(a, dtype=float)
+
+    # -- the Equations protocol -------------------------------------------------------------
+    def phi_jac(self, t: float, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Phi(g(z), t) and Phi_q G."""
+        q, G = self._map(z)
+        phi, jac = self.base.phi_jac(t, q)
+        return phi, self._dense(jac) @ G
+
+    def nu(self, t: float) -> np.ndarray:
+        """nu (the same: Phi_q G zd = Phi_q qd)."""
+        return self.base.nu(t)
+
+    def gamma(self, t: float, z: np.ndarray, zd: np.ndarray) -> np.ndarray:
+        """gamma - Phi_q c."""
+        q, G, qd, _, c = self._state(z, zd)
+        _, jac = self.base.phi_jac(t, q)
+        return self.base.gamma(t, q, qd) - self._dense(jac) @ c
+
+    def mass(self, z: np.ndarray) -> np.ndarray:
+        """G^T M G."""
+        q, G = self._map(z)
+        return G.T @ self._dense(self.base.mass(q)) @ G
+
+    def mass_loads(self, t: float, z: np.ndarray, zd: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """G^T M G and G^T (Q - M c), from one evaluation of the base's M and Q."""
+        q, G, qd, _, c = self._state(z, zd)
+        M, Q = self.base.mass_loads(t, q, qd)
+        M = self._dense(M)
+        return G.T @ M @ G, G.T @ (Q - M @ c)
+
+    def loads(self, t: float, z: np.ndarray, zd: np.ndarray) -> np.ndarray:
+        """G^T (Q - M c)."""
+        return self.mass_loads(t, z, zd)[1]
+
+    def load_derivatives(self, t: float, z: np.ndarray, zd: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """d/dz and d/dzd of G^T (Q - M c), the terms of the module docstring:
+        G^T (Q_q G + Q_qd H) and G^T (Q_qd G - 2 M H) (qd = G zd depends on z through H,
+        and c = H zd on zd through 2 H)."""
+        q, G, qd, H, _ = self._state(z, zd, with_h=True)
+        dq, dv = self.base.load_derivatives(t, q, qd)
+        dv = self._dense(dv)
+        M = self._dense(self.base.mass(q))
+        return (G.T @ (self._dense(dq) @ G + dv @ H),
+                G.T @ (dv @ G - 2.0 * (M @ H)))
+
+    def constraint_curvature(self, t: float, z: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """G^T (Phi_q^T lambda)_q G (the base's exact curvature; zeros where it has none)."""
+        curv = getattr(self.base, "constraint_curvature", None)
+        if curv is None:
+            return np.zeros((self.n, self.n))
+        q, G = self._map(z)
+        return G.T @ self._dense(curv(t, q, lam)) @ G
+
+    def accelerations(self, t: float, z: np.ndarray, zd: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """zdd = G^-1 (qdd - c) and lambda, from the base's qdd and lambda."""
+        q, G, qd, _, c = self._state(z, zd)
+        qdd, lam = self.base.accelerations(t, q, qd)
+        return np.linalg.solve(G, qdd - c), lam
+
+    def rhs(self, t: float, y: np.ndarray) -> np.ndarray:
+        """(zd, zdd)."""
+        n = self.n
+        return np.concatenate((y[n:2 * n], self.accelerations(t, y[:n], y[n:2 * n])[0]))
+
+
+#: The relative coordinates are kept where their first RELATIVE_TRIAL steps are at least
+#: RELATIVE_GAIN times as long (medians) as the absolute ones' last before the change (at
+#: most the last ten): each evaluation costs more there (the map, dense G^T M G), which
+#: longer steps must repay. Measured (rtol 1e-6, median steps): the stiff pendulum at
+#: k = 1e8, 0.0066 s before and 0.030 after (kept: 134 steps -> 60, 120 -> 80 ms); a
+#: four-bar carrying a bob on a stiff slider spring (k = 1e10) turning at 8 rad/s, 0.0062
+#: and 0.0079 (back to absolute: its steps are held by the motion's accuracy, and relative
+#: coordinates cost it 250 -> 390 ms).
+RELATIVE_TRIAL = 8
+RELATIVE_GAIN = 2.0
+
+
+class Radau(Stepper):
+    """The registry's ``radau``: :class:`~mechdsl.solve.radau.RadauStepper` in the model's
+    own (absolute) coordinates, going on in relative coordinates (:class:`Relative`) from
+    the first step after one whose stages needed their own Jacobians (a stiff force whose
+    direction turns: the module docstring) where the model has at most ``relative_max``
+    coordinates (``SolverOptions``, read from the equations' options), and keeping them
+    where their steps are longer by far (:data:`RELATIVE_GAIN`), else going back for the
+    rest of the run. A stiff force whose direction does not turn with the bodies (a rotary
+    spring at a pin) keeps one Jacobian in absolute coordinates, where each evaluation
+    costs less. Its state, dense output and restart are in absolute coordinates; its
+    counters sum every part."""
+
+    name = RadauStepper.name
+    order = RadauStepper.order
+    implicit = RadauStepper.implicit
+    redundant = RadauStepper.redundant
+    summary = RadauStepper.summary
+    auto = RadauStepper.auto
+    constrained = RadauStepper.constrained
+
+    def __init__(self, equations: Equations, t0: float, y0: np.ndarray, t_bound: float, *,
+                 rtol: float, atol: float, scale: np.ndarray,
+                 first_step: float | None = None, **options) -> None:
+        self.equations, self.rtol, self.atol, self.scale = equations, rtol, atol, scale
+        self._options = options
+        opts = getattr(equations, "opts", None)
+        limit = getattr(opts, "relative_max", 0) if opts is not None else 0
+        #: where the run went on in relative coordinates (t), and where it went back to
+        #: absolute ones (None while it has not)
+        self.relative_from: float | None = None
+        self.relative_until: float | None = None
+        self.relative: Relative | None = None
+        self._may_turn = (getattr(equations, "system", None) is not None
+                          and 0 < int(equations.n) <= limit)
+        self._before = np.zeros(5, dtype=int)  # the counters of the parts before
+        self._steps: list[float] = []  # the last step sizes (absolute, then relative)
+        self._gain = 0.0
+        self.inner = RadauStepper(equations, t0, y0, t_bound, rtol=rtol, atol=atol,
+                                  scale=scale, first_step=first_step, **options)
+
+    def _go_on(self, equations: Equations, y: np.ndarray) -> None:
+        """A new inner stepper on ``equations`` from the inner stepper's time, with y in
+        their coordinates (its step size, budget and limits kept)."""
+        old = self.inner
+        new = RadauStepper(equations, old.t, y, old.t_bound, rtol=self.rtol, atol=self.atol,
+                           scale=self.scale, first_step=old.h_abs, **self._options)
+        self._before += [old.nfev, old.njev, old.nlu, old.naccepted, old.nrejected]
+        new.max_step = old.max_step
+        new.max_attempts = old.max_attempts - old.attempts
+        self.inner = new
+
+    def _to_relative(self) -> None:
+        eq = self.equations
+        dynamics = getattr(getattr(eq, "kernels", None), "dynamics", None)
+        forces = tuple(f.bodies for f in getattr(dynamics, "forces", ()))
+        rel = Relative(eq, forest(eq.system, forces))
+        t, y = self.inner.t, self.inner.y
+        self._go_on(rel, rel.relative(y))
+        self.relative, self.relative_from = rel, t
+        self._before_steps, self._steps = self._steps[-10:], []
+
+    def _to_absolute(self) -> None:
+        t, y = self.inner.t, self.relative.absolute(self.inner.y)
+        self._go_on(self.equations, y)
+        self.relative, self.relative_until, self._may_turn = None, t, False
+
+    @property
+    def note(self) -> str | None:
+        """Rule 5: where the run went on in relative coordinates, and why."""
+        if self.relative_from is None:
+            return None
+        if self.relative_until is not None:
+            return (f"radau tried relative coordinates from t = {self.relative_from:.6g} to "
+                    f"{self.relative_until:.6g} (a stiff force turned with the bodies), whose "
+                    f"steps were {self._gain:.3g} times as long, under {RELATIVE_GAIN:g}: "
+                    "absolute ones kept")
+        return (f"radau in relative coordinates from t = {self.relative_from:.6g}, where a "
+                f"stiff force turned with the bodies (steps {self._gain:.3g} times as long)")
+
+    def _absolute(self, y: np.ndarray) -> np.ndarray:
+        return y if self.relative is None else self.relative.absolute(y)
+
+    # what the driver reads and sets on the stepper it was given
+    t = property(lambda self: self.inner.t)
+    t_old = property(lambda self: self.inner.t_old)
+    y = property(lambda self: self._absolute(self.inner.y))
+    y_old = property(lambda self: self._absolute(self.inner.y_old))
+    t_bound = property(lambda self: self.inner.t_bound)
+    h_abs = property(lambda self: self.inner.h_abs)
+    nfev = property(lambda self: int(self._before[0]) + self.inner.nfev)
+    njev = property(lambda self: int(self._before[1]) + self.inner.njev)
+    nlu = property(lambda self: int(self._before[2]) + self.inner.nlu)
+    naccepted = property(lambda self: int(self._before[3]) + self.inner.naccepted)
+    nrejected = property(lambda self: int(self._before[4]) + self.inner.nrejected)
+
+    @property
+    def max_step(self) -> float:
+        return self.inner.max_step
+
+    @max_step.setter
+    def max_step(self, value: float) -> None:
+        self.inner.max_step = value
+
+    @property
+    def max_attempts(self) -> float:
+        return int(self._before[3] + self._before[4]) + self.inner.max_attempts
+
+    @max_attempts.setter
+    def max_attempts(self, value: float) -> None:
+        self.inner.max_attempts = value - int(self._before[3] + self._before[4])
+
+    def step(self) -> str | None:
+        """Rule 2 (the inner stepper's step; first the change of coordinates where the last
+        step needed the stages' own Jacobians, or back where relative ones do not pay)."""
+        # (between steps, never after one: the driver asks for the last step's dense
+        # output, which is the stepper's that took it)
+        if self.relative is None and self._may_turn and self.inner.stagewise:
+            self._to_relative()
+        elif self.relative is not None and self._gain and self._gain < RELATIVE_GAIN:
+            self._to_absolute()
+        t0 = self.inner.t
+        message = self.inner.step()
+        if message is None:
+            self._steps.append(self.inner.t - t0)
+            if self.relative is None:
+                del self._steps[:-10]
+            elif len(self._steps) == RELATIVE_TRIAL:
+                before = float(np.median(self._before_steps)) if self._before_steps else 0.0
+                self._gain = float(np.median(self._steps)) / before if before > 0 else np.inf
+        return message
+
+    def dense_output(self) -> Callable[[float], np.ndarray]:
+        """Rule 3: the inner stepper's collocation polynomial, as (q, qd)."""
+        u = self.inner.dense_output()
+        if self.relative is None:
+            return u
+        rel = self.relative
+
+        def absolute(t):
+            y = np.asarray(u(t))
+            if y.ndim == 1:
+                return rel.absolute(y)
+            return np.stack([rel.absolute(col) for col in y.T], axis=1)
+        return absolute
+
+    def restart(self, y: np.ndarray) -> None:
+        """Rule 4, the state given in absolute coordinates."""
+        y = np.asarray(y, dtype=float)
+        self.inner.restart(y if self.relative is None else self.relative.relative(y))

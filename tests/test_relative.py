@@ -1,0 +1,156 @@
+"""Relative coordinates for radau (mechdsl.solve.relative): the map and its derivatives
+against finite differences, the transformed equations against the absolute ones' solution,
+the forest, and the runs that go on in them (the stiff pendulum: against its minimal ODE) or
+go back (a fast loop: against its energy)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import mechdsl
+from mechdsl.solve.motion import Motion
+from mechdsl.solve.options import SolverOptions
+from mechdsl.solve.relative import RELATIVE_GAIN, Relative, forest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import dynamics_models as dm  # noqa: E402
+
+
+class _Shape:
+    """A base with n coordinates and no equations (the map alone)."""
+
+    def __init__(self, n: int) -> None:
+        self.n, self.m = n, 0
+
+
+def _loop_text(k: float, t1: float = 2.0, rate: float = 8.0) -> str:
+    """A four-bar turning at ``rate`` rad/s whose coupler carries a bob on a slider with a
+    spring of stiffness k along it (its rest length at t0, no rate along it)."""
+    return f"""
+gravity = (0, -9.81)
+ground {{ point A = (0, 0)  point D = (3, 0) }}
+body crank {{ guess = (0, 0, 1.2)  point A = (0, 0)  point B = (1, 0)  mass = 1  inertia = 0.1  centroid = (0.5, 0) }}
+body coupler {{ guess = (0.4, 0.9, 0)  point B = (0, 0)  point C = (3, 0)  mass = 2  inertia = 1.5  centroid = (1.5, 0) }}
+body rocker {{ guess = (3, 0, 1.5)  point D = (0, 0)  point C = (2.5, 0)  mass = 1.5  inertia = 0.8  centroid = (1.25, 0) }}
+body bob {{ guess = (1.5, 1, 0)  mass = 0.5  inertia = 0.01 }}
+joint A: revolute(ground.A, crank.A)
+joint B: revolute(crank.B, coupler.B)
+joint C: revolute(coupler.C, rocker.C)
+joint D: revolute(ground.D, rocker.D)
+joint slide: prismatic(coupler.B, bob.origin, axis = (1, 0))
+force spring: spring(coupler.B, bob.origin, k = {k!r}, length = 1.5)
+initial start: angle(crank) = 1.2, rate = {rate!r}
+initial put: distance(coupler.B, bob.origin) = 1.5, rate = 0
+simulate t = 0 .. {t1} step 0.01, rtol = 1e-6, atol = 1e-8
+output kinetic_energy, potential_energy
+"""
+
+
+def _fd(f, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    """Central differences of f at x, column by column."""
+    return np.column_stack([(f(x + h * e) - f(x - h * e)) / (2 * h) for e in np.eye(x.size)])
+
+
+def test_the_map_its_derivatives_and_the_convective_term_match_finite_differences():
+    # a branching forest: 0 on the ground, 1 and 3 on 0, 2 on 1
+    rel = Relative(_Shape(12), np.array([-1, 0, 1, 0]))
+    rng = np.random.default_rng(1)
+    z, zd = rng.normal(size=12), rng.normal(size=12)
+    _, G = rel._map(z)
+    G = G.copy()
+    assert np.abs(G - _fd(lambda x: rel._map(x)[0].copy(), z)).max() < 1e-8
+    qd, c, H = (a.copy() for a in rel._rates(z, zd, with_h=True))
+    assert np.abs(qd - G @ zd).max() < 1e-14
+    assert np.abs(H - _fd(lambda x: rel._rates(x, zd)[0].copy(), z)).max() < 1e-8
+    # c = dG/dt zd: G's derivative along zd, by differences
+    dG = (rel._map(z + 1e-6 * zd)[1].copy() - rel._map(z - 1e-6 * zd)[1].copy()) / 2e-6
+    assert np.abs(c - dG @ zd).max() < 1e-8
+    y = np.concatenate((z, zd))
+    assert np.abs(rel.relative(rel.absolute(y)) - y).max() < 1e-14
+
+
+def _loop_motion(k: float = 1e10):
+    kernels = mechdsl.loads(_loop_text(k), "loop.mech").compile()
+    motion = Motion(kernels, SolverOptions())
+    forces = tuple(f.bodies for f in kernels.dynamics.forces)
+    return kernels, motion, forest(kernels.system, forces)
+
+
+def test_the_forest_hangs_the_bob_from_the_body_its_spring_pulls():
+    kernels, _, parent = _loop_motion()
+    names = kernels.system.body_names
+    index = {name: i for i, name in enumerate(names)}
+    # crank and rocker from the ground, the coupler from the crank, the bob from the
+    # coupler, whose slider its spring spans (not from anything else)
+    assert parent[index["crank"]] == -1 and parent[index["rocker"]] == -1
+    assert parent[index["coupler"]] == index["crank"]
+    assert parent[index["bob"]] == index["coupler"]
+
+
+def test_the_transformed_equations_hold_at_the_absolute_solution():
+    """At a consistent state: G zdd + c = qdd and the same multipliers, so that the
+    relative force balance G^T M G zdd + (Phi_q G)^T lambda = G^T (Q - M c) and
+    Phi_q G zdd = gamma - Phi_q c hold with the absolute coordinates' qdd and lambda; the
+    velocity derivative of the loads is exact (differences), and the position derivative
+    holds the spring's stiffness."""
+    kernels, motion, parent = _loop_motion(1e6)
+    rel = Relative(motion, parent)
+    q = kernels.system.guess[0]
+    y = motion.project(0.0, np.concatenate((q, np.random.default_rng(2).normal(size=q.size))))
+    n = motion.n
+    qdd, lam = motion.accelerations(0.0, y[:n], y[n:])
+    yr = rel.relative(y)
+    z, zd = yr[:n], yr[n:]
+    zdd, lam_r = rel.accelerations(0.0, z, zd)
+    _, G, _, _, c = rel._state(z, zd)
+    assert np.abs(G @ zdd + c - qdd).max() < 1e-9 * (1 + np.abs(qdd).max())
+    assert np.abs(lam_r - lam).max() < 1e-9 * (1 + np.abs(lam).max())
+    Mz, Qz = rel.mass_loads(0.0, z, zd)
+    _, jz = rel.phi_jac(0.0, z)
+    balance = Mz @ zdd + jz.T @ lam - Qz
+    assert np.abs(balance).max() < 1e-9 * (np.abs(Qz).max() + np.abs(jz.T @ lam).max())
+    assert np.abs(jz @ zdd - rel.gamma(0.0, z, zd)).max() < 1e-8
+    dq, dv = rel.load_derivatives(0.0, z, zd)
+    # (the loads are quadratic in zd: central differences are exact but for round-off,
+    # least at a long step)
+    assert np.abs(dv - _fd(lambda v: rel.loads(0.0, z, v), zd, 1e-3)).max() < 1e-6
+    bob = 3 * kernels.system.body_names.index("bob")
+    along = _fd(lambda x: rel.loads(0.0, x, zd), z)[bob, bob]  # the slider's coordinate
+    assert dq[bob, bob] == pytest.approx(along, rel=1e-6) and along < -0.9e6
+
+
+def test_the_stiff_pendulum_goes_on_in_relative_coordinates_in_half_the_steps():
+    """k = 1e8: the spring turns with the rod; in absolute coordinates radau's stages need
+    their own Jacobians and it takes 139 attempts, in relative ones 73 (within 1e-6 rad
+    of the minimal ODE, as in absolute coordinates): a budget of 100 is enough for one
+    and not for the other."""
+    k = 1e8
+    text = dm.stiff_pendulum_text(k)
+    res = mechdsl.loads(text).simulate(options=SolverOptions(method="radau", max_steps=100))
+    assert res.ok, res.messages
+    assert "radau in relative coordinates from t = " in res.method, res.method
+    ref = dm.stiff_pendulum_oracle(k)
+    assert abs(res["theta"][-1] - ref[0]) < 1e-6
+    assert abs(res["s"][-1] - ref[1]) < 1e-6
+    absolute = mechdsl.loads(text).simulate(
+        options=SolverOptions(method="radau", max_steps=100, relative_max=0))
+    assert not absolute.ok and "budget" in " ".join(absolute.messages)
+
+
+def test_a_fast_loop_tries_relative_coordinates_and_goes_back():
+    """The four-bar turning at 8 rad/s with its stiff slider spring: radau's steps are held
+    by the motion's accuracy in either coordinates; the relative ones' are not
+    RELATIVE_GAIN times longer and the run goes back. Its energy T + V within 1e-5 of its
+    start over 0.5 s (conservative: no damper), the constraints to 1e-10."""
+    res = mechdsl.loads(_loop_text(1e10, t1=0.5), "loop.mech").simulate(
+        options=SolverOptions(method="radau"))
+    assert res.ok, res.messages
+    assert "absolute ones kept" in res.method, res.method
+    assert f"under {RELATIVE_GAIN:g}" in res.method
+    energy = res.data["kinetic_energy"][0] + res.data["potential_energy"][0]
+    assert np.abs(energy - energy[0]).max() < 1e-5 * abs(energy[0])
+    assert res.residual < 1e-10
