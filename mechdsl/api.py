@@ -296,7 +296,7 @@ class Mechanism:
         command line gives for the same mistake (see
         :func:`mechdsl.compiled.compile.check_structure`). :func:`load` and :func:`loads`
         call it."""
-        check_structure(self.model, self.registry)
+        check_structure(self.model, self.registry, self._compiled.memo)
 
     def check(self, overrides: Overrides | None = None) -> CheckReport:
         """Compile (with ``overrides``) and check the mechanism as ``mechdsl check`` does:

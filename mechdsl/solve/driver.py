@@ -118,8 +118,8 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
               on_output: Callable[[int, float, np.ndarray], None] | None = None,
               on_step: Callable[[float, int], None] | None = None,
               stiff: tuple[type[Stepper], Callable[[], Equations]] | None = None,
-              on_interval: Callable[[float, float, Callable], None] | None = None
-              ) -> Solution:
+              on_interval: Callable[[float, float, Callable], None] | None = None,
+              raw_outputs: bool = False) -> Solution:
     """Integrate y' = equations.rhs(t, y) from ``y0`` at ``t_eval[0]`` to ``t_eval[-1]``
     by steps of ``stepper``, returning the state at every instant of ``t_eval``
     (increasing). ``atol`` (times ``scale``, per component, if given) and ``rtol`` bound
@@ -132,7 +132,12 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
     ``on_interval(t_old, t_new, dense)`` with each accepted step's span and its dense
     output, before its outputs are emitted (a quadrature along the solution); a
     KeyboardInterrupt raised there or in the equations ends the integration
-    ("interrupted") with the outputs before it. A singular system (the equations raising
+    ("interrupted") with the outputs before it. ``raw_outputs``: the outputs that do not
+    feed back into the integration (those inside a step, and a constrained stepper's at a
+    step's end) are given to ``on_output(k, t, y, raw)`` as the dense output or the stepper
+    gives them, ``raw`` True, for the caller to project (all at once:
+    :mod:`mechdsl.solve.instants`); the others are projected here, ``raw`` False. A singular
+    system (the equations raising
     numpy's LinAlgError where the stepper does not take it for a rejected step: the
     explicit pairs do at a stage) or a step the stepper cannot take (a derivative that is
     not finite, a step size that underflows) ends it "failed", the message saying where;
@@ -148,11 +153,21 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
     outs_y: list[np.ndarray] = []
     s: Stepper | None = None
 
-    def emit(k: int, tt: float, yy: np.ndarray) -> None:
+    def emit(k: int, tt: float, yy: np.ndarray, raw: bool = False) -> None:
         outs_t.append(tt)
         outs_y.append(yy)
         if on_output is not None:
-            on_output(k, tt, yy)
+            if raw_outputs:
+                on_output(k, tt, yy, raw)
+            else:
+                on_output(k, tt, yy)
+
+    def emit_inside(k: int, tt: float, yy: np.ndarray) -> None:
+        """An output inside a step, from its dense output."""
+        if raw_outputs or project is None:
+            emit(k, tt, yy, project is not None)
+        else:
+            emit(k, tt, project(tt, yy))
 
     before = np.zeros(5, dtype=int)  # the counters of a stepper switched from
     switched = None
@@ -207,20 +222,22 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                 dense = dense or s.dense_output()
                 while k_next < n_out and t_eval[k_next] < t_new:
                     te = float(t_eval[k_next])
-                    yo = dense(te)
-                    emit(k_next, te, project(te, yo) if project is not None else yo)
+                    emit_inside(k_next, te, dense(te))
                     k_next += 1
             at_output = k_next < n_out and t_eval[k_next] <= t_new
+            raw = False
             if project is not None and stepper.constrained:
                 # rule 6: the stepper keeps the constraints; only what is reported is
                 # projected (velocities onto Phi_q qd = nu to the solver's tolerance)
-                if at_output:
+                if at_output and raw_outputs:
+                    raw = True
+                elif at_output:
                     y_new = project(t_new, y_new)
             elif project is not None:
                 y_new = (project if at_output else settle)(t_new, y_new)
                 s.restart(y_new)
             if at_output:
-                emit(k_next, t_new, y_new.copy())
+                emit(k_next, t_new, y_new.copy(), raw)
                 k_next += 1
             t_old, t = t, t_new
             why, spent, kept = (None, None, None) if watch is None else \
@@ -247,8 +264,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                         on_interval(t_a, t_b, dense)
                     while k_next < n_out and t_eval[k_next] <= t_b:
                         te = float(t_eval[k_next])
-                        yo = dense(te)
-                        emit(k_next, te, project(te, yo) if project is not None else yo)
+                        emit_inside(k_next, te, dense(te))
                         k_next += 1
                 t = s.t
             if on_step is not None:

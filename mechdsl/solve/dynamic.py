@@ -39,7 +39,7 @@ from ..compiled.kernels import Kernels
 from ..errors import MechError
 from .memory import plan
 from ..results import Results
-from . import extrema
+from . import extrema, instants
 from .assembly import gauss_newton
 from .base import Progress, Run
 from .diagnose import constraint_names, variant_label
@@ -54,6 +54,10 @@ RTOL, ATOL = 1e-8, 1e-10
 
 #: Gauss-Legendre points per step of the dissipated energy's integral
 GAUSS_POINTS = 5
+#: The output instants of a model of at most this many coordinates and equations are
+#: projected and solved together when a variant ends (:mod:`mechdsl.solve.instants`: dense
+#: batched solves); a larger model's one by one, as the steps reach them
+BATCH_MAX = 120
 
 class DynamicRun(Run):
     """Forward dynamics of every variant over ``system.times`` (see the module)."""
@@ -347,8 +351,8 @@ class DynamicRun(Run):
                 # positional: a third of the cost of binding keywords, at every step
                 motion(t, steps, t0, t1, v, V, budget)
 
-        def record(k: int, t: float, y: np.ndarray) -> None:
-            self._record(k, t, y)
+        def record(k: int, t: float, y: np.ndarray, raw: bool = False) -> None:
+            self._record(k, t, y, raw)
             if self.progress is not None and motion is None:  # the variants in turn
                 self.progress((v * len(times) + k + 1) // V, len(times))
 
@@ -357,6 +361,8 @@ class DynamicRun(Run):
         self.states = {"q": np.full((K, n), np.nan), "qd": np.full((K, n), np.nan),
                        "qdd": np.full((K, n), np.nan), "lambda": np.full((K, sysm.m), np.nan),
                        "W": np.full(K, np.nan)}
+        #: the instants kept as the dense output gave them, projected when the variant ends
+        self.raw = np.zeros(K, dtype=bool)
         scale = np.concatenate((self.D[v, 0], self.D[v, 0]))
         try:
             equations = (self.ev if isinstance(self.ev, _augmented())
@@ -370,7 +376,7 @@ class DynamicRun(Run):
             sol = integrate(INTEGRATORS[self.method], equations, y0, times,
                             rtol=self.rtol, atol=self.atol, scale=scale, on_output=record,
                             on_step=on_step, max_steps=budget, stiff=stiff,
-                            on_interval=on_interval)
+                            on_interval=on_interval, raw_outputs=self._batched())
             if sol.switched is not None:
                 name, at, why = sol.switched
                 self.switches.append(
@@ -525,25 +531,73 @@ class DynamicRun(Run):
         # never below the sample
         return max((float(best_f), float(best_t)), (float(y[k]), float(times[k])))
 
-    def _record(self, k: int, t: float, y: np.ndarray) -> None:
-        """Keep the state at output instant k, with its accelerations and multipliers where
-        an output (order 2: an acceleration, a load) or the kept rates need them (a solve of
-        the equations of motion per instant, skipped otherwise)."""
+    def _batched(self) -> bool:
+        """Whether the output instants are settled together when the variant ends
+        (:mod:`mechdsl.solve.instants`: dense matrices, Phi_q of full rank): a model of few
+        equations without redundant constraints."""
+        sysm = self.one.system
+        return sysm.n + sysm.m <= BATCH_MAX and not self.redundant
+
+    def _record(self, k: int, t: float, y: np.ndarray, raw: bool = False) -> None:
+        """Keep the state at output instant k (``raw``: as the dense output gave it, for
+        :meth:`_complete` to project)."""
         n, st = self.ev.n, self.states
-        q, qd = y[:n], y[n:]
-        if self.one.system.order >= 2 or self.keep_rates:
-            try:
-                st["qdd"][k], st["lambda"][k] = self.ev.accelerations(t, q, qd)
-            except np.linalg.LinAlgError:  # (NaN, not what an earlier attempt left there)
-                st["qdd"][k], st["lambda"][k] = np.nan, np.nan
-        if self.ev.m:
-            phi, _ = self.ev.phi_jac(t, q)
-            self.residual = max(self.residual, float(np.abs(phi).max()))
-        st["q"][k], st["qd"][k] = q, qd
+        st["q"][k], st["qd"][k] = y[:n], y[n:]
+        self.raw[k] = raw
         self.n_solved[self.variant] = k + 1
 
+    def _complete(self, v: int) -> None:
+        """The instants variant ``v`` has solved, completed: those kept raw projected (all at
+        once where :meth:`_batched`, else one by one; an instant that cannot be projected
+        ends the variant there), their accelerations and multipliers where an output (order
+        2: an acceleration, a load) or the kept rates need them, and the largest constraint
+        residual of the run."""
+        k = int(self.n_solved[v])
+        st, n, opts = self.states, self.one.system.n, self.opts
+        T = self.times[:k]
+        raw = np.flatnonzero(self.raw[:k])
+        batched = self._batched()
+        if raw.size:
+            y = np.concatenate((st["q"][raw], st["qd"][raw]), axis=1)
+            out = instants.project(self.one, self.D[v, 0], T[raw], y, opts.newton_tol,
+                                   opts.max_iterations) if batched else None
+            if out is None:
+                out, project = np.empty_like(y), self._projector()
+                for i, kk in enumerate(raw):
+                    try:
+                        out[i] = project(float(T[kk]), y[i])
+                    except np.linalg.LinAlgError as err:
+                        self.failures.append(
+                            f"the forward dynamics stopped after t = {T[kk - 1]:.10g}"
+                            f"{variant_label(self.one.system, v)}: the state at t = "
+                            f"{T[kk]:.10g} cannot be moved onto the constraints ({err})")
+                        k, out, raw = int(kk), out[:i], raw[:i]
+                        self.n_solved[v] = k
+                        break
+            st["q"][raw], st["qd"][raw] = out[:, :n], out[:, n:]
+            self.raw[raw] = False
+        if k == 0:
+            return
+        T, q, qd = T[:k], st["q"][:k], st["qd"][:k]
+        if self.one.system.order >= 2 or self.keep_rates:
+            solved = instants.accelerations(self.one, T, q, qd) if batched else None
+            if solved is not None:
+                st["qdd"][:k], st["lambda"][:k] = solved
+            else:
+                for i in range(k):
+                    try:
+                        st["qdd"][i], st["lambda"][i] = self.ev.accelerations(
+                            float(T[i]), q[i], qd[i])
+                    except np.linalg.LinAlgError:  # (NaN, not an earlier attempt's values)
+                        st["qdd"][i], st["lambda"][i] = np.nan, np.nan
+        if self.one.system.m:
+            phi = eq.constraint_values(self.one, q[None], T[None])[0]
+            self.residual = max(self.residual, float(np.abs(phi).max()))
+
     def _write(self, v: int) -> None:
-        """The outputs of variant ``v`` at the instants it has solved, all at once."""
+        """The outputs of variant ``v`` at the instants it has solved, all at once (first
+        completed: :meth:`_complete`)."""
+        self._complete(v)
         k = int(self.n_solved[v])
         if k == 0:
             return
