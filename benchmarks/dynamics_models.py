@@ -363,6 +363,22 @@ def stiff_pendulum_oracle(k: float, t1: float = 2.0, rtol: float | None = None) 
     return sol.y[:, -1]
 
 
+# -- a four-bar ----------------------------------------------------------------------------------
+
+#: A four-bar under gravity (crank 1 m, coupler 3 m, rocker 2.5 m, its pivots 3 m apart; the
+#: tests add springs, bobs, initial states, a span and outputs to it)
+FOURBAR = """gravity = (0, -9.81)
+ground { point A = (0, 0)  point D = (3, 0) }
+body crank { guess = (0, 0, 1.2)  point A = (0, 0)  point B = (1, 0)  mass = 1  inertia = 0.1  centroid = (0.5, 0) }
+body coupler { guess = (0.4, 0.9, 0)  point B = (0, 0)  point C = (3, 0)  mass = 2  inertia = 1.5  centroid = (1.5, 0) }
+body rocker { guess = (3, 0, 1.5)  point D = (0, 0)  point C = (2.5, 0)  mass = 1.5  inertia = 0.8  centroid = (1.25, 0) }
+joint A: revolute(ground.A, crank.A)
+joint B: revolute(crank.B, coupler.B)
+joint C: revolute(coupler.C, rocker.C)
+joint D: revolute(ground.D, rocker.D)
+"""
+
+
 # -- the car axis -------------------------------------------------------------------------------
 
 #: The Test Set's parameters (ex_caraxis.R)

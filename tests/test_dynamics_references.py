@@ -250,17 +250,7 @@ def test_mechdsl_car_axis_reaches_the_test_sets_accuracy():
     assert dm.scd(y[:8], dm.CAR_REF[:8]) >= 8.0
 
 
-FOURBAR = """
-gravity = (0, -9.81)
-ground { point A = (0, 0)  point D = (3, 0) }
-body crank { guess = (0, 0, 1.2)  point A = (0, 0)  point B = (1, 0)  mass = 1  inertia = 0.1  centroid = (0.5, 0) }
-body coupler { guess = (0.4, 0.9, 0)  point B = (0, 0)  point C = (3, 0)  mass = 2  inertia = 1.5  centroid = (1.5, 0) }
-body rocker { guess = (3, 0, 1.5)  point D = (0, 0)  point C = (2.5, 0)  mass = 1.5  inertia = 0.8  centroid = (1.25, 0) }
-joint A: revolute(ground.A, crank.A)
-joint B: revolute(crank.B, coupler.B)
-joint C: revolute(coupler.C, rocker.C)
-joint D: revolute(ground.D, rocker.D)
-initial start: angle(crank) = 1.2
+FOURBAR = dm.FOURBAR + """initial start: angle(crank) = 1.2
 simulate t = 0 .. 100 step 1, rtol = 1e-8, atol = 1e-10
 output kinetic_energy, potential_energy
 """

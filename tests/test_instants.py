@@ -6,6 +6,9 @@ on a closed loop with a spring and on a driven slider-crank."""
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -13,18 +16,11 @@ import mechdsl
 from mechdsl.compiled import equations as eq
 from mechdsl.solve.options import SolverOptions
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import dynamics_models as dm  # noqa: E402
+
 #: a four-bar with a spring from the ground to the coupler, released from rest
-LOOP = """
-gravity = (0, -9.81)
-ground { point A = (0, 0)  point D = (3, 0)  point S = (1.5, 2) }
-body crank { guess = (0, 0, 1.2)  point A = (0, 0)  point B = (1, 0)  mass = 1  inertia = 0.1  centroid = (0.5, 0) }
-body coupler { guess = (0.4, 0.9, 0)  point B = (0, 0)  point C = (3, 0)  mass = 2  inertia = 1.5  centroid = (1.5, 0) }
-body rocker { guess = (3, 0, 1.5)  point D = (0, 0)  point C = (2.5, 0)  mass = 1.5  inertia = 0.8  centroid = (1.25, 0) }
-joint A: revolute(ground.A, crank.A)
-joint B: revolute(crank.B, coupler.B)
-joint C: revolute(coupler.C, rocker.C)
-joint D: revolute(ground.D, rocker.D)
-force s: spring(ground.S, coupler.C, k = 40, length = 1)
+LOOP = dm.FOURBAR + """force s: spring(ground.D, coupler.B, k = 40, length = 2)
 initial start: angle(crank) = 1.2
 simulate t = 0 .. 3 step 0.002
 output crank.phi, A.fx

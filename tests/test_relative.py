@@ -30,17 +30,7 @@ class _Shape:
 def _loop_text(k: float, t1: float = 2.0, rate: float = 8.0) -> str:
     """A four-bar turning at ``rate`` rad/s whose coupler carries a bob on a slider with a
     spring of stiffness k along it (its rest length at t0, no rate along it)."""
-    return f"""
-gravity = (0, -9.81)
-ground {{ point A = (0, 0)  point D = (3, 0) }}
-body crank {{ guess = (0, 0, 1.2)  point A = (0, 0)  point B = (1, 0)  mass = 1  inertia = 0.1  centroid = (0.5, 0) }}
-body coupler {{ guess = (0.4, 0.9, 0)  point B = (0, 0)  point C = (3, 0)  mass = 2  inertia = 1.5  centroid = (1.5, 0) }}
-body rocker {{ guess = (3, 0, 1.5)  point D = (0, 0)  point C = (2.5, 0)  mass = 1.5  inertia = 0.8  centroid = (1.25, 0) }}
-body bob {{ guess = (1.5, 1, 0)  mass = 0.5  inertia = 0.01 }}
-joint A: revolute(ground.A, crank.A)
-joint B: revolute(crank.B, coupler.B)
-joint C: revolute(coupler.C, rocker.C)
-joint D: revolute(ground.D, rocker.D)
+    return dm.FOURBAR + f"""body bob {{ guess = (1.5, 1, 0)  mass = 0.5  inertia = 0.01 }}
 joint slide: prismatic(coupler.B, bob.origin, axis = (1, 0))
 force spring: spring(coupler.B, bob.origin, k = {k!r}, length = 1.5)
 initial start: angle(crank) = 1.2, rate = {rate!r}
