@@ -109,6 +109,7 @@ class DynamicRun(Run):
                                                  large=self.large, redundant=self.redundant)
         #: where the automatic choice went on with the implicit method (stiffness found)
         self.switches: list[str] = []
+        self.singular_met = False  # (per variant: :meth:`_variant`)
 
     # -- the equations of one variant --------------------------------------------------------
     def _project(self, t: float, y: np.ndarray) -> np.ndarray:
@@ -363,6 +364,9 @@ class DynamicRun(Run):
                        "W": np.full(K, np.nan)}
         #: the instants kept as the dense output gave them, projected when the variant ends
         self.raw = np.zeros(K, dtype=bool)
+        #: the dense equations stopped at a singular position met on the way: the variant's
+        #: instants are then completed one by one, by the augmented Lagrangian
+        self.singular_met = False
         scale = np.concatenate((self.D[v, 0], self.D[v, 0]))
         try:
             equations = (self.ev if isinstance(self.ev, _augmented())
@@ -390,6 +394,7 @@ class DynamicRun(Run):
                 # integrated again from t0 by the augmented Lagrangian, which passes it
                 at = float(sol.t_reached)
                 self.ev = _augmented()(self.one, self.opts)
+                self.singular_met = True
                 self.n_solved[v] = 0
                 again = integrate(INTEGRATORS[self.method], self.ev, y0, times,
                                   rtol=self.rtol, atol=self.atol, scale=scale,
@@ -534,9 +539,12 @@ class DynamicRun(Run):
     def _batched(self) -> bool:
         """Whether the output instants are settled together when the variant ends
         (:mod:`mechdsl.solve.instants`: dense matrices, Phi_q of full rank): a model of few
-        equations without redundant constraints."""
+        equations without redundant constraints, whose variant met no singular position
+        (there the saddle-point matrices are ill conditioned: the augmented Lagrangian's
+        one-state solves take those instants)."""
         sysm = self.one.system
-        return sysm.n + sysm.m <= BATCH_MAX and not self.redundant
+        return (sysm.n + sysm.m <= BATCH_MAX and not self.redundant
+                and not self.singular_met)
 
     def _record(self, k: int, t: float, y: np.ndarray, raw: bool = False) -> None:
         """Keep the state at output instant k (``raw``: as the dense output gave it, for
