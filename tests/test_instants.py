@@ -82,3 +82,22 @@ def test_every_output_of_a_loop_is_on_its_manifolds_and_its_equations(method):
 @pytest.mark.parametrize("method", ["auto", "radau"])
 def test_every_output_of_a_driven_slider_crank_is_on_its_manifolds_and_its_equations(method):
     _check(DRIVEN, method)
+
+
+def test_a_ctrl_c_while_the_instants_are_completed_keeps_them(monkeypatch):
+    """A KeyboardInterrupt inside the completion (here the batched accelerations): the run
+    says interrupted and keeps every instant integrated, on the constraints."""
+    from mechdsl.solve import instants
+
+    def interrupt(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(instants, "accelerations", interrupt)
+    mech = mechdsl.loads(LOOP)
+    res = mech.simulate(poses=True)
+    assert res.status == "interrupted"
+    assert np.isfinite(res["crank.phi"]).all()
+    K = len(res.times)
+    phi = eq.constraint_values(mech.compile(), res.poses[0].reshape(K, -1)[None],
+                               res.times[None])[0]
+    assert np.abs(phi).max() < 1e-10

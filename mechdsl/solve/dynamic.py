@@ -110,6 +110,8 @@ class DynamicRun(Run):
         #: where the automatic choice went on with the implicit method (stiffness found)
         self.switches: list[str] = []
         self.singular_met = False  # (per variant: :meth:`_variant`)
+        #: a Ctrl-C came while a variant's output instants were completed (:meth:`_write`)
+        self.interrupted = False
 
     # -- the equations of one variant --------------------------------------------------------
     def _project(self, t: float, y: np.ndarray) -> np.ndarray:
@@ -196,7 +198,7 @@ class DynamicRun(Run):
                 for v in range(V):
                     if q0[v] is None:
                         continue
-                    if self._variant(v, q0[v]) == "interrupted":
+                    if self._variant(v, q0[v]) == "interrupted" or self.interrupted:
                         status = "interrupted"
                         break
         except KeyboardInterrupt:
@@ -541,10 +543,14 @@ class DynamicRun(Run):
         (:mod:`mechdsl.solve.instants`: dense matrices, Phi_q of full rank): a model of few
         equations without redundant constraints, whose variant met no singular position
         (there the saddle-point matrices are ill conditioned: the augmented Lagrangian's
-        one-state solves take those instants)."""
+        one-state solves take those instants), integrated on the dense index-1 equations.
+        Not on the augmented Lagrangian (radau, large or redundant models): it passes
+        singular positions without failing, and there a saddle-point matrix nearly singular
+        passes the batched solve too (A02 under radau: a reaction of 3.8e8 N at a collinear
+        passage where the one-state solve gives -35 N)."""
         sysm = self.one.system
         return (sysm.n + sysm.m <= BATCH_MAX and not self.redundant
-                and not self.singular_met)
+                and not self.singular_met and not isinstance(self.ev, _augmented()))
 
     def _record(self, k: int, t: float, y: np.ndarray, raw: bool = False) -> None:
         """Keep the state at output instant k (``raw``: as the dense output gave it, for
@@ -604,8 +610,17 @@ class DynamicRun(Run):
 
     def _write(self, v: int) -> None:
         """The outputs of variant ``v`` at the instants it has solved, all at once (first
-        completed: :meth:`_complete`)."""
-        self._complete(v)
+        completed: :meth:`_complete`; a Ctrl-C there leaves what it did not finish NaN or
+        unprojected, says so, and still writes the instants)."""
+        try:
+            self._complete(v)
+        except KeyboardInterrupt:
+            self.interrupted = True
+            self.warnings.append(
+                f"interrupted while the output instants{variant_label(self.one.system, v)} "
+                "were completed: their accelerations and loads after the interrupt are "
+                "missing (NaN), and some positions may be off the constraints by the "
+                "integrator's tolerance")
         k = int(self.n_solved[v])
         if k == 0:
             return
