@@ -419,13 +419,23 @@ def test_car_axis_against_the_test_set():
     assert scd_qv >= 6.9
 
 
-def test_radau_keeps_the_driver_s_budget():
+def test_radau_keeps_the_driver_s_budget_and_longest_step():
     """Rule 2: no attempt once ``attempts`` has reached ``max_attempts`` (the driver's trial
     of radau caps its attempts so; it used to step on regardless), the state left as it
-    was."""
+    was; no step longer than ``max_step`` (it read none), still on the pendulum's oracle."""
     from mechdsl.solve.stepper import OUT_OF_BUDGET
 
     eq, y0 = pendulum()
+    st = RadauStepper(eq, 0.0, y0, 2.0, rtol=1e-6, atol=1e-8, scale=np.ones(6))
+    st.max_step = 0.002
+    for _ in range(5):
+        assert st.step() is None and st.t - st.t_old <= 0.002
+    st.max_step, longest = np.inf, 0.0
+    while st.t < 2.0:
+        assert st.step() is None
+        longest = max(longest, st.t - st.t_old)
+    assert longest > 0.005  # (the limit lifted: the steps the tolerance allows)
+    assert abs(st.y[2] - pendulum_oracle(2.0)) < 1e-5
     st = RadauStepper(eq, 0.0, y0, 2.0, rtol=1e-6, atol=1e-8, scale=np.ones(6))
     st.max_attempts = st.attempts + 2
     while st.attempts < st.max_attempts:

@@ -144,3 +144,24 @@ def test_a_fast_loop_tries_relative_coordinates_and_goes_back():
     energy = res.data["kinetic_energy"][0] + res.data["potential_energy"][0]
     assert np.abs(energy - energy[0]).max() < 1e-5 * abs(energy[0])
     assert res.residual < 1e-10
+
+
+def test_relative_coordinates_are_tried_only_where_a_force_acts_across_a_joint():
+    """A02 with four windows (27 coordinates, under relative_max) has no force element:
+    the stages that need their own Jacobians at its first collinear passage (t = 0.72) have
+    a singular position as their cause, not a force that turns, and the run stays in
+    absolute coordinates (it tried relative ones there before); B0 on the parallelogram
+    branch's oracle. The stiff pendulum's spring acts across the joint its forest takes."""
+    from mechdsl.solve.relative import spanned_joints
+
+    res = mechdsl.loads(dm.a02_text(4, t1=1.0), "a02.mech").simulate(
+        options=SolverOptions(method="radau"))
+    assert res.ok, res.messages
+    assert "relative" not in res.method, res.method
+    b0 = np.column_stack((res.data["b0x"][0], res.data["b0y"][0]))
+    assert np.abs(b0 - dm.a02_oracle(res.times, 4)).max() < 1e-6
+    pend = mechdsl.loads(dm.stiff_pendulum_text(1e8), "pendulum.mech").compile()
+    forces = pend.dynamics.forces
+    assert spanned_joints(pend.system, forces) == ["spring"]
+    a02 = mechdsl.loads(dm.a02_text(4, t1=1.0), "a02.mech").compile()
+    assert spanned_joints(a02.system, a02.dynamics.forces) == []

@@ -412,19 +412,20 @@ class DynamicRun(Run):
             self._write(v)
         if sol.status == "ok" and self.to_refine:
             self._refine_extremes(v, equations, scale)
+        # the instants kept: those integrated, less any that could not be projected (_write)
+        k = min(len(sol.t), int(self.n_solved[v]))
         if sol.status == "failed" and sol.reason == "budget":
-            k = len(sol.t)
             self.failures.append(
                 f"the forward dynamics{variant_label(sysm, v)} used up its budget of "
                 f"{budget:,} steps at t = {sol.t_reached:.10g} of {t0:g} .. {t1:g} "
                 f"({sol.steps:,} steps accepted, {sol.rejected:,} rejected); the "
                 f"{f'{k} output instants' if k != 1 else 'output instant'} integrated before "
-                f"it, to t = {sol.t[-1]:.10g}, {'are' if k != 1 else 'is'} kept in the "
+                f"it, to t = {self.times[k - 1] if k else t0:.10g}, {'are' if k != 1 else 'is'} kept in the "
                 f"results. Raise the budget with "
                 f"--max-steps N (SolverOptions(max_steps=N)), or shorten the span or loosen "
                 f"--rtol")
         elif sol.status == "failed":
-            t_fail = float(sol.t[-1]) if len(sol.t) else t0
+            t_fail = float(self.times[k - 1]) if k else t0
             self.failures.append(
                 f"the forward dynamics stopped after t = {t_fail:.10g}"
                 f"{variant_label(sysm, v)}: {sol.message}")
@@ -581,10 +582,13 @@ class DynamicRun(Run):
                     try:
                         out[i] = project(float(T[kk]), y[i])
                     except np.linalg.LinAlgError as err:
+                        end = (f"end at t = {T[kk - 1]:.10g}" if kk else
+                               "have no instant")
                         self.failures.append(
-                            f"the forward dynamics stopped after t = {T[kk - 1]:.10g}"
-                            f"{variant_label(self.one.system, v)}: the state at t = "
-                            f"{T[kk]:.10g} cannot be moved onto the constraints ({err})")
+                            f"the forward dynamics' results"
+                            f"{variant_label(self.one.system, v)} {end}: the state the "
+                            f"integrator gave at t = {T[kk]:.10g} cannot be moved onto the "
+                            f"constraints ({err})")
                         k, out, raw = int(kk), out[:i], raw[:i]
                         self.n_solved[v] = k
                         break

@@ -560,7 +560,7 @@ class RadauStepper(Stepper):
         """Rule 2: one accepted step (module docstring), or the reason there is none."""
         t, y, n = self.t, self.y, self.n
         N = 2 * n + self.m
-        h = min(self.h_abs, self.t_bound - t)
+        h = min(self.h_abs, self.max_step, self.t_bound - t)
         rejected = cut = False
         while True:
             if self.attempts >= self.max_attempts:  # rule 2: rejected attempts count too

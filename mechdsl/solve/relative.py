@@ -59,7 +59,7 @@ import numpy as np
 from .radau import RadauStepper
 from .stepper import Equations, Stepper
 
-__all__ = ["Radau", "Relative", "forest"]
+__all__ = ["Radau", "Relative", "forest", "spanned_joints"]
 
 
 def forest(system, forces: tuple = ()) -> np.ndarray:
@@ -93,6 +93,35 @@ def forest(system, forces: tuple = ()) -> np.ndarray:
         frontier = nxt
     parent[parent == -2] = -1  # free bodies, and bodies tied to each other only by loads
     return parent
+
+
+def _forces(equations: Equations) -> tuple:
+    """The force elements of the equations' model (each with its ``name`` and the
+    ``bodies`` it acts between)."""
+    dynamics = getattr(getattr(equations, "kernels", None), "dynamics", None)
+    return tuple(getattr(dynamics, "forces", ()))
+
+
+def spanned_joints(system, forces: tuple) -> list[str]:
+    """The names of the force elements (``name``, ``bodies``) that act between a body and
+    its parent body in :func:`forest`: forces along relative coordinates that absolute
+    ones turn. (A force between a body and the ground, or between bodies that no joint
+    ties, acts on coordinates that relative ones leave as they are.)"""
+    parent = forest(system, tuple(f.bodies for f in forces))
+    names = {name: i for i, name in enumerate(system.body_names)}
+    edges = {tuple(sorted((i, int(p)))) for i, p in enumerate(parent) if p >= 0}
+    return [f.name for f in forces
+            if tuple(sorted({names.get(b, -1) for b in f.bodies})) in edges]
+
+
+def _listed(names: list[str]) -> str:
+    """'force 'a'', 'forces 'a' and 'b'', 'forces 'a', 'b' and 2 more'."""
+    quoted = [f"'{n}'" for n in names[:3]]
+    more = len(names) - len(quoted)
+    if more:
+        quoted[-1:] = [quoted[-1], f"{more} more"]
+    words = quoted[0] if len(quoted) == 1 else ", ".join(quoted[:-1]) + " and " + quoted[-1]
+    return ("force " if len(names) == 1 else "forces ") + words
 
 
 class Relative:
@@ -357,8 +386,12 @@ class Radau(Stepper):
         self.relative_from: float | None = None
         self.relative_until: float | None = None
         self.relative: Relative | None = None
-        self._may_turn = (getattr(equations, "system", None) is not None
-                          and 0 < int(equations.n) <= limit)
+        system = getattr(equations, "system", None)
+        #: the force elements across the forest's joints (module docstring): without one,
+        #: stages that need their own Jacobians have another cause (a singular position)
+        self._spanning = spanned_joints(system, _forces(equations)) if (
+            system is not None and 0 < int(equations.n) <= limit) else []
+        self._may_turn = bool(self._spanning)
         self._before = np.zeros(5, dtype=int)  # the counters of the parts before
         self._steps: list[float] = []  # the last step sizes (absolute, then relative)
         self._gain = 0.0
@@ -378,9 +411,7 @@ class Radau(Stepper):
 
     def _to_relative(self) -> None:
         eq = self.equations
-        dynamics = getattr(getattr(eq, "kernels", None), "dynamics", None)
-        forces = tuple(f.bodies for f in getattr(dynamics, "forces", ()))
-        rel = Relative(eq, forest(eq.system, forces))
+        rel = Relative(eq, forest(eq.system, tuple(f.bodies for f in _forces(eq))))
         t, y = self.inner.t, self.inner.y
         self._go_on(rel, rel.relative(y))
         self.relative, self.relative_from = rel, t
@@ -396,13 +427,14 @@ class Radau(Stepper):
         """Rule 5: where the run went on in relative coordinates, and why."""
         if self.relative_from is None:
             return None
+        why = (f"its stages needed their own Jacobians, with {_listed(self._spanning)} "
+               "acting across a joint")
         if self.relative_until is not None:
             return (f"radau tried relative coordinates from t = {self.relative_from:.6g} to "
-                    f"{self.relative_until:.6g} (a stiff force turned with the bodies), whose "
-                    f"steps were {self._gain:.3g} times as long, under {RELATIVE_GAIN:g}: "
-                    "absolute ones kept")
-        return (f"radau in relative coordinates from t = {self.relative_from:.6g}, where a "
-                f"stiff force turned with the bodies (steps {self._gain:.3g} times as long)")
+                    f"{self.relative_until:.6g} ({why}), whose steps were {self._gain:.3g} "
+                    f"times as long, under {RELATIVE_GAIN:g}: absolute ones kept")
+        return (f"radau in relative coordinates from t = {self.relative_from:.6g}, where "
+                f"{why} (steps {self._gain:.3g} times as long)")
 
     def _absolute(self, y: np.ndarray) -> np.ndarray:
         return y if self.relative is None else self.relative.absolute(y)
