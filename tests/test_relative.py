@@ -165,3 +165,29 @@ def test_relative_coordinates_are_tried_only_where_a_force_acts_across_a_joint()
     assert spanned_joints(pend.system, forces) == ["spring"]
     a02 = mechdsl.loads(dm.a02_text(4, t1=1.0), "a02.mech").compile()
     assert spanned_joints(a02.system, a02.dynamics.forces) == []
+
+
+def test_the_forest_takes_a_spanned_joint_even_where_another_reaches_the_body_sooner():
+    """Prim's choice, not breadth first: ``a`` and ``b`` both pinned to the ground, a
+    slider with a spring between them; ``b`` hangs from ``a`` (the spring's joint), the
+    ground's pin at ``b`` left as a loop's closure. Two bodies tied only to each other hang
+    one from the other, the first from the ground."""
+    text = """ground { point P = (0, 0)  point R = (2, 0) }
+body a { guess = (0, 0, 0)  point S = (1, 0)  mass = 1  inertia = 0.1 }
+body b { guess = (2, 0, 0)  mass = 1  inertia = 0.1 }
+body c { guess = (5, 0, 0)  mass = 1  inertia = 0.1 }
+body d { guess = (6, 0, 0)  mass = 1  inertia = 0.1 }
+joint pa: revolute(ground.P, a.origin)
+joint pb: revolute(ground.R, b.origin)
+joint ab: prismatic(a.S, b.origin, axis = (1, 0))
+joint cd: revolute(c.origin, d.origin)
+force spring: spring(a.S, b.origin, k = 100, length = 1)
+simulate t = 0 .. 1 step 0.1
+"""
+    kernels = mechdsl.loads(text, "prim.mech").compile()
+    index = {name: i for i, name in enumerate(kernels.system.body_names)}
+    parent = forest(kernels.system, tuple(f.bodies for f in kernels.dynamics.forces))
+    assert parent[index["a"]] == -1 and parent[index["b"]] == index["a"]
+    assert parent[index["c"]] == -1 and parent[index["d"]] == index["c"]
+    # without the spring, breadth first: both from the ground
+    assert list(forest(kernels.system, ())[[index["a"], index["b"]]]) == [-1, -1]

@@ -65,33 +65,49 @@ __all__ = ["Radau", "Relative", "forest", "spanned_joints"]
 def forest(system, forces: tuple = ()) -> np.ndarray:
     """The parent of each moving body (its index, -1 for the ground): a spanning forest of
     the graph whose edges are the joints and drives between two bodies (a body that no
-    joint ties to another hangs from the ground). Bodies are added in breadth-first order
-    from the ground; among the edges that reach a new body, one that a force element also
-    spans comes first (its force then acts along the relative coordinates), then the
-    constraints' order. Any forest gives a valid change of coordinates; this one makes the
-    joints' own coordinates relative ones."""
+    joint ties to another hangs from the ground), with as many edges that a force element
+    also spans as any spanning forest has (each such force then acts along relative
+    coordinates). Prim's algorithm from the ground with the weights 0 for a spanned edge
+    and 1 for another: the next body placed is reached by a spanned edge wherever one
+    leaves the bodies placed, else by the first edge found (breadth first, in the
+    constraints' order). Any forest gives a valid change of coordinates; this one makes
+    the joints' own coordinates relative ones."""
+    from collections import deque
+
     names = {name: i for i, name in enumerate(system.body_names)}
 
     def ends(bodies) -> tuple[int, ...]:
         # the ground (every name that is not a moving body's) as -1
         return tuple(sorted({names.get(b, -1) for b in bodies}))
 
-    edges = [e for e in (ends(c.bodies) for c in system.constraints) if len(e) == 2]
     spanned = {ends(f) for f in forces if len(ends(f)) == 2}
-    ranked = [e for e in edges if e in spanned] + [e for e in edges if e not in spanned]
-    parent = np.full(len(names), -2)
-    placed, frontier = {-1}, [-1]
-    while frontier:
-        nxt = []
-        for edge in ranked:
-            a, b = edge
-            for here, there in ((a, b), (b, a)):
-                if here in frontier and there not in placed:
-                    parent[there] = here
-                    placed.add(there)
-                    nxt.append(there)
-        frontier = nxt
-    parent[parent == -2] = -1  # free bodies, and bodies tied to each other only by loads
+    touching: dict[int, list[tuple[int, int, bool]]] = {}
+    for e in (ends(c.bodies) for c in system.constraints):
+        if len(e) == 2:
+            for here, there in (e, e[::-1]):
+                touching.setdefault(here, []).append((here, there, e in spanned))
+    parent = np.full(len(names), -1)
+    placed: set[int] = set()
+    free: deque = deque()   # edges of weight 0 leaving the bodies placed
+    other: deque = deque()  # of weight 1
+
+    def place(body: int) -> None:
+        placed.add(body)
+        for here, there, zero in touching.get(body, ()):
+            if there not in placed:
+                (free if zero else other).append((here, there))
+
+    # from the ground; then from the first body of each group the ground does not reach
+    # (free bodies, bodies tied only to each other), which hangs from the ground itself
+    for root in (-1, *range(len(names))):
+        if root in placed:
+            continue
+        place(root)
+        while free or other:
+            here, there = (free or other).popleft()
+            if there not in placed:
+                parent[there] = here
+                place(there)
     return parent
 
 
