@@ -358,16 +358,37 @@ class Relative:
         return np.concatenate((y[n:2 * n], self.accelerations(t, y[:n], y[n:2 * n])[0]))
 
 
-#: The relative coordinates are kept where their first RELATIVE_TRIAL steps are at least
-#: RELATIVE_GAIN times as long (medians) as the absolute ones' last before the change (at
-#: most the last ten): each evaluation costs more there (the map, dense G^T M G), which
-#: longer steps must repay. Measured (rtol 1e-6, median steps): the stiff pendulum at
-#: k = 1e8, 0.0066 s before and 0.030 after (kept: 134 steps -> 60, 120 -> 80 ms); a
-#: four-bar carrying a bob on a stiff slider spring (k = 1e10) turning at 8 rad/s, 0.0062
-#: and 0.0079 (back to absolute: its steps are held by the motion's accuracy, and relative
-#: coordinates cost it 250 -> 390 ms).
+#: The relative coordinates are tried after at least RELATIVE_TRIAL absolute steps (a
+#: baseline of steady ones, not the run's first) and kept where their first RELATIVE_TRIAL
+#: steps take at least RELATIVE_GAIN times less work per simulated second than the last
+#: (at most ten) absolute ones: the ratio of the median step sizes times the inverse ratio
+#: of the median work per step, the work being the evaluations of the equations and of
+#: their Jacobians, rejected attempts included (counted, not timed: a run makes the same
+#: choice on any machine; medians: the step that started the trial, with its stagewise
+#: Jacobians, counts once). The margin covers a relative evaluation's higher cost (the map,
+#: the dense G^T M G: 1.7 times an absolute one's on the stiff pendulum, the stepper's share
+#: included). Measured (rtol 1e-6, median step and evaluations plus Jacobians a step,
+#: before and after): the stiff pendulum at k = 1e8, 0.0071 s and 11, 0.029 s and 7 (6.4:
+#: kept; 134 steps -> 60), at k = 1e6, 0.0176 s and 17, 0.034 s and 7 (4.7: kept; the
+#: step lengths alone, 1.9, sent it back, and the run took 1.5 to 2 times as long); a
+#: four-bar carrying a bob on a stiff slider spring (k = 1e10) turning at 8 rad/s, 0.0079 s
+#: and 10, 0.0089 s and 11 (1.03: back; its steps are held by the motion's accuracy in
+#: either coordinates, and relative ones cost it 250 -> 390 ms). Without the baseline that
+#: loop's trial began after two absolute steps of its start, and any count of work rated
+#: it at 1.9 to 3.3.
 RELATIVE_TRIAL = 8
 RELATIVE_GAIN = 2.0
+
+
+def _gain(before: list[tuple[float, int]], after: list[tuple[float, int]]) -> float:
+    """How much less work per simulated second the steps ``after`` take than the steps
+    ``before`` ((step size, work) each): (median h_after / median h_before) times (median
+    w_before / median w_after) (:data:`RELATIVE_GAIN`)."""
+    if not before:
+        return np.inf
+    h0, w0 = (float(np.median([s[k] for s in before])) for k in (0, 1))
+    h1, w1 = (float(np.median([s[k] for s in after])) for k in (0, 1))
+    return (h1 / h0) * (w0 / max(w1, 1.0)) if h0 > 0 else np.inf
 
 
 class Radau(Stepper):
@@ -375,9 +396,9 @@ class Radau(Stepper):
     own (absolute) coordinates, going on in relative coordinates (:class:`Relative`) from
     the first step after one whose stages needed their own Jacobians (a stiff force whose
     direction turns: the module docstring) where the model has at most ``relative_max``
-    coordinates (``SolverOptions``, read from the equations' options), and keeping them
-    where their steps are longer by far (:data:`RELATIVE_GAIN`), else going back for the
-    rest of the run. A stiff force whose direction does not turn with the bodies (a rotary
+    coordinates (``SolverOptions``, read from the equations' options) and a force element
+    acts across a joint, and keeping them where they take far less work per simulated
+    second (:data:`RELATIVE_GAIN`), else going back for the rest of the run. A stiff force whose direction does not turn with the bodies (a rotary
     spring at a pin) keeps one Jacobian in absolute coordinates, where each evaluation
     costs less. Its state, dense output and restart are in absolute coordinates; its
     counters sum every part."""
@@ -409,7 +430,9 @@ class Radau(Stepper):
             system is not None and 0 < int(equations.n) <= limit) else []
         self._may_turn = bool(self._spanning)
         self._before = np.zeros(5, dtype=int)  # the counters of the parts before
-        self._steps: list[float] = []  # the last step sizes (absolute, then relative)
+        #: (step size, evaluations and Jacobians it took, rejected attempts included) of
+        #: the last accepted steps: absolute ones, then relative ones
+        self._steps: list[tuple[float, int]] = []
         self._gain = 0.0
         self.inner = RadauStepper(equations, t0, y0, t_bound, rtol=rtol, atol=atol,
                                   scale=scale, first_step=first_step, **options)
@@ -447,10 +470,10 @@ class Radau(Stepper):
                "acting across a joint")
         if self.relative_until is not None:
             return (f"radau tried relative coordinates from t = {self.relative_from:.6g} to "
-                    f"{self.relative_until:.6g} ({why}), whose steps were {self._gain:.3g} "
-                    f"times as long, under {RELATIVE_GAIN:g}: absolute ones kept")
+                    f"{self.relative_until:.6g} ({why}), which took {self._gain:.3g} times less "
+                    f"work per simulated second, under {RELATIVE_GAIN:g}: absolute ones kept")
         return (f"radau in relative coordinates from t = {self.relative_from:.6g}, where "
-                f"{why} (steps {self._gain:.3g} times as long)")
+                f"{why} ({self._gain:.3g} times less work per simulated second)")
 
     def _absolute(self, y: np.ndarray) -> np.ndarray:
         return y if self.relative is None else self.relative.absolute(y)
@@ -486,22 +509,24 @@ class Radau(Stepper):
 
     def step(self) -> str | None:
         """Rule 2 (the inner stepper's step; first the change of coordinates where the last
-        step needed the stages' own Jacobians, or back where relative ones do not pay)."""
+        step needed the stages' own Jacobians and a baseline of absolute steps was taken,
+        or back where relative ones do not pay)."""
         # (between steps, never after one: the driver asks for the last step's dense
         # output, which is the stepper's that took it)
-        if self.relative is None and self._may_turn and self.inner.stagewise:
+        if self.relative is None and self._may_turn and self.inner.stagewise and \
+                len(self._steps) >= RELATIVE_TRIAL:
             self._to_relative()
         elif self.relative is not None and self._gain and self._gain < RELATIVE_GAIN:
             self._to_absolute()
-        t0 = self.inner.t
-        message = self.inner.step()
+        inner = self.inner
+        t0, work = inner.t, inner.nfev + inner.njev
+        message = inner.step()
         if message is None:
-            self._steps.append(self.inner.t - t0)
+            self._steps.append((inner.t - t0, inner.nfev + inner.njev - work))
             if self.relative is None:
                 del self._steps[:-10]
             elif len(self._steps) == RELATIVE_TRIAL:
-                before = float(np.median(self._before_steps)) if self._before_steps else 0.0
-                self._gain = float(np.median(self._steps)) / before if before > 0 else np.inf
+                self._gain = _gain(self._before_steps, self._steps)
         return message
 
     def dense_output(self) -> Callable[[float], np.ndarray]:
