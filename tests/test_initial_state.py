@@ -302,3 +302,33 @@ def test_a_value_out_of_reach_is_a_located_error():
     with pytest.raises(MechError, match="cannot be assembled .* initial 'far'") as err:
         run(text, "far.mech")
     assert located(err.value) == (ROD.count("\n") + 1, 1)
+
+
+def test_coordinates_that_the_equations_fix_are_not_named_as_moved_guesses():
+    """The warning is about the assembly's choices: a guess that an initial statement, a
+    drive or a joint on a driven body fixes moved as they ask (the user's own statement
+    moved the plate's angle; the drive moved the cart, and with it the pin of the pendulum,
+    whose angle, its one free coordinate, kept its guess); before, both were named and the
+    remedy suggested was an initial statement that over-determined the start."""
+    plate = run("""gravity = (0, -9.81)
+ground { }
+body plate { guess = (1, 2, 0.3)  mass = 3  inertia = 0.5  v0 = (4, 10, 3) }
+initial spin: angle(plate) = 1, rate = 3
+simulate t = 0 .. 0.1 step 0.1
+output plate.phi
+""")
+    assert not [w for w in plate.warnings if "moved the guesses" in w], plate.warnings
+    assert abs(plate.data["plate.phi"][0, 0] - 1.0) < 1e-12
+    cart = run("""gravity = (0, -9.81)
+ground { }
+body cart { guess = (0, 0, 0) }
+body pend { guess = (0, 0, -1.2)  mass = 1.5  inertia = 1e-6  centroid = (0.8, 0) }
+joint guide: prismatic(ground.origin, cart.origin, axis = (1, 0))
+joint pivot: revolute(cart.origin, pend.origin)
+drive shake: x(cart.origin) = 0.1*cos(5*t)
+simulate t = 0 .. 0.1 step 0.1
+output cart.x, pend.phi
+""")
+    assert not [w for w in cart.warnings if "moved the guesses" in w], cart.warnings
+    assert abs(cart.data["cart.x"][0, 0] - 0.1) < 1e-12
+    assert abs(cart.data["pend.phi"][0, 0] + 1.2) < 1e-12

@@ -82,7 +82,39 @@ def positions(kernels: Kernels, q: np.ndarray, ok: np.ndarray, t: np.ndarray, D:
         free = _free_coordinates(kernels, q, ok, D)
     if k >= free:  # every free coordinate stated: the guesses only started the search
         return q, []
+    # a coordinate that the joints, drives and initial statements fix moved as they ask,
+    # not as the assembly chose (a driven cart, a pendulum's pin on it, an angle stated)
+    fixed = _fixed_coordinates(kernels, q, ok, D)
+    moved = [(v, ks[~fixed[ks]]) for v, ks in moved]
+    moved = [(v, ks) for v, ks in moved if ks.size]
+    if not moved:
+        return q, []
     return q, [_guess_warning(system, q, moved, float(t[0, 0]), free - k)]
+
+
+def _fixed_coordinates(kernels: Kernels, q: np.ndarray, ok: np.ndarray, D: np.ndarray
+                       ) -> np.ndarray:
+    """Which coordinates (n,) the joints', drives' and initial statements' equations fix
+    at the first assembled variant: those along which no motion they allow moves, the
+    rows of the null space of their scaled Jacobian that vanish (to FIXED_TOL)."""
+    system = kernels.system
+    code = kernels.start if system.start is not None and kernels.start is not None \
+        else kernels
+    v = int(np.flatnonzero(ok)[0])
+    one = code.variant(v) if code.system.n_variants > 1 else code
+    with np.errstate(all="ignore"):
+        jac = eq.jacobian(one, q[v : v + 1])[0, 0] * D[v, 0]
+    if not jac.size:
+        return np.zeros(system.n, dtype=bool)
+    _, sv, vt = np.linalg.svd(jac)
+    rank = int((sv > sv[0] * max(jac.shape) * np.finfo(float).eps).sum()) if sv.size else 0
+    null = vt[rank:]  # (n - rank, n): the motions the equations allow, orthonormal
+    return np.linalg.norm(null, axis=0) <= FIXED_TOL
+
+
+#: a coordinate whose component in every allowed motion (orthonormal, scaled) is at most
+#: this is fixed by the equations (:func:`_fixed_coordinates`)
+FIXED_TOL = 1e-8
 
 
 def _free_coordinates(kernels: Kernels, q: np.ndarray, ok: np.ndarray, D: np.ndarray) -> int:
