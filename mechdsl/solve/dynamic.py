@@ -233,7 +233,7 @@ class DynamicRun(Run):
         Lagrangian's :class:`~mechdsl.solve.motion.Motion` where the model is large, has
         more equations than coordinates, or Phi_q has rank below m at the assembly
         (redundant constraints); else the dense index-1 evaluator."""
-        from .integrators import INTEGRATORS
+        from .integrators import INTEGRATORS, choose
 
         redundant = self.redundant
         if INTEGRATORS[self.method].implicit:  # it needs the index-3 form's terms
@@ -258,8 +258,6 @@ class DynamicRun(Run):
                 # the choice for redundant constraints, which the count of equations did
                 # not show (a parallelogram's third crank: vern9 ended 1.6e-4 rad off the
                 # one-degree-of-freedom equation at rtol 1e-6 over 20 s, dop853 2.7e-5)
-                from .integrators import choose
-
                 self.method, why = choose("auto", self.rtol, dopri5_from=self.opts.dopri5_from,
                                           large=self.large, redundant=True)
                 self.method_reason = f"{why} (the constraints proved redundant at the assembly)"
@@ -429,8 +427,8 @@ class DynamicRun(Run):
                 f"{budget:,} steps at t = {sol.t_reached:.10g} of {t0:g} .. {t1:g} "
                 f"({sol.steps:,} steps accepted, {sol.rejected:,} rejected); the "
                 f"{f'{k} output instants' if k != 1 else 'output instant'} integrated before "
-                f"it, to t = {self.times[k - 1] if k else t0:.10g}, {'are' if k != 1 else 'is'} kept in the "
-                f"results. Raise the budget with "
+                f"it, to t = {self.times[k - 1] if k else t0:.10g}, "
+                f"{'are' if k != 1 else 'is'} kept in the results. Raise the budget with "
                 f"--max-steps N (SolverOptions(max_steps=N)), or shorten the span or loosen "
                 f"--rtol")
         elif sol.status == "failed":

@@ -92,23 +92,29 @@ def positions(kernels: Kernels, q: np.ndarray, ok: np.ndarray, t: np.ndarray, D:
     return q, [_guess_warning(system, q, moved, float(t[0, 0]), free - k)]
 
 
+def _scaled_jacobian(code: Kernels, q: np.ndarray, ok: np.ndarray, D: np.ndarray
+                     ) -> np.ndarray:
+    """Phi_q D (m, n) of ``code``'s equations at the first assembled variant."""
+    v = int(np.flatnonzero(ok)[0])
+    one = code.variant(v) if code.system.n_variants > 1 else code
+    with np.errstate(all="ignore"):
+        return eq.jacobian(one, q[v : v + 1])[0, 0] * D[v, 0]
+
+
 def _fixed_coordinates(kernels: Kernels, q: np.ndarray, ok: np.ndarray, D: np.ndarray
                        ) -> np.ndarray:
     """Which coordinates (n,) the joints', drives' and initial statements' equations fix
     at the first assembled variant: those along which no motion they allow moves, the
-    rows of the null space of their scaled Jacobian that vanish (to FIXED_TOL)."""
-    system = kernels.system
-    code = kernels.start if system.start is not None and kernels.start is not None \
+    columns of the null space of their independent rows (:func:`independent_rows`, the
+    rank the count of free coordinates takes) that vanish (to FIXED_TOL)."""
+    code = kernels.start if kernels.system.start is not None and kernels.start is not None \
         else kernels
-    v = int(np.flatnonzero(ok)[0])
-    one = code.variant(v) if code.system.n_variants > 1 else code
-    with np.errstate(all="ignore"):
-        jac = eq.jacobian(one, q[v : v + 1])[0, 0] * D[v, 0]
-    if not jac.size:
-        return np.zeros(system.n, dtype=bool)
-    _, sv, vt = np.linalg.svd(jac)
-    rank = int((sv > sv[0] * max(jac.shape) * np.finfo(float).eps).sum()) if sv.size else 0
-    null = vt[rank:]  # (n - rank, n): the motions the equations allow, orthonormal
+    jac = _scaled_jacobian(code, q, ok, D)
+    kept, _ = independent_rows(jac)
+    if not kept:
+        return np.zeros(kernels.system.n, dtype=bool)
+    _, _, vt = np.linalg.svd(jac[kept])
+    null = vt[len(kept):]  # (n - rank, n): the motions the equations allow, orthonormal
     return np.linalg.norm(null, axis=0) <= FIXED_TOL
 
 
@@ -119,13 +125,8 @@ FIXED_TOL = 1e-8
 
 def _free_coordinates(kernels: Kernels, q: np.ndarray, ok: np.ndarray, D: np.ndarray) -> int:
     """n - the rank of the joints' and drives' equations at the first assembled variant."""
-    system = kernels.system
-    v = int(np.flatnonzero(ok)[0])
-    one = kernels.variant(v) if system.n_variants > 1 else kernels
-    with np.errstate(all="ignore"):
-        jac = eq.jacobian(one, q[v : v + 1])[0, 0] * D[v, 0]
-    kept, _ = independent_rows(jac)
-    return system.n - len(kept)
+    kept, _ = independent_rows(_scaled_jacobian(kernels, q, ok, D))
+    return kernels.system.n - len(kept)
 
 
 def _with_initials(kernels: Kernels, q: np.ndarray, ok: np.ndarray, t: np.ndarray,
@@ -138,11 +139,7 @@ def _with_initials(kernels: Kernels, q: np.ndarray, ok: np.ndarray, t: np.ndarra
     # over-determination: the rows of the statements, after the joints' and drives', in
     # order, at the configuration that closes the joints (the rank there is the rank at the
     # start wherever that is not a singular position)
-    v = int(np.flatnonzero(ok)[0])
-    one = code.variant(v) if aug.n_variants > 1 else code
-    with np.errstate(all="ignore"):
-        jac = eq.jacobian(one, q[v : v + 1])[0, 0] * D[v, 0]
-    _, dropped = independent_rows(jac)
+    _, dropped = independent_rows(_scaled_jacobian(code, q, ok, D))
     bad = [r for r in dropped if r >= rows[0]]
     if bad:
         c = aug.row_owner(int(bad[0]))

@@ -75,14 +75,9 @@ def forest(system, forces: tuple = ()) -> np.ndarray:
     from collections import deque
 
     names = {name: i for i, name in enumerate(system.body_names)}
-
-    def ends(bodies) -> tuple[int, ...]:
-        # the ground (every name that is not a moving body's) as -1
-        return tuple(sorted({names.get(b, -1) for b in bodies}))
-
-    spanned = {ends(f) for f in forces if len(ends(f)) == 2}
+    spanned = {e for e in (_ends(names, f) for f in forces) if len(e) == 2}
     touching: dict[int, list[tuple[int, int, bool]]] = {}
-    for e in (ends(c.bodies) for c in system.constraints):
+    for e in (_ends(names, c.bodies) for c in system.constraints):
         if len(e) == 2:
             for here, there in (e, e[::-1]):
                 touching.setdefault(here, []).append((here, there, e in spanned))
@@ -118,16 +113,23 @@ def _forces(equations: Equations) -> tuple:
     return tuple(getattr(dynamics, "forces", ()))
 
 
-def spanned_joints(system, forces: tuple) -> list[str]:
+def _ends(names: dict[str, int], bodies) -> tuple[int, ...]:
+    """The bodies' indices in ``names``, sorted, once each; the ground (every name that is
+    not a moving body's) as -1."""
+    return tuple(sorted({names.get(b, -1) for b in bodies}))
+
+
+def spanned_joints(system, forces: tuple, parent: np.ndarray | None = None) -> list[str]:
     """The names of the force elements (``name``, ``bodies``) that act between a body and
-    its parent body in :func:`forest`: forces along relative coordinates that absolute
-    ones turn. (A force between a body and the ground, or between bodies that no joint
-    ties, acts on coordinates that relative ones leave as they are.)"""
-    parent = forest(system, tuple(f.bodies for f in forces))
+    its parent body in the forest ``parent`` (default :func:`forest` of these forces):
+    forces along relative coordinates that absolute ones turn. (A force between a body
+    and the ground, or between bodies that no joint ties, acts on coordinates that
+    relative ones leave as they are.)"""
+    if parent is None:
+        parent = forest(system, tuple(f.bodies for f in forces))
     names = {name: i for i, name in enumerate(system.body_names)}
     edges = {tuple(sorted((i, int(p)))) for i, p in enumerate(parent) if p >= 0}
-    return [f.name for f in forces
-            if tuple(sorted({names.get(b, -1) for b in f.bodies})) in edges]
+    return [f.name for f in forces if _ends(names, f.bodies) in edges]
 
 
 def _listed(names: list[str]) -> str:
@@ -398,10 +400,10 @@ class Radau(Stepper):
     direction turns: the module docstring) where the model has at most ``relative_max``
     coordinates (``SolverOptions``, read from the equations' options) and a force element
     acts across a joint, and keeping them where they take far less work per simulated
-    second (:data:`RELATIVE_GAIN`), else going back for the rest of the run. A stiff force whose direction does not turn with the bodies (a rotary
-    spring at a pin) keeps one Jacobian in absolute coordinates, where each evaluation
-    costs less. Its state, dense output and restart are in absolute coordinates; its
-    counters sum every part."""
+    second (:data:`RELATIVE_GAIN`), else going back for the rest of the run. A stiff
+    force whose direction does not turn with the bodies (a rotary spring at a pin) keeps
+    one Jacobian in absolute coordinates, where each evaluation costs less. Its state,
+    dense output and restart are in absolute coordinates; its counters sum every part."""
 
     name = RadauStepper.name
     order = RadauStepper.order
@@ -424,10 +426,14 @@ class Radau(Stepper):
         self.relative_until: float | None = None
         self.relative: Relative | None = None
         system = getattr(equations, "system", None)
-        #: the force elements across the forest's joints (module docstring): without one,
-        #: stages that need their own Jacobians have another cause (a singular position)
-        self._spanning = spanned_joints(system, _forces(equations)) if (
-            system is not None and 0 < int(equations.n) <= limit) else []
+        #: the forest of the relative coordinates, and the force elements across its
+        #: joints (module docstring): without one, stages that need their own Jacobians
+        #: have another cause (a singular position)
+        self._parent, self._spanning = None, []
+        if system is not None and 0 < int(equations.n) <= limit:
+            forces = _forces(equations)
+            self._parent = forest(system, tuple(f.bodies for f in forces))
+            self._spanning = spanned_joints(system, forces, self._parent)
         self._may_turn = bool(self._spanning)
         self._before = np.zeros(5, dtype=int)  # the counters of the parts before
         #: (step size, evaluations and Jacobians it took, rejected attempts included) of
@@ -449,8 +455,7 @@ class Radau(Stepper):
         self.inner = new
 
     def _to_relative(self) -> None:
-        eq = self.equations
-        rel = Relative(eq, forest(eq.system, tuple(f.bodies for f in _forces(eq))))
+        rel = Relative(self.equations, self._parent)
         t, y = self.inner.t, self.inner.y
         self._go_on(rel, rel.relative(y))
         self.relative, self.relative_from = rel, t
