@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import enum
 import errno
+import math
 import os
 import sys
 import warnings
@@ -35,11 +36,31 @@ class ExitCode(enum.IntEnum):
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse exits with status 2 on a usage error; here 2 means a numerical failure."""
+    """argparse exits with status 2 on a usage error; here 2 means a numerical failure. A
+    bad value of an option is reported as the options' own checks report theirs,
+    ``mechdsl: error: --max-steps: ...``; other usage errors with the usage."""
 
     def error(self, message: str):  # type: ignore[override]
+        if message.startswith("argument -"):
+            self.exit(ExitCode.USER_ERROR, f"mechdsl: error: {message[len('argument '):]}\n")
         self.print_usage(sys.stderr)
         self.exit(ExitCode.USER_ERROR, f"{self.prog}: error: {message}\n")
+
+
+def _whole(text: str) -> int:
+    """An option's whole number, also written as 1e6 or 1_000_000 (a step budget, a
+    population): the value of ``int`` or of a float that is a whole number."""
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value.is_integer()):
+        raise argparse.ArgumentTypeError(f"a whole number, not '{text}'")
+    return int(value)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -70,7 +91,7 @@ def _parser() -> argparse.ArgumentParser:
         run.add_argument("--at", metavar="T1,T2,...",
                          help="the instants of --snapshot and --export (default: six, evenly "
                               "spread, for a drawing)")
-        run.add_argument("--frames", type=int, default=None, metavar="N",
+        run.add_argument("--frames", type=_whole, default=None, metavar="N",
                          help="frames of --animate and instants of --export at most, at least "
                               "2 (default 100; a .dxf or .svg export: the six of a snapshot, "
                               "or --at)")
@@ -96,11 +117,11 @@ def _parser() -> argparse.ArgumentParser:
         from .api import integrators_help  # the registry of integrators
 
         run.add_argument("--method", metavar="NAME", help=integrators_help())
-        run.add_argument("--max-steps", type=int, metavar="N",
+        run.add_argument("--max-steps", type=_whole, metavar="N",
                          help="forward dynamics: the integrator's step budget per variant, "
                               "accepted and rejected steps (default 1,000,000); a run that "
                               "uses it up stops with exit 2, the instants so far written")
-        run.add_argument("--blas-threads", type=int, metavar="N",
+        run.add_argument("--blas-threads", type=_whole, metavar="N",
                          help="forward dynamics: the BLAS threads while it integrates (default "
                               "1: its small factorisations lose by more; 0 leaves the "
                               "library's setting)")
@@ -117,7 +138,7 @@ def _parser() -> argparse.ArgumentParser:
                          help="replace the outputs by per-variant reductions, e.g. "
                               "'max(abs(slider.ax)), stroke = range(slider.x)': one row per "
                               "variant (max, min, mean, rms, range, initial, final, argmax, argmin)")
-        run.add_argument("--workers", metavar="N", type=int,
+        run.add_argument("--workers", metavar="N", type=_whole,
                          help="solve the sweep's chunks on a local Dask cluster of N processes "
                               "(pip install \"mechdsl[cluster]\")")
         run.add_argument("--scheduler", metavar="ADDRESS",
@@ -134,7 +155,7 @@ def _parser() -> argparse.ArgumentParser:
                          help="with --scheduler tls://...: this client's certificate")
         run.add_argument("--tls-key", metavar="FILE",
                          help="with --scheduler tls://...: this client's private key")
-        run.add_argument("--chunk", metavar="N", type=int,
+        run.add_argument("--chunk", metavar="N", type=_whole,
                          help="variants per chunk of a sweep (default: chosen from the model's "
                               "size, at most 1000; the results do not depend on where a chunk runs)")
         run.add_argument("--max-memory", metavar="SIZE",
@@ -151,17 +172,17 @@ def _parser() -> argparse.ArgumentParser:
                                                "run the model there (the options of run)")
     model_options(optimize)
     run_options(optimize)
-    optimize.add_argument("--popsize", type=int, metavar="N", default=15,
+    optimize.add_argument("--popsize", type=_whole, metavar="N", default=15,
                           help="differential evolution's population per varied param "
                                "(default 15)")
-    optimize.add_argument("--maxiter", type=int, metavar="N", default=200,
+    optimize.add_argument("--maxiter", type=_whole, metavar="N", default=200,
                           help="generations of the evolution at most (default 200)")
     optimize.add_argument("--tol", type=float, metavar="TOL", default=1e-6,
                           help="the evolution stops when its objectives' spread is below TOL "
                                "times their mean (default 1e-6)")
-    optimize.add_argument("--seed", type=int, metavar="N", default=0,
+    optimize.add_argument("--seed", type=_whole, metavar="N", default=0,
                           help="the evolution's random seed (default 0): a run is repeatable")
-    optimize.add_argument("--grid", type=int, metavar="N",
+    optimize.add_argument("--grid", type=_whole, metavar="N",
                           help="brute force instead: the best of an N x N x ... grid of the "
                                "ranges, solved as one sweep")
     optimize.add_argument("--no-refine", action="store_true",
@@ -181,7 +202,7 @@ def _parser() -> argparse.ArgumentParser:
     view = sub.add_parser("view", help="a live page of the mechanism: redrawn on every save, "
                                       "re-solved as a slider moves (pip install mechdsl[view])")
     view.add_argument("file", metavar="FILE", help="the .mech file")
-    view.add_argument("--port", type=int, default=0, metavar="N",
+    view.add_argument("--port", type=_whole, default=0, metavar="N",
                       help="the local port (default: a free one)")
     view.add_argument("--no-browser", action="store_true",
                       help="print the page's address, do not open a browser")

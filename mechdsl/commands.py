@@ -36,6 +36,7 @@ def _overrides(mech: Mechanism, args) -> Overrides:
         value = getattr(args, attr, None)
         if value is not None:
             setattr(ov, attr, value)
+    ov.time_names = ("--t0", "--t1", "--step")
     limit = _max_memory(args)
     if limit is not None:
         ov.max_memory = limit
@@ -640,6 +641,10 @@ def _written_lines(args, results, written: list[str], run_settings: dict) -> lis
     elif args.output in written and args.output != "-":
         rows = results.n_variants if results.reduced else int(results.n_solved.sum())
         lines.append(f"{args.output}: {rows} rows ({results.solve_time * 1e3:.1f} ms)")
+    if args.output and results.method:
+        # the summary's line that the rows do not say: which integrator, and why (a
+        # switch to radau where the motion turned stiff)
+        lines.append(f"integrator: {results.method}")
     for fmt in FORMATS.values():  # each format says what it wrote
         path = getattr(args, fmt.arg)
         line = fmt.summary_of(results, path, run_settings) if path in written else None

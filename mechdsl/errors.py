@@ -92,6 +92,15 @@ class MechError(Exception):
         return self
 
 
+class OptionError(MechError):
+    """A bad value of an option or argument (``--step 0``, ``simulate(step=0)``): the
+    message starts with the option's name, and no file is attached to it, since the value is
+    not in one (the command line prints it as ``mechdsl: error: --step: ...``)."""
+
+    def with_source(self, source: Source) -> "MechError":
+        return self
+
+
 class MechWarning(str):
     """A warning located in the model's text: the text "line L, column C: MESSAGE" (how it
     reads in the API, stores and pages) that also keeps its ``message``, ``span`` and

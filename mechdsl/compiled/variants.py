@@ -14,7 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..errors import MechError, Span, suggest
+from ..errors import MechError, OptionError, Span, suggest
 from ..grammar import expr as E
 from ..grammar.model import Model, Sweep, Vector
 from ..memory import size_text
@@ -48,6 +48,10 @@ class Overrides:
     #: the variants as rows of given values, {param: (V,)} (an optimiser's population)
     #: instead of every combination of ``sweeps``
     table: dict[str, np.ndarray] | None = None
+    #: what the caller calls t0, t1 and step, for the errors of values given here (the
+    #: API's arguments; the command line's options: ("--t0", "--t1", "--step")): a bad value
+    #: is reported as that option's, not at the file's ``simulate`` line
+    time_names: tuple[str, str, str] = ("span", "span", "step")
 
 
 def as_expr(v: E.Expr | float) -> E.Expr:
@@ -365,19 +369,34 @@ def time_grid(model: Model, ov: Overrides, variants: Variants, outputs: int) -> 
         raise MechError("nothing to simulate: add a line such as "
                         "'simulate t = 0 .. 1 step 0.001'")
 
-    def pick(o, e, what):
-        if o is not None:
-            return variants.values(as_expr(o), what, None)
-        return variants.values(e, what, e.span)
+    names = dict(zip(("t0", "t1", "step"), ov.time_names))
 
-    t0 = pick(ov.t0, sim.t0 if sim else E.Num(0.0), "the start time")
-    t1 = pick(ov.t1, sim.t1 if sim else None, "the end time")
-    h = pick(ov.step, sim.step if sim else None, "the step")
+    def pick(name, e, what):
+        o = getattr(ov, name)
+        if o is None:
+            return variants.values(e, what, e.span)
+        try:
+            return variants.values(as_expr(o), what, None)
+        except MechError as err:  # (not finite: the option's value, not the file's)
+            raise OptionError(f"{names[name]}: {err.message}") from None
+
+    t0 = pick("t0", sim.t0 if sim else E.Num(0.0), "the start time")
+    t1 = pick("t1", sim.t1 if sim else None, "the end time")
+    h = pick("step", sim.step if sim else None, "the step")
     span = sim.span if sim else None
     for v, what in ((t0, "start time"), (t1, "end time"), (h, "step")):
         if np.ptp(v) != 0:
             raise MechError(f"the {what} differs between sweep variants; the time grid "
                             "cannot depend on a swept param", span)
+    # a bad value given as an override is that option's error, not the file's line's
+    given = [name for name in ("t0", "t1", "step") if getattr(ov, name) is not None]
+    if not float(h[0]) > 0 and ov.step is not None:
+        raise OptionError(f"{names['step']}: the simulated time step must be positive, not "
+                        f"{float(h[0]):g}")
+    if float(t1[0]) < float(t0[0]) and {"t0", "t1"} & set(given):
+        option = names["t1"] if ov.t1 is not None else names["t0"]
+        raise OptionError(f"{option}: the simulated time range ends ({float(t1[0]):g}) before "
+                        f"it starts ({float(t0[0]):g})")
     per_instant = 8 * (1 + variants.count * max(outputs, 1))
     args = (float(t0[0]), float(t1[0]), float(h[0]), span, "simulated time", "instants",
             max(2, ov.max_memory // per_instant))

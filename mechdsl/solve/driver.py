@@ -85,6 +85,15 @@ TRIAL_RATIO_FACTORISED = 1.5
 STIFF_MIN_STEPS = 100
 
 
+#: A projection after a step that moves the state by more than this many times the step's
+#: tolerance (atol scale + rtol |y|, the largest component) is recorded in the solution
+#: (``moves``): a step's own error is within the tolerance, so such a move is the
+#: constraints' doing (a drive that jumps), which the caller examines
+JUMP_MOVE = 1e3
+#: The moves recorded at most
+MAX_MOVES = 5
+
+
 @dataclass(frozen=True)
 class Solution:
     """The outputs reached (``t`` a prefix of the requested instants, ``y`` their states),
@@ -109,6 +118,11 @@ class Solution:
     switched: tuple | None = None
     #: what the last stepper says of its course (its ``note``, rule 5), None if nothing
     note: str | None = None
+    #: the steps whose projection moved the state by more than :data:`JUMP_MOVE` times
+    #: the tolerance, as (t_old, t_new, the state before the projection): where a
+    #: constraint may have jumped (:mod:`mechdsl.solve.jumps`), the first
+    #: :data:`MAX_MOVES` of them
+    moves: tuple = ()
 
 
 def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
@@ -170,6 +184,8 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             emit(k, tt, project(tt, yy))
 
     before = np.zeros(5, dtype=int)  # the counters of a stepper switched from
+    moves: list[tuple] = []
+    tol_abs = atol * (scale if scale is not None else 1.0)
     switched = None
 
     def done(status: str, message: str = "", reason: str = "") -> Solution:
@@ -178,7 +194,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         counts = [int(c) for c in counts]
         return Solution(np.array(outs_t), np.array(outs_y).reshape(len(outs_t), n), status,
                         message, *counts[:3], t, reason, *counts[3:], switched,
-                        None if s is None else getattr(s, "note", None))
+                        None if s is None else getattr(s, "note", None), tuple(moves))
 
     def budget() -> Solution:
         return done("failed", f"its budget of {max_steps:,} steps (accepted and rejected) "
@@ -234,7 +250,11 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                 elif at_output:
                     y_new = project(t_new, y_new)
             elif project is not None:
+                y_pre = y_new
                 y_new = (project if at_output else settle)(t_new, y_new)
+                if len(moves) < MAX_MOVES and np.max(np.abs(y_new - y_pre) / (
+                        tol_abs + rtol * np.abs(y_new))) > JUMP_MOVE:
+                    moves.append((t, t_new, y_pre))
                 s.restart(y_new)
             if at_output:
                 emit(k_next, t_new, y_new.copy(), raw)

@@ -42,13 +42,18 @@ from ..results import Results
 from . import extrema, instants
 from .assembly import gauss_newton
 from .base import Progress, Run
-from .diagnose import constraint_names, variant_label
+from .diagnose import constraint_names, jumps_text, variant_label
 from .options import SolverOptions
 from ..symbolic.codegen import first_floats
 
 
 #: The integrator's tolerances where neither the options nor the simulate statement give them
 RTOL, ATOL = 1e-8, 1e-10
+#: A relative tolerance above this gets a warning: each step may then be off by a percent
+#: and more, which integrators accept (scipy's and SUNDIALS' set no bound) but a run rarely
+#: means (a pendulum at rtol 0.5 gained 100 times its energy in 20 s; scipy's default is
+#: 1e-3)
+LOOSE_RTOL = 1e-2
 
 
 
@@ -92,6 +97,11 @@ class DynamicRun(Run):
         tol = system.tolerances  # the file's; options given explicitly override them
         self.rtol = self.opts.rtol or tol.get("rtol", RTOL)
         self.atol = self.opts.atol or tol.get("atol", ATOL)
+        if self.rtol > LOOSE_RTOL:
+            self.warnings.append(
+                f"rtol = {self.rtol:g} is loose: each step may be off by {self.rtol:.0%} of "
+                f"the state, and the motion wrong in kind (energy gained, a swing lost); "
+                f"1e-3 to 1e-10 are usual, {RTOL:g} the default")
         from .integrators import choose
 
         #: the integrator's name (in :data:`mechdsl.solve.integrators.INTEGRATORS`) and why
@@ -417,6 +427,11 @@ class DynamicRun(Run):
                 sol = again  # its outputs replaced the first attempt's, instant by instant
         finally:  # an interrupt too: the instants solved are written, complete
             self._write(v)
+        jumps = self._jumps(sol, equations, scale)
+        if jumps and sol.status != "failed":
+            self.warnings.append(f"{jumps_text(sysm, jumps)}{variant_label(sysm, v)}; the "
+                                 "state was moved onto the constraints after it by the "
+                                 "projection that follows every step (not an impact's law)")
         if sol.status == "ok" and self.to_refine:
             self._refine_extremes(v, equations, scale)
         # the instants kept: those integrated, less any that could not be projected (_write)
@@ -435,8 +450,32 @@ class DynamicRun(Run):
             t_fail = float(self.times[k - 1]) if k else t0
             self.failures.append(
                 f"the forward dynamics stopped after t = {t_fail:.10g}"
-                f"{variant_label(sysm, v)}: {sol.message}")
+                f"{variant_label(sysm, v)}: {sol.message}"
+                + (f"; {jumps_text(sysm, jumps)}" if jumps else ""))
         return sol.status
+
+    def _jumps(self, sol, equations, scale: np.ndarray) -> list:
+        """The constraints that jump in time (:mod:`mechdsl.solve.jumps`) within the steps
+        whose projection moved the state far (``sol.moves``) and, where the integration
+        failed (not for its budget), around the instant it reached: a drive with a step."""
+        from .jumps import time_jumps
+
+        n = self.system.n
+        probes = [(a, b, y[:n]) for a, b, y in sol.moves]
+        if sol.status == "failed" and sol.reason != "budget" and len(sol.y):
+            t, span = float(sol.t_reached), float(self.times[-1] - self.times[0])
+            width = max(1e-3 * span, 1e-9)
+            probes.append((max(t - width, float(self.times[0])), min(t + width,
+                           float(self.times[-1])), sol.y[-1][:n]))
+        phi_jac, nu = getattr(equations, "phi_jac", None), getattr(equations, "nu", None)
+        if phi_jac is None or not self.system.m:
+            return []
+        floor = self.atol * float(np.max(scale))
+        found: dict[int, object] = {}
+        for a, b, q in probes:
+            for j in time_jumps(lambda t, q=q: phi_jac(t, q)[0], nu, a, b, floor):
+                found.setdefault(j.row, j)
+        return sorted(found.values(), key=lambda j: j.t)
 
     def _dissipation_integral(self):
         """Where an output asks for ``dissipated_energy``: the callback of each accepted step

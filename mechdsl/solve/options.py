@@ -257,6 +257,10 @@ class SolverOptions:
                      "max_batch_elements", "coarse_stride", "window", "compiled_from"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1")
+        for name in ("max_steps", "blas_threads"):  # 1e6 as the command line takes it
+            value = getattr(self, name)
+            if isinstance(value, float) and value.is_integer():
+                object.__setattr__(self, name, int(value))
         # a count of steps: a float (nan above all) would let a run go on without end
         if (isinstance(self.max_steps, bool) or not isinstance(self.max_steps, Integral)
                 or self.max_steps < 1):

@@ -1,0 +1,155 @@
+"""Options fail as options, and a drive that jumps is named.
+
+A bad ``--step``, ``--t0``, ``--t1`` or count is the option's error (``mechdsl: error:
+--step: ...``, exit 1), not the file's ``simulate`` line's; counts take 1e3 as the API takes
+1e3; a loose ``rtol`` is said; with ``-o`` a dynamics run still says its integrator. A drive
+whose position or velocity jumps is located by bisection in time (checked against step
+functions whose jump is known) and named: in a warning where an explicit pair projected over
+it, in the failure where radau's step underflowed at it."""
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import mechdsl
+from mechdsl.errors import OptionError
+from mechdsl.solve import SolverOptions
+from mechdsl.solve.jumps import time_jumps
+
+PENDULUM = """gravity = (0, -9.81)
+ground { }
+body bar { guess = (0, 0, 0)  mass = 1  inertia = 1/12  centroid = (0.5, 0) }
+joint pin: revolute(ground.origin, bar.origin)
+simulate t = 0 .. 1 step 0.01
+output theta = bar.phi
+"""
+
+# a pendulum hanging from a cart whose drive is DRIVE
+CART = """gravity = (0, -9.81)
+ground { }
+body cart { guess = (0, 0, 0)  mass = 1  inertia = 0.1 }
+body bar { guess = (0, 0, -1.5708)  mass = 1  inertia = 1/12  centroid = (0.5, 0) }
+joint rail: prismatic(ground.origin, cart.origin, axis = (1, 0))
+joint pin: revolute(cart.origin, bar.origin)
+drive push: x(cart.origin) = DRIVE
+simulate t = 0 .. 2 step 0.01
+output theta = bar.phi, x = cart.x
+"""
+
+
+def _run(path, *args):
+    return subprocess.run([sys.executable, "-m", "mechdsl", "run", str(path), *map(str, args)],
+                          capture_output=True, text=True, timeout=120)
+
+
+@pytest.fixture
+def pendulum_file(tmp_path):
+    path = tmp_path / "p.mech"
+    path.write_text(PENDULUM)
+    return path
+
+
+@pytest.mark.parametrize("args, message", [
+    (("--step", "0"), "mechdsl: error: --step: the simulated time step must be positive, "
+                      "not 0"),
+    (("--t1", "-1"), "mechdsl: error: --t1: the simulated time range ends (-1) before it "
+                     "starts (0)"),
+    (("--t0", "5"), "mechdsl: error: --t0: the simulated time range ends (1) before it "
+                    "starts (5)"),
+    (("--step", "nan"), "mechdsl: error: --step: the step is nan"),
+    (("--max-steps", "1.5"), "mechdsl: error: --max-steps: a whole number, not '1.5'"),
+    (("--frames", "x"), "mechdsl: error: --frames: a whole number, not 'x'"),
+    (("--max-steps", "0"), "mechdsl: error: --max-steps: max_steps must be a whole number"),
+])
+def test_bad_option_values_are_the_options_errors(pendulum_file, tmp_path, args, message):
+    r = _run(pendulum_file, "-o", tmp_path / "o.csv", *args)
+    assert r.returncode == 1
+    assert r.stderr.startswith(message), r.stderr
+    assert "p.mech" not in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_the_api_fails_the_same_way_and_takes_counts_as_the_command_line():
+    mech = mechdsl.loads(PENDULUM, "p.mech")
+    with pytest.raises(OptionError, match=r"^step: the simulated time step must be positive"):
+        mech.simulate(step=0)
+    with pytest.raises(OptionError, match=r"^span: the simulated time range ends \(-1\)"):
+        mech.simulate(span=(0, -1))
+    assert SolverOptions(max_steps=1e3).max_steps == 1000
+    assert type(SolverOptions(max_steps=1e3).max_steps) is int
+    for bad in (2.5, math.nan, math.inf):
+        with pytest.raises(ValueError, match="max_steps must be"):
+            SolverOptions(max_steps=bad)
+
+
+def test_a_count_written_1e3_runs_and_a_loose_rtol_is_said(pendulum_file, tmp_path):
+    out = tmp_path / "o.csv"
+    r = _run(pendulum_file, "-o", out, "--max-steps", "1e3", "--rtol", "0.5")
+    assert r.returncode == 0, r.stderr
+    assert "rtol = 0.5 is loose" in r.stderr
+    # -o: the rows written, and the integrator that wrote them
+    assert f"{out}: 101 rows" in r.stderr and "integrator: " in r.stderr
+    r = _run(pendulum_file, "-o", out, "--rtol", "1e-3")
+    assert r.returncode == 0 and "loose" not in r.stderr
+
+
+# -- jumps --------------------------------------------------------------------------------
+
+def test_bisection_locates_a_step_and_ignores_a_fast_smooth_change():
+    jump_at, size = 0.3141, 0.1
+
+    def phi(t):  # row 0 smooth and fast (1000 rad/s), row 1 a step, row 2 a kink
+        return np.array([0.05 * math.sin(1000 * t), 0.2 + (size if t >= jump_at else 0.0),
+                         max(t - jump_at, 0.0)])
+
+    def nu(t):  # minus the time derivative of phi
+        return -np.array([50 * math.cos(1000 * t), 0.0, 1.0 if t >= jump_at else 0.0])
+
+    found = time_jumps(phi, nu, 0.3, 0.33, floor=1e-10)
+    assert [(j.row, j.level) for j in found] == [(1, "position"), (2, "velocity")]
+    for j, expected in zip(found, (size, 1.0)):
+        assert abs(j.t - jump_at) <= 4 * np.spacing(jump_at)
+        assert j.size == pytest.approx(expected, rel=1e-12)
+    # no step inside the interval: nothing, however fast the rows change
+    assert time_jumps(phi, nu, 0.32, 0.33, floor=1e-10) == []
+    # a change below the floor does not count
+    assert time_jumps(phi, nu, 0.3, 0.33, floor=10.0) == []
+
+
+@pytest.mark.parametrize("drive, level, size", [
+    ("if t < 1 then 0 else 0.1", "position", "0.1"),
+    ("if t < 1 then 0 else 0.5*(t - 1)", "velocity", "0.5"),
+])
+def test_an_explicit_pair_names_the_drive_it_projected_over(tmp_path, drive, level, size):
+    path = tmp_path / "cart.mech"
+    path.write_text(CART.replace("DRIVE", drive))
+    out = tmp_path / "o.csv"
+    r = _run(path, "-o", out)
+    assert r.returncode == 0, r.stderr
+    assert f"warning: drive push (x, line 7) jumps at t = 1 (its {level} by {size})" \
+        in r.stderr
+    data = np.loadtxt(out, delimiter=",", comments="#", skiprows=1)
+    assert data.shape[0] == 201  # every instant, the run goes on after the warning
+
+
+def test_radau_names_the_drive_where_its_step_underflows(tmp_path):
+    path = tmp_path / "cart.mech"
+    path.write_text(CART.replace("DRIVE", "if t < 1 then 0 else 0.1"))
+    out = tmp_path / "o.csv"
+    r = _run(path, "-o", out, "--method", "radau")
+    assert r.returncode == 2, r.stderr
+    assert "the step size underflowed" in r.stderr
+    assert "drive push (x, line 7) jumps at t = 1 (its position by 0.1)" in r.stderr
+    data = np.loadtxt(out, delimiter=",", comments="#", skiprows=1)
+    assert len(data) == 100 and data[-1, 0] == pytest.approx(0.99)
+
+
+def test_a_smooth_fast_drive_is_not_called_a_jump(tmp_path):
+    path = tmp_path / "cart.mech"
+    path.write_text(CART.replace("DRIVE", "0.1*sin(50*t)"))
+    r = _run(path, "-o", tmp_path / "o.csv")
+    assert r.returncode == 0, r.stderr
+    assert "jumps" not in r.stderr
