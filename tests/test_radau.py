@@ -443,3 +443,68 @@ def test_radau_keeps_the_driver_s_budget_and_longest_step():
     t, y = st.t, st.y
     assert st.step() == OUT_OF_BUDGET
     assert st.attempts == st.max_attempts and st.t == t and st.y is y
+
+
+# -- the tolerances radau holds ------------------------------------------------------------
+
+DOUBLE_PENDULUM = """gravity = (0, -9.81)
+ground { }
+body a { guess = (0, 0, 0)  mass = 1  inertia = 1/12  centroid = (0.5, 0)
+    point tip = (1, 0) }
+body b { guess = (1, 0, 0)  mass = 1  inertia = 1/12  centroid = (0.5, 0) }
+joint p1: revolute(ground.origin, a.origin)
+joint p2: revolute(a.tip, b.origin)
+simulate t = 0 .. 2 step 0.01
+output th1 = a.phi, th2 = b.phi
+"""
+
+
+def _double_pendulum(t1: float) -> np.ndarray:
+    """Two uniform bars (1 m, 1 kg) pinned in a chain, released horizontal: Lagrange's
+    equations in the absolute angles, M = [[4/3, c/2], [c/2, 1/3]] (c = cos(th1 - th2)),
+    M thdd = -(s/2) (th2'^2, -th1'^2) - g (3/2 cos th1, 1/2 cos th2), s = sin(th1 - th2)."""
+    g = 9.81
+
+    def f(t, y):
+        a, b, wa, wb = y
+        c, s = math.cos(a - b), math.sin(a - b)
+        M = np.array([[4 / 3, c / 2], [c / 2, 1 / 3]])
+        rhs = -np.array([s / 2 * wb * wb + 1.5 * g * math.cos(a),
+                         -s / 2 * wa * wa + 0.5 * g * math.cos(b)])
+        return np.concatenate(((wa, wb), np.linalg.solve(M, rhs)))
+    return solve_ivp(f, (0, t1), [0.0, 0.0, 0.0, 0.0], method="DOP853", rtol=1e-13,
+                     atol=1e-15).y[:2, -1]
+
+
+def test_tolerances_below_the_floor_are_raised_to_it_and_said():
+    import mechdsl
+    from mechdsl.solve import SolverOptions
+    from mechdsl.solve.radau import ATOL_MIN, RTOL_MIN
+
+    mech = mechdsl.loads(DOUBLE_PENDULUM, "dp.mech")
+    exact = _double_pendulum(2.0)
+    # asked beyond the floor, where the index-3 round-off grew the error to 2.9e-9 rad
+    tight = mech.simulate(options=SolverOptions(method="radau", rtol=1e-12, atol=1e-14))
+    assert tight.ok
+    assert "radau at rtol 1e-10, atol 1e-13 (asked rtol 1e-12, atol 1e-14)" in tight.method
+    got = np.array([tight["th1"][-1], tight["th2"][-1]])
+    assert np.abs(got - exact).max() < 5e-10, np.abs(got - exact).max()
+    at_floor = mech.simulate(options=SolverOptions(method="radau", rtol=RTOL_MIN,
+                                                   atol=ATOL_MIN))
+    np.testing.assert_array_equal(at_floor["th1"], tight["th1"])  # the same run
+    assert "asked" not in at_floor.method
+
+
+def test_andrews_at_an_atol_below_the_floor_runs_instead_of_underflowing():
+    import mechdsl
+    from mechdsl.solve import SolverOptions
+    from test_dynamics import ANDREWS_NAMES, ANDREWS_Q
+
+    from conftest import EXAMPLES
+
+    res = mechdsl.load(EXAMPLES / "andrews.mech").simulate(
+        options=SolverOptions(method="radau", rtol=1e-10, atol=1e-14))
+    assert res.ok, res.messages  # (it underflowed at t = 3e-8)
+    assert "(asked atol 1e-14)" in res.method
+    got = np.array([res[name][-1] for name in ANDREWS_NAMES])
+    assert (np.abs(got - ANDREWS_Q) / np.abs(ANDREWS_Q)).max() < 1e-7

@@ -137,6 +137,29 @@ def _posv() -> Callable:
 #: up to this many equations the multipliers' range part is solved dense
 _DENSE_RANGE = 60
 
+#: The tightest tolerances radau integrates at (rtol, and atol as the driver scales it): on
+#: the index-3 form the velocities carry round-off of order eps / h (the multipliers eps /
+#: h^2), which smaller steps grow, so that below them the error grows instead of shrinking
+#: (measured against vern9 at rtol 1e-13, the first output at the end: a double pendulum at
+#: t = 2, 9.1e-12 rad at rtol 1e-10, 1.2e-10 at 1e-11, 2.9e-9 at 1e-12; Andrews at t =
+#: 0.03, 1.4e-9 at 1e-10, 1.6e-8 at 1e-11), and below atol 1e-13 steps underflow (Andrews at
+#: 3e-14 at t = 3e-7, the stiff pendulum at k = 1e8, the car axis at 1e-14)
+RTOL_MIN, ATOL_MIN = 1e-10, 1e-13
+
+
+def floored(rtol: float, atol: float) -> tuple[float, float, str | None]:
+    """(rtol, atol) raised to :data:`RTOL_MIN`, :data:`ATOL_MIN` where below them, and the
+    line that says so for the run's summary (None where nothing changed)."""
+    if rtol >= RTOL_MIN and atol >= ATOL_MIN:
+        return rtol, atol, None
+    asked = ", ".join(f"{name} {value:g}" for name, value, low in
+                      (("rtol", rtol, RTOL_MIN), ("atol", atol, ATOL_MIN)) if value < low)
+    rtol, atol = max(rtol, RTOL_MIN), max(atol, ATOL_MIN)
+    return rtol, atol, (f"radau at rtol {rtol:g}, atol {atol:g} (asked {asked}): tighter, the "
+                        "round-off of its index-3 equations grows the error instead of "
+                        "shrinking it; vern9 or dop853 integrate to tighter tolerances")
+
+
 #: the longest interval between two retries of the common Jacobian, in stagewise_retry's
 RETRY_CAP = 16
 

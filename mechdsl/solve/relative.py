@@ -56,7 +56,7 @@ from typing import Callable
 
 import numpy as np
 
-from .radau import RadauStepper
+from .radau import RadauStepper, floored
 from .stepper import Equations, Stepper
 
 __all__ = ["Radau", "Relative", "forest", "spanned_joints"]
@@ -416,6 +416,8 @@ class Radau(Stepper):
     def __init__(self, equations: Equations, t0: float, y0: np.ndarray, t_bound: float, *,
                  rtol: float, atol: float, scale: np.ndarray,
                  first_step: float | None = None, **options) -> None:
+        #: where the tolerances asked for are below what the method holds (radau.floored)
+        rtol, atol, self._floor_note = floored(rtol, atol)
         self.equations, self.rtol, self.atol, self.scale = equations, rtol, atol, scale
         self._options = options
         opts = getattr(equations, "opts", None)
@@ -468,7 +470,12 @@ class Radau(Stepper):
 
     @property
     def note(self) -> str | None:
-        """Rule 5: where the run went on in relative coordinates, and why."""
+        """Rule 5: the tolerances where they were raised to the method's floor; where the
+        run went on in relative coordinates, and why."""
+        notes = [n for n in (self._floor_note, self._relative_note()) if n]
+        return "; ".join(notes) if notes else None
+
+    def _relative_note(self) -> str | None:
         if self.relative_from is None:
             return None
         why = (f"its stages needed their own Jacobians, with {_listed(self._spanning)} "
