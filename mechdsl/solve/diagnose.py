@@ -47,12 +47,9 @@ def constraint_names(system: System, rows) -> str:
 
 def jumps_text(system: System, jumps) -> str:
     """'drive push (x, line 7) jumps at t = 1 (its position by 0.1)' for each
-    :class:`~mechdsl.solve.jumps.Jump`, and why the motion cannot follow it."""
-    said = "; ".join(f"{constraint_names(system, [j.row])} jumps at t = {j.t:.10g} (its "
+    :class:`~mechdsl.solve.jumps.Jump`."""
+    return "; ".join(f"{constraint_names(system, [j.row])} jumps at t = {j.t:.10g} (its "
                      f"{j.level} by {j.size:.3g})" for j in jumps)
-    return (f"{said}: no motion under finite forces follows a jump in a constraint's "
-            "position or velocity; write it with both continuous in t (a smoothstep, not a "
-            "step or a ramp that starts abruptly), or run again from the state after it")
 
 
 def col_scale(system: System) -> np.ndarray:

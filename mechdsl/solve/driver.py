@@ -46,6 +46,16 @@ and owns
     of the mean), a stiffness all of them.
 
   The decision reads step sizes only, never a clock: the same run decides the same way;
+* **jumps** of the constraints in time (a drive written with a step, or one that starts
+  abruptly): where the projection after an explicit step moves the state by more than
+  :data:`JUMP_MOVE` times the step's tolerance, the constraints' position and velocity terms
+  are bisected in time over the step (:mod:`mechdsl.solve.jumps`). At a jump the step is
+  integrated again, by a stepper of its own, up to the instant before it; a jump in
+  position then ends the run there ("failed", reason "jump": no motion follows it), a
+  jump in velocity goes on from the state the equations' ``impulse(t, y)`` gives (the
+  constraints' impulsive motion, the velocities' mass-orthogonal projection; ``project``
+  where they have none), with a fresh stepper (rule 1), and the solution lists the instant
+  (``impulses``);
 * **progress**: ``on_output(k, t, y)`` with each output as soon as it is known, and
   ``on_step(t, attempts)`` after every accepted step (one output interval may take
   millions of steps: a display fed by the outputs alone would stand still). It costs a
@@ -60,6 +70,7 @@ from typing import Callable
 
 import numpy as np
 
+from .jumps import Jump, time_jumps
 from .stepper import OUT_OF_BUDGET, STIFF, Equations, Stepper
 
 
@@ -123,6 +134,9 @@ class Solution:
     #: constraint may have jumped (:mod:`mechdsl.solve.jumps`), the first
     #: :data:`MAX_MOVES` of them
     moves: tuple = ()
+    #: the instants where a constraint's velocity term jumped and the explicit stepper went
+    #: on from the impulsive motion (module docstring)
+    impulses: tuple = ()
 
 
 def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
@@ -185,6 +199,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
 
     before = np.zeros(5, dtype=int)  # the counters of a stepper switched from
     moves: list[tuple] = []
+    impulses: list[float] = []  # the instants of the jumps gone through
     tol_abs = atol * (scale if scale is not None else 1.0)
     switched = None
 
@@ -194,7 +209,8 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         counts = [int(c) for c in counts]
         return Solution(np.array(outs_t), np.array(outs_y).reshape(len(outs_t), n), status,
                         message, *counts[:3], t, reason, *counts[3:], switched,
-                        None if s is None else getattr(s, "note", None), tuple(moves))
+                        None if s is None else getattr(s, "note", None), tuple(moves),
+                        tuple(impulses))
 
     def budget() -> Solution:
         return done("failed", f"its budget of {max_steps:,} steps (accepted and rejected) "
@@ -228,6 +244,56 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             elif message is not None:
                 return done("failed", message)
             t_new, y_new = s.t, s.y
+            # the end state projected first (explicit steppers), so that a projection that
+            # moves it far, over a constraint that jumps, is seen before any output of the
+            # step is given
+            end = None
+            # (an output at the step's end: the first at or after t_new is t_new itself)
+            k_end = k_next + int(np.searchsorted(t_eval[k_next:], t_new))
+            at_output = k_end < n_out and t_eval[k_end] <= t_new
+            if project is not None and not stepper.constrained:
+                end = (project if at_output else settle)(t_new, y_new)
+                if np.max(np.abs(end - y_new) / (tol_abs + rtol * np.abs(end))) > JUMP_MOVE:
+                    if len(moves) < MAX_MOVES:
+                        moves.append((t, t_new, y_new))
+                    jump = _first_jump(equations, t, t_new, y_new[:n // 2], tol_abs)
+                    if jump is not None:
+                        # integrate to the instant before the jump again, apart; the state
+                        # after a jump in velocity is the constraints' impulsive motion, a
+                        # jump in position ends the run there (module docstring)
+                        used = int(before[:2].sum()) + s.attempts
+                        before += (s.naccepted, s.nrejected, s.nfev, s.njev, s.nlu)
+                        y_old, s = s.y_old, None
+                        sub = _up_to(stepper, equations, y_old, t, jump.t_before, t_eval,
+                                     k_next,
+                                     emit, dict(rtol=rtol, atol=atol, scale=scale,
+                                                max_steps=max_steps - used,
+                                                on_interval=on_interval,
+                                                raw_outputs=raw_outputs), on_step, used)
+                        before += (sub.steps, sub.rejected, sub.evaluations, sub.njev,
+                                   sub.nlu)
+                        moves.extend(sub.moves[:MAX_MOVES - len(moves)])
+                        k_next += int(np.searchsorted(t_eval[k_next:], jump.t_before,
+                                                      side="right"))
+                        if sub.status != "ok":
+                            t = sub.t_reached
+                            return done(sub.status, sub.message, sub.reason)
+                        if jump.level == "position":
+                            t = jump.t_before
+                            return done("failed", "no motion follows the constraints at t = "
+                                                  f"{jump.t:.10g}", "jump")
+                        impulse = getattr(equations, "impulse", None) or project
+                        t, y = jump.t, impulse(jump.t, sub.y[-1])
+                        impulses.append(jump.t)
+                        s = stepper(equations, t, y, t_end, rtol=rtol, atol=atol,
+                                    scale=scale, first_step=None)
+                        s.max_attempts = max_steps - int(before[:2].sum())
+                        if max_step < np.inf:
+                            s.max_step = max_step
+                        if k_next < n_out and t_eval[k_next] <= t:
+                            emit(k_next, t, y.copy())
+                            k_next += 1
+                        continue
             dense = None  # (made once a step: an interpolant may cost stages of its own)
             if on_interval is not None:  # a quadrature over the step (its dense output)
                 dense = s.dense_output()
@@ -240,7 +306,6 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                     te = float(t_eval[k_next])
                     emit_inside(k_next, te, dense(te))
                     k_next += 1
-            at_output = k_next < n_out and t_eval[k_next] <= t_new
             raw = False
             if project is not None and stepper.constrained:
                 # rule 6: the stepper keeps the constraints; only what is reported is
@@ -249,12 +314,8 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                     raw = True
                 elif at_output:
                     y_new = project(t_new, y_new)
-            elif project is not None:
-                y_pre = y_new
-                y_new = (project if at_output else settle)(t_new, y_new)
-                if len(moves) < MAX_MOVES and np.max(np.abs(y_new - y_pre) / (
-                        tol_abs + rtol * np.abs(y_new))) > JUMP_MOVE:
-                    moves.append((t, t_new, y_pre))
+            elif end is not None:
+                y_new = end
                 s.restart(y_new)
             if at_output:
                 emit(k_next, t_new, y_new.copy(), raw)
@@ -393,3 +454,39 @@ def _trial(stiff: tuple, t: float, y: np.ndarray, t_end: float, h: float, name: 
     if s is not None:
         spent[:] = (s.naccepted, s.nrejected, s.nfev, s.njev, s.nlu)
     return why, spent, ((s, equations, spans) if why is not None else None)
+
+
+def _first_jump(equations: Equations, a: float, b: float, q: np.ndarray,
+                tol_abs) -> Jump | None:
+    """The earliest jump in (a, b] of the constraints' position or velocity terms at the
+    positions q (:mod:`mechdsl.solve.jumps`), None where none jumps (the projection moved
+    the state far for another reason)."""
+    phi_jac, nu = getattr(equations, "phi_jac", None), getattr(equations, "nu", None)
+    if phi_jac is None:
+        return None
+    floor = float(np.max(tol_abs))
+    found = time_jumps(lambda t: phi_jac(t, q)[0], nu, a, b, floor)
+    if not found:
+        return None
+    first = min(j.t for j in found)
+    # at one instant a jump in position is the one to report (no velocity follows it)
+    return min((j for j in found if j.t == first), key=lambda j: j.level != "position")
+
+
+def _up_to(stepper: type[Stepper], equations: Equations, y: np.ndarray, t_a: float,
+           t_b: float, t_eval: np.ndarray, k_next: int, emit: Callable, options: dict,
+           on_step: Callable | None, used: int) -> Solution:
+    """:func:`integrate` from (t_a, y) to t_b, its outputs those of ``t_eval`` from index
+    ``k_next`` up to t_b, given to ``emit`` with their indices in ``t_eval``, and its state
+    at t_b its last; ``used``: the attempts counted before it (for ``on_step``)."""
+    inside = t_eval[k_next:][t_eval[k_next:] <= t_b]
+    points = np.concatenate(([t_a], inside, [t_b] if not inside.size or inside[-1] < t_b
+                             else []))
+
+    def forward(k: int, tt: float, yy: np.ndarray, raw: bool = False) -> None:
+        if 1 <= k <= inside.size:
+            emit(k_next + k - 1, tt, yy, raw)
+
+    step = None if on_step is None else (lambda tt, attempts: on_step(tt, used + attempts))
+    return integrate(stepper, equations, y, points, on_output=forward, on_step=step,
+                     **options)

@@ -148,6 +148,29 @@ class DynamicRun(Run):
         qd -= D * _min_norm(ev.dgesv, jac * D, jac @ qd - ev.nu(t))
         return np.concatenate((q, qd))
 
+    def _impulse(self, t: float, y: np.ndarray) -> np.ndarray:
+        """The state just after the constraints' velocity terms jumped at t (a drive that
+        starts abruptly): the positions projected as at an output (they are continuous), the
+        velocities by the impulsive motion of ideal constraints (a perfectly plastic impact
+        with them), M (qd+ - qd-) = Phi_q^T Lambda with Phi_q qd+ = nu(t+), that is
+
+            [M  Phi_q^T] [qd+   ]   [M qd-]
+            [Phi_q   0 ] [Lambda] = [nu   ],
+
+        the M-orthogonal projection of qd- onto Phi_q qd = nu (Haug's impulse-momentum
+        equations with the constraints as the impact's conditions)."""
+        n, m = self.ev.n, self.ev.m
+        q = self._project(t, y)[:n]
+        if m == 0:
+            return np.concatenate((q, y[n:]))
+        _, jac = self.ev.phi_jac(t, q)
+        mass = self.one.dynamics.mass_matrix(q[None, None])[0, 0]
+        a = np.zeros((n + m, n + m))
+        a[:n, :n], a[:n, n:], a[n:, :n] = mass, jac.T, jac
+        rhs = np.concatenate((mass @ y[n:], self.ev.nu(t)))
+        qd = np.linalg.lstsq(a, rhs, rcond=None)[0][:n]  # (redundant rows: least squares)
+        return np.concatenate((q, qd))
+
     def _settle(self, t: float, y: np.ndarray) -> np.ndarray:
         """(q, qd) after a step, moved onto both manifolds by one Gauss-Newton correction
         each: dz = (J D)^+ Phi at q, then dv = (J D)^+ (J' qd - nu) with J' = Phi_q at the
@@ -389,7 +412,7 @@ class DynamicRun(Run):
         scale = np.concatenate((self.D[v, 0], self.D[v, 0]))
         try:
             equations = (self.ev if isinstance(self.ev, _augmented())
-                         else _Equations(self.ev, self._project, self._settle))
+                         else _Equations(self.ev, self._project, self._settle, self._impulse))
             stiff = None
             if self.opts.method == "auto" and not INTEGRATORS[self.method].implicit:
                 implicit = stiff_method()
@@ -407,7 +430,8 @@ class DynamicRun(Run):
                     f"proved stiff ({why})")
             if sol.note:
                 self.switches.append(f"{sol.note}{variant_label(sysm, v)}")
-            if sol.status == "failed" and sol.reason != "budget" and equations is not self.ev:
+            if sol.status == "failed" and sol.reason not in ("budget", "jump") and \
+                    equations is not self.ev:
                 # the dense index-1 solve needs Phi_q of full rank: a singular position
                 # met on the way (a parallelogram's collinear one) stops it. The variant is
                 # integrated again from t0 by the augmented Lagrangian, which passes it
@@ -429,9 +453,11 @@ class DynamicRun(Run):
             self._write(v)
         jumps = self._jumps(sol, equations, scale)
         if jumps and sol.status != "failed":
-            self.warnings.append(f"{jumps_text(sysm, jumps)}{variant_label(sysm, v)}; the "
-                                 "state was moved onto the constraints after it by the "
-                                 "projection that follows every step (not an impact's law)")
+            self.warnings.append(
+                f"{jumps_text(sysm, jumps)}{variant_label(sysm, v)}; the motion went on from "
+                "the constraints' impulsive motion there (the velocities' mass-orthogonal "
+                "projection: a perfectly plastic impact with the constraint); a smooth "
+                "start (a smoothstep) avoids the impact")
         if sol.status == "ok" and self.to_refine:
             self._refine_extremes(v, equations, scale)
         # the instants kept: those integrated, less any that could not be projected (_write)
@@ -451,7 +477,10 @@ class DynamicRun(Run):
             self.failures.append(
                 f"the forward dynamics stopped after t = {t_fail:.10g}"
                 f"{variant_label(sysm, v)}: {sol.message}"
-                + (f"; {jumps_text(sysm, jumps)}" if jumps else ""))
+                + (f"; {jumps_text(sysm, jumps)}: no motion under finite forces follows a "
+                   "jump in a constraint's position; write it as a continuous function of t "
+                   "(a ramp, a smoothstep), or run again from the state after it"
+                   if jumps else ""))
         return sol.status
 
     def _jumps(self, sol, equations, scale: np.ndarray) -> list:
@@ -705,11 +734,13 @@ class _Equations:
     every stage.) Any object with ``rhs`` and ``project`` (``settle`` and ``carry``
     optional) can take its place in :meth:`DynamicRun._variant`."""
 
-    def __init__(self, ev: "_Evaluator", project: Callable, settle: Callable) -> None:
+    def __init__(self, ev: "_Evaluator", project: Callable, settle: Callable,
+                 impulse: Callable) -> None:
         self.n, self.m = ev.n, ev.m
         self.rhs = ev.derivative
         self.project, self.settle = project, settle
         self.phi_jac, self.nu, self.accelerations = ev.phi_jac, ev.nu, ev.accelerations
+        self.impulse = impulse
 
     def carry(self, y: np.ndarray, f: np.ndarray) -> np.ndarray:
         """y' = (qd, qdd): after a correction of y, its first half is the corrected qd

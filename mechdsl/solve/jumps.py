@@ -39,6 +39,9 @@ class Jump:
     t: float
     size: float
     level: str
+    #: the last instant found before the jump (``t`` the first after it, a few units of
+    #: round-off later)
+    t_before: float = float("nan")
 
 
 def time_jumps(phi: Callable[[float], np.ndarray], nu: Callable[[float], np.ndarray] | None,
@@ -59,15 +62,15 @@ def time_jumps(phi: Callable[[float], np.ndarray], nu: Callable[[float], np.ndar
         for r in rows:
             jump = _bisect(lambda t, r=r: float(np.asarray(f(t))[r]), a, b,
                            float(fa[r]), float(fb[r]))
-            if jump is not None and abs(jump[1]) > max(floor, 0.5 * change[r]):
-                out.append(Jump(r, jump[0], abs(jump[1]), level))
+            if jump is not None and abs(jump[2]) > max(floor, 0.5 * change[r]):
+                out.append(Jump(r, jump[1], abs(jump[2]), level, jump[0]))
     return out
 
 
 def _bisect(g: Callable[[float], float], a: float, b: float, ga: float, gb: float
-            ) -> tuple[float, float] | None:
-    """(t, g(t+) - g(t-)): the interval of [a, b] whose halves are taken towards the one
-    that changes more, down to round-off; None where g is not finite on the way."""
+            ) -> tuple[float, float, float] | None:
+    """(t-, t+, g(t+) - g(t-)): the interval of [a, b] whose halves are taken towards the
+    one that changes more, down to round-off; None where g is not finite on the way."""
     for _ in range(BISECTIONS):
         mid = 0.5 * (a + b)
         if not a < mid < b:
@@ -79,4 +82,4 @@ def _bisect(g: Callable[[float], float], a: float, b: float, ga: float, gb: floa
             b, gb = mid, gm
         else:
             a, ga = mid, gm
-    return b, gb - ga
+    return a, b, gb - ga

@@ -89,7 +89,10 @@ class Equations(Protocol):
     # ``carry(y, f)``, the derivative at a corrected state y from ``f`` at the state before
     # the correction, with what of it y gives exactly (a mechanism's y' begins with qd);
     # ``factorises``, True where every evaluation of ``rhs`` factorises a matrix of the
-    # model's size (the driver's trial of an implicit stepper asks less of it there).
+    # model's size (the driver's trial of an implicit stepper asks less of it there);
+    # ``impulse(t, y)``, the state just after the constraints' velocity terms jumped at t
+    # (their impulsive motion: the velocities' mass-orthogonal projection; ``project``
+    # where absent, which must then be mass-orthogonal too).
 
     # -- the terms of the index-3 form, for implicit methods (sparse matrices: CSR) ---------
     def phi_jac(self, t: float, q: np.ndarray) -> tuple[np.ndarray, object]:
