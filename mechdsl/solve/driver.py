@@ -212,6 +212,42 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                         None if s is None else getattr(s, "note", None), tuple(moves),
                         tuple(impulses))
 
+    def over_jump(jump: Jump) -> Solution | None:
+        """The step that went over ``jump`` integrated again, apart, up to the instant
+        before it (its outputs given); then the end there (a jump in position), or the
+        stepper afresh from the impulsive motion after it (module docstring)."""
+        nonlocal s, t, k_next
+        used = int(before[:2].sum()) + s.attempts
+        before[:] += (s.naccepted, s.nrejected, s.nfev, s.njev, s.nlu)
+        y_old, s = s.y_old, None
+        sub = _up_to(stepper, equations, y_old, t, jump.t_before, t_eval, k_next, emit,
+                     dict(rtol=rtol, atol=atol, scale=scale, max_step=max_step,
+                          max_steps=max_steps - used, on_interval=on_interval,
+                          raw_outputs=raw_outputs), on_step, used)
+        before[:] += (sub.steps, sub.rejected, sub.evaluations, sub.njev, sub.nlu)
+        moves.extend(sub.moves[:MAX_MOVES - len(moves)])
+        k_next += int(np.searchsorted(t_eval[k_next:], jump.t_before, side="right"))
+        if sub.status != "ok":
+            t = sub.t_reached
+            return done(sub.status, sub.message, sub.reason)
+        if jump.level == "position":
+            t = jump.t_before
+            return done("failed", f"no motion follows the constraints at t = {jump.t:.10g}",
+                        "jump")
+        impulse = getattr(equations, "impulse", None) or project
+        t, y = jump.t, impulse(jump.t, sub.y[-1])
+        impulses.append(jump.t)
+        s = stepper(equations, t, y, t_end, rtol=rtol, atol=atol, scale=scale)
+        s.max_attempts = max_steps - int(before[:2].sum())
+        if max_step < np.inf:
+            s.max_step = max_step
+        if watch is not None:  # (the stiffness watched on, as on the stepper before)
+            s.detect_stiffness = True
+        if k_next < n_out and t_eval[k_next] <= t:
+            emit(k_next, t, y.copy())
+            k_next += 1
+        return None
+
     def budget() -> Solution:
         return done("failed", f"its budget of {max_steps:,} steps (accepted and rejected) "
                               f"ran out at t = {t:.10g}", "budget")
@@ -258,41 +294,9 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                         moves.append((t, t_new, y_new))
                     jump = _first_jump(equations, t, t_new, y_new[:n // 2], tol_abs)
                     if jump is not None:
-                        # integrate to the instant before the jump again, apart; the state
-                        # after a jump in velocity is the constraints' impulsive motion, a
-                        # jump in position ends the run there (module docstring)
-                        used = int(before[:2].sum()) + s.attempts
-                        before += (s.naccepted, s.nrejected, s.nfev, s.njev, s.nlu)
-                        y_old, s = s.y_old, None
-                        sub = _up_to(stepper, equations, y_old, t, jump.t_before, t_eval,
-                                     k_next,
-                                     emit, dict(rtol=rtol, atol=atol, scale=scale,
-                                                max_steps=max_steps - used,
-                                                on_interval=on_interval,
-                                                raw_outputs=raw_outputs), on_step, used)
-                        before += (sub.steps, sub.rejected, sub.evaluations, sub.njev,
-                                   sub.nlu)
-                        moves.extend(sub.moves[:MAX_MOVES - len(moves)])
-                        k_next += int(np.searchsorted(t_eval[k_next:], jump.t_before,
-                                                      side="right"))
-                        if sub.status != "ok":
-                            t = sub.t_reached
-                            return done(sub.status, sub.message, sub.reason)
-                        if jump.level == "position":
-                            t = jump.t_before
-                            return done("failed", "no motion follows the constraints at t = "
-                                                  f"{jump.t:.10g}", "jump")
-                        impulse = getattr(equations, "impulse", None) or project
-                        t, y = jump.t, impulse(jump.t, sub.y[-1])
-                        impulses.append(jump.t)
-                        s = stepper(equations, t, y, t_end, rtol=rtol, atol=atol,
-                                    scale=scale, first_step=None)
-                        s.max_attempts = max_steps - int(before[:2].sum())
-                        if max_step < np.inf:
-                            s.max_step = max_step
-                        if k_next < n_out and t_eval[k_next] <= t:
-                            emit(k_next, t, y.copy())
-                            k_next += 1
+                        ended = over_jump(jump)
+                        if ended is not None:
+                            return ended
                         continue
             dense = None  # (made once a step: an interpolant may cost stages of its own)
             if on_interval is not None:  # a quadrature over the step (its dense output)
