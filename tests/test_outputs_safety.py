@@ -547,9 +547,9 @@ def test_the_csv_writer_holds_bounded_memory(tmp_path):
                                                  "which goes from t = 0 to t = 1"),
     (["--snapshot", "s.png", "--at", "-0.1"], "mechdsl: error: --at -0.1: outside the run, "
                                               "which goes from t = 0 to t = 1"),
-    (["--t0", "nan"], "error: the start time is nan"),
-    (["--t1", "inf"], "error: the end time is inf"),
-    (["--step", "nan"], "error: the step is nan"),
+    (["--t0", "nan"], "mechdsl: error: --t0: the start time is nan"),
+    (["--t1", "inf"], "mechdsl: error: --t1: the end time is inf"),
+    (["--step", "nan"], "mechdsl: error: --step: the step is nan"),
 ])
 def test_bad_option_values_are_errors_before_solving(tmp_path, args, message):
     r = cli("run", SLIDER, "-o", "out.csv", *args, cwd=tmp_path)
