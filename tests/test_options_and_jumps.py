@@ -119,10 +119,25 @@ def test_bisection_locates_a_step_and_ignores_a_fast_smooth_change():
     assert time_jumps(phi, nu, 0.3, 0.33, floor=10.0) == []
 
 
+def test_a_step_on_a_ramp_is_found_over_a_long_step():
+    # a position step of 0.1 where a ramp of 0.4 starts, in a step of 2.12 s whose ramp part
+    # changes the row by 0.45 (halving towards the larger change followed the ramp)
+    def phi(t):
+        return np.array([0.0 if t < 1 else 0.1 + 0.4 * (t - 1), math.sqrt(abs(t - 1.5))])
+
+    found = time_jumps(phi, None, 0.0, 2.12, floor=1e-10)
+    assert [(j.row, j.level) for j in found] == [(0, "position")]  # (sqrt: unbounded rate)
+    assert abs(found[0].t - 1.0) <= 4 * np.spacing(1.0)
+    assert found[0].size == pytest.approx(0.1, rel=1e-12)
+    assert found[0].t_before < 1.0 <= found[0].t
+
+
 @pytest.mark.parametrize("method", ["auto", "radau"])
-def test_a_drive_that_jumps_in_position_ends_the_run_there_named(tmp_path, method):
+@pytest.mark.parametrize("drive", ["if t < 1 then 0 else 0.1",
+                                   "if t < 1 then 0 else 0.1 + 0.4*(t - 1)"])
+def test_a_drive_that_jumps_in_position_ends_the_run_there_named(tmp_path, method, drive):
     path = tmp_path / "cart.mech"
-    path.write_text(CART.replace("DRIVE", "if t < 1 then 0 else 0.1"))
+    path.write_text(CART.replace("DRIVE", drive))
     out = tmp_path / "o.csv"
     r = _run(path, "-o", out, "--method", method)
     assert r.returncode == 2, r.stderr

@@ -8,13 +8,18 @@ this module is asked; an implicit method, which satisfies the constraints at its
 halves its step until it underflows. Both are told here which constraint jumped, when and by
 how much.
 
-The test is by bisection in time, at a fixed position q: for a row i of Phi(q, t) (the
+The test is by subdivision in time, at a fixed position q: for a row i of Phi(q, t) (the
 position level) or of nu(t) = -Phi_t (the velocity level) that changes across [a, b],
-[a, b] is halved towards the half that changes more, down to a few units of round-off in t.
-A row that is continuous there changes by nothing over so short an interval (a drive
-moving at 1e3 m/s by 1e-12 m); one that jumps keeps its whole change in it. A row counts as
-jumping where the final interval holds more than half of its change over [a, b] and that
-change exceeds the caller's floor (its tolerance).
+[a, b] is cut into eight parts and the one whose change departs most from both its
+neighbours' is kept, down to a few units of round-off in t. A smooth change is about the
+same in neighbouring parts (a kink departs by at most half its change of rate times the
+parts' width, which shrinks); a jump departs by its size in every part it is in (and a
+part beside it from one neighbour only), however much the row
+changes smoothly besides (a step of 0.1 m on a ramp of 0.4 m/s over a step of 2 s: halving
+towards the half that changes more would follow the ramp). A row jumps where its change
+over the last part, a few units of round-off wide, exceeds the caller's floor (its
+tolerance) and a millionth of its change across [a, b]: a continuous row changes there by
+its rate times 1e-16 s.
 """
 
 from __future__ import annotations
@@ -24,8 +29,15 @@ from typing import Callable
 
 import numpy as np
 
-#: Halvings of the interval at most (from a step of 1 s to 1e-18 s: past round-off in t)
-BISECTIONS = 60
+#: Subdivisions of the interval at most (eight parts each: from a step of 100 s to 1e-16 s
+#: takes 20)
+LEVELS = 24
+#: Parts per subdivision
+PARTS = 8
+#: ... and a change over the last part below this fraction of the row's change across
+#: [a, b] is not a jump (a drive like sqrt(|t - t1|), whose rate is unbounded at t1, changes
+#: by 1e-8 over 1e-16 s there)
+RELATIVE = 1e-6
 #: Rows examined per level at most (those changing most across the interval)
 MAX_ROWS = 8
 
@@ -60,6 +72,18 @@ def time_jumps(phi: Callable[[float], np.ndarray], nu: Callable[[float], np.ndar
         change[~np.isfinite(change)] = 0.0
         rows = [int(r) for r in np.argsort(-change)[:MAX_ROWS] if change[r] > floor]
         for r in rows:
+            jump = _locate(lambda t, r=r: float(np.asarray(f(t))[r]), a, b)
+            if jump is not None and abs(jump[2]) > max(floor, RELATIVE * change[r]):
+                out.append(Jump(r, jump[1], abs(jump[2]), level, jump[0]))
+    return out
+    for level, f in (("position", phi), ("velocity", nu)):
+        if f is None:
+            continue
+        fa, fb = np.asarray(f(a), dtype=float), np.asarray(f(b), dtype=float)
+        change = np.abs(fb - fa)
+        change[~np.isfinite(change)] = 0.0
+        rows = [int(r) for r in np.argsort(-change)[:MAX_ROWS] if change[r] > floor]
+        for r in rows:
             jump = _bisect(lambda t, r=r: float(np.asarray(f(t))[r]), a, b,
                            float(fa[r]), float(fb[r]))
             if jump is not None and abs(jump[2]) > max(floor, 0.5 * change[r]):
@@ -67,19 +91,23 @@ def time_jumps(phi: Callable[[float], np.ndarray], nu: Callable[[float], np.ndar
     return out
 
 
-def _bisect(g: Callable[[float], float], a: float, b: float, ga: float, gb: float
+def _locate(g: Callable[[float], float], a: float, b: float
             ) -> tuple[float, float, float] | None:
-    """(t-, t+, g(t+) - g(t-)): the interval of [a, b] whose halves are taken towards the
-    one that changes more, down to round-off; None where g is not finite on the way."""
-    for _ in range(BISECTIONS):
-        mid = 0.5 * (a + b)
-        if not a < mid < b:
+    """(t-, t+, g(t+) - g(t-)): the part of [a, b] that departs most from the others'
+    change, subdivided down to round-off (module docstring); None where g is not finite
+    on the way."""
+    for _ in range(LEVELS):
+        ts = np.linspace(a, b, PARTS + 1)
+        if not np.all(np.diff(ts) > 0):
             break
-        gm = g(mid)
-        if not np.isfinite(gm):
+        vals = np.array([g(float(x)) for x in ts])
+        if not np.isfinite(vals).all():
             return None
-        if abs(gm - ga) >= abs(gb - gm):
-            b, gb = mid, gm
-        else:
-            a, ga = mid, gm
-    return a, b, gb - ga
+        d = np.diff(vals)
+        # how far each part's change departs from both its neighbours' (an end part's: from
+        # the next two parts'): a jump's part from both, a part beside it from one only
+        before = np.concatenate(([d[2]], d[:-1]))
+        after = np.concatenate((d[1:], [d[-3]]))
+        i = int(np.argmax(np.minimum(np.abs(d - before), np.abs(d - after))))
+        a, b = float(ts[i]), float(ts[i + 1])
+    return a, b, g(b) - g(a)
