@@ -54,6 +54,12 @@ RTOL, ATOL = 1e-8, 1e-10
 #: means (a pendulum at rtol 0.5 gained 100 times its energy in 20 s; scipy's default is
 #: 1e-3)
 LOOSE_RTOL = 1e-2
+#: The tightest tolerances any integrator is given: scipy's floor of rtol, 100 eps (its
+#: solvers raise a smaller one to it), and an atol (relative to the model's size) at double
+#: precision's resolution; tighter ones are raised to them, with a warning. Asked for less,
+#: a pendulum at rtol 1e-30 reached t = 3e-13 in 2000 steps, the automatic choice read the
+#: steps held at round-off as stiffness, and an atol of 1e-200 divided by zero
+RTOL_FLOOR, ATOL_FLOOR = 100 * float(np.finfo(float).eps), 1e-16
 
 
 
@@ -97,6 +103,15 @@ class DynamicRun(Run):
         tol = system.tolerances  # the file's; options given explicitly override them
         self.rtol = self.opts.rtol or tol.get("rtol", RTOL)
         self.atol = self.opts.atol or tol.get("atol", ATOL)
+        if self.rtol < RTOL_FLOOR or self.atol < ATOL_FLOOR:
+            asked = [f"{name} {value:g}" for name, value, low in (
+                ("rtol", self.rtol, RTOL_FLOOR), ("atol", self.atol, ATOL_FLOOR))
+                if value < low]
+            self.rtol, self.atol = max(self.rtol, RTOL_FLOOR), max(self.atol, ATOL_FLOOR)
+            self.warnings.append(
+                f"{' and '.join(asked)} {'are' if len(asked) > 1 else 'is'} below what "
+                f"double precision resolves: integrated at rtol {self.rtol:.3g}, atol "
+                f"{self.atol:g}")
         if self.rtol > LOOSE_RTOL:
             self.warnings.append(
                 f"rtol = {self.rtol:g} is loose: each step may be off by {self.rtol:.0%} of "
