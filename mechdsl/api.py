@@ -319,10 +319,19 @@ class Mechanism:
                                lines=tuple(lines), **found)
 
         opts = SolverOptions().for_size(system.n_bodies)
-        if system.m < system.n and kernels.dynamics is not None:
+        from .solve.mobility import NotFullyDriven
+        from .solve.run import method_for
+
+        # the run's own choice: forward dynamics where the count or, at the assembly, the
+        # rank leaves degrees of freedom and the model has masses
+        if method_for(kernels) == "dynamic":
             return self._check_dynamic(kernels, lines, done, opts)
         try:
             asm = assemble(kernels, t0, opts)
+        except NotFullyDriven as err:
+            if kernels.dynamics is not None:
+                return self._check_dynamic(kernels, lines, done, opts)
+            return done(error=err)
         except MechError as err:  # not fully driven, a plugin's defect
             return done(error=err)
         if not asm.ok.all():

@@ -48,6 +48,12 @@ def count_check(system: System) -> None:
             source=src, notes=notes)
 
 
+class NotFullyDriven(MechError):
+    """The rank at the assembled configuration leaves degrees of freedom that the drives do
+    not fix, although the count of equations did not show it (redundant joints): a model
+    with masses is forward dynamics (:func:`mechdsl.solve.run.simulate`)."""
+
+
 @dataclass(frozen=True)
 class Mobility:
     """The rank structure found at the joints' assembled configuration (first variant).
@@ -185,7 +191,7 @@ def analyse(kernels: Kernels, q: np.ndarray, col_scale: np.ndarray) -> Mobility:
                 "another instant or give guesses of another configuration", source=src)
         mobility = n - rank
         notes = [f"redundant: {names}"] if dropped_rows.size else []
-        raise MechError(
+        raise NotFullyDriven(
             f"the mechanism is not fully driven: its joints leave {mobility} degree"
             f"{'s' if mobility != 1 else ''} of freedom ({n} coordinates, joint equations of "
             f"rank {rank}) and there {'is' if k == 1 else 'are'} {k} drive{'s' if k != 1 else ''}",

@@ -53,7 +53,7 @@ from . import batch, extrema, large
 from .hermite import quintic_hermite
 from .levels import coarse_march, polish
 from .linalg import Factor, factor
-from .mobility import count_check, redundancy_warning
+from .mobility import NotFullyDriven, count_check, redundancy_warning
 from .newton import correction_ratio, newton, use_sparse
 from .options import SolverOptions
 from .reduce import reduce_results
@@ -899,9 +899,18 @@ def simulate(kernels: Kernels, options: SolverOptions | None = None, *,
     ``"failed"`` with the reasons in ``Results.messages``. Neither does an interrupt (status
     ``"interrupted"``): the instants solved before are kept.
     """
-    run = METHODS[method_for(kernels)](kernels, options, poses=poses, rates=rates,
-                                       progress=progress, extra_memory=extra_memory)
-    results = run.run()
+    kwargs = dict(poses=poses, rates=rates, progress=progress, extra_memory=extra_memory)
+    run = METHODS[method_for(kernels)](kernels, options, **kwargs)
+    try:
+        results = run.run()
+    except NotFullyDriven:
+        # redundant joints hid free degrees of freedom from the count (a parallelogram's
+        # third and fourth cranks, one driven, a pendulum hung from its coupler): the
+        # rank at the assembly shows them, and a model with masses moves under its loads
+        if kernels.dynamics is None or isinstance(run, DynamicRun):
+            raise
+        run = DynamicRun(kernels, options, **kwargs)
+        results = run.run()
     if not rates and results.rates is not None:  # kept for the extremes only
         results = replace(results, rates=None, poses=results.poses if poses else None)
     return reduce_results(results, kernels, getattr(run, "extrema", None))
