@@ -14,10 +14,10 @@ from ..compiled.lu import THRESHOLD
 from ..compiled.sparse import SparseJac
 from ..compiled.system import System
 from .diagnose import (
-    col_scale, constraint_names, jacobian_defects, variant_label,
+    DENSE_ANALYSIS_MAX, col_scale, constraint_names, jacobian_defects, variant_label,
 )
 from .linalg import factor
-from .mobility import Mobility, analyse, count_check, square
+from .mobility import Mobility, analyse, count_check, hidden_freedom, square
 from .newton import correction_ratio, newton, use_sparse
 from .options import SolverOptions
 from .single import FLOAT_ERRORS, OneStart, OneState
@@ -140,6 +140,8 @@ def assemble(kernels: Kernels, t0: float, options: SolverOptions | None = None,
             # more equations than coordinates: find the redundant ones before going on
             mob = analyse(kernels.variant(first), q1[first, 0], D[first, 0])
         else:
+            if kernels.dynamics is not None and system.m == n and n <= DENSE_ANALYSIS_MAX:
+                hidden_freedom(kernels.variant(first), q1[first, 0], D[first, 0])
             mob = square(system)
         q, ok, it2, start = _continue_drives(kernels, q1, t, D, ok1, opts, mob.rows, compiled)
         retry = ok1 & ~ok

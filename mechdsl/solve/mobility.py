@@ -136,6 +136,29 @@ def freedom(kernels: Kernels, q: np.ndarray, col_scale: np.ndarray) -> Freedom:
     return Freedom(system.n, joint_rank, len(drive_rows), len(kept) - joint_rank, initials)
 
 
+def hidden_freedom(kernels: Kernels, q: np.ndarray, col_scale: np.ndarray) -> None:
+    """Raise :class:`NotFullyDriven` where a model whose count is square (as many equations
+    as coordinates) has joint equations that depend on one another at the joints'
+    configuration ``q`` (n,): redundant joints (a parallelogram's third crank) leave the
+    degree of freedom that the count gave to a drive, and a model with masses moves under
+    its loads (the caller asks only for such models). A singular position of the joints
+    alone (a four-bar's change point) reads the same at one configuration; its forward
+    dynamics passes it as the kinematics would not."""
+    system = kernels.system
+    joint_rows = np.asarray(system.joint_rows, dtype=np.intp)
+    with np.errstate(all="ignore"):
+        jac = eq.jacobian(kernels, q.reshape(1, 1, -1))[0, 0] * col_scale
+    kept, dropped = independent_rows(jac[joint_rows])
+    if not dropped:
+        return
+    n, k = system.n, len(system.drive_rows)
+    raise NotFullyDriven(
+        f"the mechanism is not fully driven: its joints leave {n - len(kept)} degrees of "
+        f"freedom ({n} coordinates, joint equations of rank {len(kept)}) and there "
+        f"{'is' if k == 1 else 'are'} {k} drive{'s' if k != 1 else ''}", source=system.source,
+        notes=[f"redundant: {_names(system, joint_rows[dropped])}"])
+
+
 def independent_rows(a: np.ndarray, tol: float = RANK_TOL) -> tuple[list[int], list[int]]:
     """Split the rows of ``a`` (in order) into those independent of the rows kept before
     them, and the rest: Gram-Schmidt with re-orthogonalisation, rows normalised first, so
