@@ -84,6 +84,17 @@ def test_a_misused_statement_is_a_located_error(line, message, column):
     assert located(err.value) == (ROD.count("\n") + 1, column)
 
 
+@pytest.mark.parametrize("line, message, column", [
+    ("initial s: angle(rod) = 1.2, rate = 1/0", "the rate of initial 's' is inf", 37),
+    ("initial s: angle(rod) = log(0)", "the value of initial 's' is -inf", 25),
+])
+def test_a_value_that_is_not_a_number_is_its_own_located_error(line, message, column):
+    # (it read "its value is out of the mechanism's reach from the guessed configuration")
+    with pytest.raises(MechError, match=re.escape(message)) as err:
+        run(ROD + "simulate t = 0 .. 0.1 step 0.05\n" + line + "\n", "bad.mech")
+    assert located(err.value) == (ROD.count("\n") + 2, column)
+
+
 def test_a_joint_type_is_no_initial_type():
     with pytest.raises(MechError, match="is a joint type, not a drive type") as err:
         mechdsl.loads(ROD + "initial s: revolute(rod.O, ground.origin) = 1\n", "bad.mech")

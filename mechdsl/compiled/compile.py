@@ -307,6 +307,11 @@ class _Compiler:
         :class:`~mechdsl.compiled.system.Start`)."""
         out = []
         for c in self.model.initials:
+            # a value or rate that is not a number is its own error, not an unreachable one
+            for what, e in (("value", c.value), ("rate", c.rate)):
+                if e is not None:
+                    self.var.values(e, f"the {what} of initial '{c.name}'",
+                                    getattr(e, "span", None) or c.span)
             f = c.value
             if c.rate is not None:
                 f = E.add(c.value, E.mul(c.rate, E.sub(E.Name(TIME, c.span), E.Num(t0, c.span))))
