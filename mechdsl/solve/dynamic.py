@@ -582,7 +582,8 @@ class DynamicRun(Run):
                 best_f.append(f)
                 best_t.append(t)
             best_f, best_t = np.array(best_f), np.array(best_t)
-            j = int(extrema.first_best(best_f[None], best_t[None], np.abs(y).max())[0])
+            j = int(extrema.first_best(best_f[None], best_t[None], np.abs(y).max(),
+                                       max(extrema.TIE, extrema.TIE_RTOL * self.rtol))[0])
             out[0][v], out[1][v] = sense * best_f[j], best_t[j]
 
     def _refine_one(self, k: int, y: np.ndarray, sense: int, spec, equations,

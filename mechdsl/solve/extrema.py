@@ -53,6 +53,10 @@ MAX_ITERATIONS = 30
 #: extremes within this (relative to the column's largest) of the best are equal: the
 #: first in time is the argmax/argmin, as of the samples
 TIE = 1e-12
+#: ... and, of an integrated motion, within this many times its rtol: its equal peaks (a
+#: periodic motion's) differ by the integration's error, far above TIE (a mass on a spring
+#: at rtol 1e-8: argmax(vx) gave its third peak, not its first)
+TIE_RTOL = 100
 _GOLD = (3 - math.sqrt(5)) / 2
 
 
@@ -164,10 +168,10 @@ def search(at, a, m, b, fa, fm, fb, finished, scale, xtol: float):
     return best_t, best_f
 
 
-def first_best(f: np.ndarray, t: np.ndarray, scale) -> np.ndarray:
+def first_best(f: np.ndarray, t: np.ndarray, scale, tie: float = TIE) -> np.ndarray:
     """Per row of ``f`` (V, C), the index of its largest value, the first in time (``t``) of
-    those within TIE times ``scale`` of it (equal extremes: argmax is the first)."""
-    tied = f >= f.max(axis=1, keepdims=True) - TIE * scale
+    those within ``tie`` times ``scale`` of it (equal extremes: argmax is the first)."""
+    tied = f >= f.max(axis=1, keepdims=True) - tie * scale
     return np.argmin(np.where(tied, t, np.inf), axis=1)
 
 
