@@ -195,9 +195,12 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         if raw_outputs or project is None:
             emit(k, tt, yy, project is not None)
         else:
+            projecting[0] = tt  # (where a failure of the projection is)
             emit(k, tt, project(tt, yy))
+            projecting[0] = None
 
     before = np.zeros(5, dtype=int)  # the counters of a stepper switched from
+    projecting: list[float | None] = [None]  # the output instant being projected
     moves: list[tuple] = []
     impulses: list[float] = []  # the instants of the jumps gone through
     tol_abs = atol * (scale if scale is not None else 1.0)
@@ -357,6 +360,9 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
     except KeyboardInterrupt:
         return done("interrupted")
     except np.linalg.LinAlgError as err:
+        if projecting[0] is not None:  # an output inside the step, those before it given
+            return done("failed", f"the state at t = {projecting[0]:.10g} cannot be moved "
+                                  f"onto the constraints ({err})")
         return done("failed", f"the equations of motion are singular near t = {t:.10g} "
                               f"({err})")
     return done("ok")
