@@ -60,6 +60,12 @@ LOOSE_RTOL = 1e-2
 #: a pendulum at rtol 1e-30 reached t = 3e-13 in 2000 steps, the automatic choice read the
 #: steps held at round-off as stiffness, and an atol of 1e-200 divided by zero
 RTOL_FLOOR, ATOL_FLOOR = 100 * float(np.finfo(float).eps), 1e-16
+#: What a jump of a constraint in time means, by its level (:mod:`mechdsl.solve.jumps`)
+_JUMP_POSITION = ("no motion under finite forces follows a jump in a constraint's position; "
+                  "write it as a continuous function of t (a ramp, a smoothstep), or run "
+                  "again from the state after it")
+_JUMP_VELOCITY = ("a jump in a constraint's velocity is an impact (perfectly plastic with "
+                  "the constraint); a smooth start (a smoothstep) avoids it")
 
 
 
@@ -471,8 +477,7 @@ class DynamicRun(Run):
             self.warnings.append(
                 f"{jumps_text(sysm, jumps)}{variant_label(sysm, v)}; the motion went on from "
                 "the constraints' impulsive motion there (the velocities' mass-orthogonal "
-                "projection: a perfectly plastic impact with the constraint); a smooth "
-                "start (a smoothstep) avoids the impact")
+                f"projection): {_JUMP_VELOCITY}")
         if sol.status == "ok" and self.to_refine:
             self._refine_extremes(v, equations, scale)
         # the instants kept: those integrated, less any that could not be projected (_write)
@@ -492,10 +497,9 @@ class DynamicRun(Run):
             self.failures.append(
                 f"the forward dynamics stopped after t = {t_fail:.10g}"
                 f"{variant_label(sysm, v)}: {sol.message}"
-                + (f"; {jumps_text(sysm, jumps)}: no motion under finite forces follows a "
-                   "jump in a constraint's position; write it as a continuous function of t "
-                   "(a ramp, a smoothstep), or run again from the state after it"
-                   if jumps else ""))
+                + (f"; {jumps_text(sysm, jumps)}: {_JUMP_POSITION}"
+                   if any(j.level == "position" for j in jumps) else
+                   f"; {jumps_text(sysm, jumps)}: {_JUMP_VELOCITY}" if jumps else ""))
         return sol.status
 
     def _jumps(self, sol, equations, scale: np.ndarray) -> list:

@@ -76,19 +76,6 @@ def time_jumps(phi: Callable[[float], np.ndarray], nu: Callable[[float], np.ndar
             if jump is not None and abs(jump[2]) > max(floor, RELATIVE * change[r]):
                 out.append(Jump(r, jump[1], abs(jump[2]), level, jump[0]))
     return out
-    for level, f in (("position", phi), ("velocity", nu)):
-        if f is None:
-            continue
-        fa, fb = np.asarray(f(a), dtype=float), np.asarray(f(b), dtype=float)
-        change = np.abs(fb - fa)
-        change[~np.isfinite(change)] = 0.0
-        rows = [int(r) for r in np.argsort(-change)[:MAX_ROWS] if change[r] > floor]
-        for r in rows:
-            jump = _bisect(lambda t, r=r: float(np.asarray(f(t))[r]), a, b,
-                           float(fa[r]), float(fb[r]))
-            if jump is not None and abs(jump[2]) > max(floor, 0.5 * change[r]):
-                out.append(Jump(r, jump[1], abs(jump[2]), level, jump[0]))
-    return out
 
 
 def _locate(g: Callable[[float], float], a: float, b: float
