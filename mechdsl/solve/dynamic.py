@@ -473,6 +473,9 @@ class DynamicRun(Run):
         finally:  # an interrupt too: the instants solved are written, complete
             self._write(v)
         jumps = self._jumps(sol, equations, scale)
+        if sol.status == "ok":  # radau goes through a drive's jump in rate without a move
+            seen = {j.row for j in jumps}
+            jumps += [j for j in self._rate_jumps(equations, scale) if j.row not in seen]
         if jumps and sol.status != "failed":
             self.warnings.append(
                 f"{jumps_text(sysm, jumps)}{variant_label(sysm, v)}; the motion went on from "
@@ -501,6 +504,36 @@ class DynamicRun(Run):
                    if any(j.level == "position" for j in jumps) else
                    f"; {jumps_text(sysm, jumps)}: {_JUMP_VELOCITY}" if jumps else ""))
         return sol.status
+
+    def _rate_jumps(self, equations, scale: np.ndarray) -> list:
+        """The jumps of the drives' rates f'(t) between the output instants
+        (:mod:`mechdsl.solve.jumps`): where a sampled change departs from both its
+        neighbours' by more than the tolerance and a thousand times the drive's median
+        departure (a smooth rate's departures are its curvature times the step squared),
+        located to round-off; the few intervals found are examined, not the run. The
+        implicit stepper, which keeps the constraints at its stages, passes such a jump
+        by steps that shrink to it, and no projection shows it."""
+        from .jumps import MAX_ROWS, time_jumps
+
+        nu = getattr(equations, "nu", None)
+        T = self.times
+        if nu is None or not self.one.system.drive_rows.size or len(T) < 4:
+            return []
+        with np.errstate(all="ignore"):
+            rates = eq.drive_values(self.one, T[None, :], "fd", (1, len(T)))[0]
+        d = np.diff(rates, axis=0)
+        before = np.concatenate((d[2:3], d[:-1]))
+        after = np.concatenate((d[1:], d[-3:-2]))
+        departs = np.minimum(np.abs(d - before), np.abs(d - after))
+        floor = self.atol * float(np.max(scale))
+        found: dict[int, object] = {}
+        for col in range(d.shape[1]):
+            column = np.nan_to_num(departs[:, col])
+            limit = max(floor, 1e3 * float(np.median(column)))
+            for k in np.flatnonzero(column > limit)[:MAX_ROWS]:
+                for j in time_jumps(None, nu, float(T[k]), float(T[k + 1]), floor):
+                    found.setdefault(j.row, j)
+        return list(found.values())
 
     def _jumps(self, sol, equations, scale: np.ndarray) -> list:
         """The constraints that jump in time (:mod:`mechdsl.solve.jumps`) within the steps
