@@ -60,6 +60,14 @@ LOOSE_RTOL = 1e-2
 #: a pendulum at rtol 1e-30 reached t = 3e-13 in 2000 steps, the automatic choice read the
 #: steps held at round-off as stiffness, and an atol of 1e-200 divided by zero
 RTOL_FLOOR, ATOL_FLOOR = 100 * float(np.finfo(float).eps), 1e-16
+#: Where radau's step underflows on a model with redundant constraints: its Newton iteration
+#: did not pass a position where they turn singular (a driven parallelogram with three
+#: cranks at its collinear position, t = 0.19), which the explicit pairs on the augmented
+#: Lagrangian passed (4.2e-8 rad over 5 s)
+_IMPLICIT_REDUNDANT = ("this model's constraints are redundant, and the implicit method's "
+                       "iteration may not pass a position where they turn singular: the "
+                       "augmented Lagrangian with an explicit pair (the automatic choice, or "
+                       "--method dop853) integrates through singular positions")
 #: What a jump of a constraint in time means, by its level (:mod:`mechdsl.solve.jumps`)
 _JUMP_POSITION = ("no motion under finite forces follows a jump in a constraint's position; "
                   "write it as a continuous function of t (a ramp, a smoothstep), or run "
@@ -502,7 +510,9 @@ class DynamicRun(Run):
                 f"{variant_label(sysm, v)}: {sol.message}"
                 + (f"; {jumps_text(sysm, jumps)}: {_JUMP_POSITION}"
                    if any(j.level == "position" for j in jumps) else
-                   f"; {jumps_text(sysm, jumps)}: {_JUMP_VELOCITY}" if jumps else ""))
+                   f"; {jumps_text(sysm, jumps)}: {_JUMP_VELOCITY}" if jumps else
+                   f"; {_IMPLICIT_REDUNDANT}" if (self.redundant or sysm.m >= sysm.n) and
+                   INTEGRATORS[self.method].implicit and "underflow" in sol.message else ""))
         return sol.status
 
     def _rate_jumps(self, equations, scale: np.ndarray) -> list:
