@@ -389,11 +389,10 @@ def time_grid(model: Model, ov: Overrides, variants: Variants, outputs: int) -> 
             raise MechError(f"the {what} differs between sweep variants; the time grid "
                             "cannot depend on a swept param", span)
     # a bad value given as an override is that option's error, not the file's line's
-    given = [name for name in ("t0", "t1", "step") if getattr(ov, name) is not None]
     if not float(h[0]) > 0 and ov.step is not None:
         raise OptionError(f"{names['step']}: the simulated time step must be positive, not "
                         f"{float(h[0]):g}")
-    if float(t1[0]) < float(t0[0]) and {"t0", "t1"} & set(given):
+    if float(t1[0]) < float(t0[0]) and (ov.t0 is not None or ov.t1 is not None):
         option = names["t1"] if ov.t1 is not None else names["t0"]
         raise OptionError(f"{option}: the simulated time range ends ({float(t1[0]):g}) before "
                         f"it starts ({float(t0[0]):g})")

@@ -49,13 +49,13 @@ and owns
 * **jumps** of the constraints in time (a drive written with a step, or one that starts
   abruptly): where the projection after an explicit step moves the state by more than
   :data:`JUMP_MOVE` times the step's tolerance, the constraints' position and velocity terms
-  are bisected in time over the step (:mod:`mechdsl.solve.jumps`). At a jump the step is
+  are searched for a jump in time over the step (:mod:`mechdsl.solve.jumps`). At a jump the step is
   integrated again, by a stepper of its own, up to the instant before it; a jump in
   position then ends the run there ("failed", reason "jump": no motion follows it), a
   jump in velocity goes on from the state the equations' ``impulse(t, y)`` gives (the
   constraints' impulsive motion, the velocities' mass-orthogonal projection; ``project``
-  where they have none), with a fresh stepper (rule 1), and the solution lists the instant
-  (``impulses``);
+  where they have none), with a fresh stepper (rule 1), and the solution lists the jumps
+  met (``jumps``);
 * **progress**: ``on_output(k, t, y)`` with each output as soon as it is known, and
   ``on_step(t, attempts)`` after every accepted step (one output interval may take
   millions of steps: a display fed by the outputs alone would stand still). It costs a
@@ -70,7 +70,7 @@ from typing import Callable
 
 import numpy as np
 
-from .jumps import Jump, time_jumps
+from .jumps import Jump, constraint_jumps
 from .stepper import OUT_OF_BUDGET, STIFF, Equations, Stepper
 
 
@@ -97,12 +97,10 @@ STIFF_MIN_STEPS = 100
 
 
 #: A projection after a step that moves the state by more than this many times the step's
-#: tolerance (atol scale + rtol |y|, the largest component) is recorded in the solution
-#: (``moves``): a step's own error is within the tolerance, so such a move is the
-#: constraints' doing (a drive that jumps), which the caller examines
+#: tolerance (atol scale + rtol |y|, the largest component) has the step searched for a
+#: jump of the constraints in time: a step's own error is within the tolerance, so such a
+#: move is the constraints' doing (a drive that jumps) or, where none jumps, nothing to act on
 JUMP_MOVE = 1e3
-#: The moves recorded at most
-MAX_MOVES = 5
 
 
 @dataclass(frozen=True)
@@ -129,14 +127,10 @@ class Solution:
     switched: tuple | None = None
     #: what the last stepper says of its course (its ``note``, rule 5), None if nothing
     note: str | None = None
-    #: the steps whose projection moved the state by more than :data:`JUMP_MOVE` times
-    #: the tolerance, as (t_old, t_new, the state before the projection): where a
-    #: constraint may have jumped (:mod:`mechdsl.solve.jumps`), the first
-    #: :data:`MAX_MOVES` of them
-    moves: tuple = ()
-    #: the instants where a constraint's velocity term jumped and the explicit stepper went
-    #: on from the impulsive motion (module docstring)
-    impulses: tuple = ()
+    #: the jumps of the constraints in time met on the way (:class:`mechdsl.solve.jumps.
+    #: Jump`, module docstring): those gone through (velocity) and the one the run ended at
+    #: (position)
+    jumps: tuple = ()
 
 
 def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
@@ -201,8 +195,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
 
     before = np.zeros(5, dtype=int)  # the counters of a stepper switched from
     projecting: list[float | None] = [None]  # the output instant being projected
-    moves: list[tuple] = []
-    impulses: list[float] = []  # the instants of the jumps gone through
+    met: list[Jump] = []  # the jumps of the constraints met (module docstring)
     tol_abs = atol * (scale if scale is not None else 1.0)
     switched = None
 
@@ -212,14 +205,16 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         counts = [int(c) for c in counts]
         return Solution(np.array(outs_t), np.array(outs_y).reshape(len(outs_t), n), status,
                         message, *counts[:3], t, reason, *counts[3:], switched,
-                        None if s is None else getattr(s, "note", None), tuple(moves),
-                        tuple(impulses))
+                        None if s is None else getattr(s, "note", None), tuple(met))
 
-    def over_jump(jump: Jump) -> Solution | None:
-        """The step that went over ``jump`` integrated again, apart, up to the instant
-        before it (its outputs given); then the end there (a jump in position), or the
-        stepper afresh from the impulsive motion after it (module docstring)."""
+    def over_jump(found: list[Jump]) -> Solution | None:
+        """The step that went over the jumps ``found`` (those of its earliest instant)
+        integrated again, apart, up to the instant before them (its outputs given); then the
+        end there (a jump in position), or the stepper afresh from the impulsive motion
+        after them (module docstring)."""
         nonlocal s, t, k_next
+        # at one instant a jump in position is the one that counts (no velocity follows it)
+        jump = min(found, key=lambda j: j.level != "position")
         used = int(before[:2].sum()) + s.attempts
         before[:] += (s.naccepted, s.nrejected, s.nfev, s.njev, s.nlu)
         y_old, s = s.y_old, None
@@ -228,7 +223,8 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                           max_steps=max_steps - used, on_interval=on_interval,
                           raw_outputs=raw_outputs), on_step, used)
         before[:] += (sub.steps, sub.rejected, sub.evaluations, sub.njev, sub.nlu)
-        moves.extend(sub.moves[:MAX_MOVES - len(moves)])
+        met.extend(sub.jumps)
+        met.extend(found)
         k_next += int(np.searchsorted(t_eval[k_next:], jump.t_before, side="right"))
         if sub.status != "ok":
             t = sub.t_reached
@@ -239,7 +235,6 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                         "jump")
         impulse = getattr(equations, "impulse", None) or project
         t, y = jump.t, impulse(jump.t, sub.y[-1])
-        impulses.append(jump.t)
         s = stepper(equations, t, y, t_end, rtol=rtol, atol=atol, scale=scale)
         s.max_attempts = max_steps - int(before[:2].sum())
         if max_step < np.inf:
@@ -293,11 +288,9 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             if project is not None and not stepper.constrained:
                 end = (project if at_output else settle)(t_new, y_new)
                 if np.max(np.abs(end - y_new) / (tol_abs + rtol * np.abs(end))) > JUMP_MOVE:
-                    if len(moves) < MAX_MOVES:
-                        moves.append((t, t_new, y_new))
-                    jump = _first_jump(equations, t, t_new, y_new[:n // 2], tol_abs)
-                    if jump is not None:
-                        ended = over_jump(jump)
+                    found = _first_jumps(equations, t, t_new, y_new[:n // 2], tol_abs)
+                    if found:
+                        ended = over_jump(found)
                         if ended is not None:
                             return ended
                         continue
@@ -466,21 +459,14 @@ def _trial(stiff: tuple, t: float, y: np.ndarray, t_end: float, h: float, name: 
     return why, spent, ((s, equations, spans) if why is not None else None)
 
 
-def _first_jump(equations: Equations, a: float, b: float, q: np.ndarray,
-                tol_abs) -> Jump | None:
-    """The earliest jump in (a, b] of the constraints' position or velocity terms at the
-    positions q (:mod:`mechdsl.solve.jumps`), None where none jumps (the projection moved
-    the state far for another reason)."""
-    phi_jac, nu = getattr(equations, "phi_jac", None), getattr(equations, "nu", None)
-    if phi_jac is None:
-        return None
-    floor = float(np.max(tol_abs))
-    found = time_jumps(lambda t: phi_jac(t, q)[0], nu, a, b, floor)
-    if not found:
-        return None
-    first = min(j.t for j in found)
-    # at one instant a jump in position is the one to report (no velocity follows it)
-    return min((j for j in found if j.t == first), key=lambda j: j.level != "position")
+def _first_jumps(equations: Equations, a: float, b: float, q: np.ndarray,
+                 tol_abs) -> list[Jump]:
+    """The jumps at the earliest instant in (a, b] that the constraints' position or
+    velocity terms jump at, at the positions q (:mod:`mechdsl.solve.jumps`); none where
+    none jumps (the projection moved the state far for another reason)."""
+    found = constraint_jumps(equations, q, a, b, float(np.max(tol_abs)))
+    first = min((j.t for j in found), default=None)
+    return [j for j in found if j.t == first]
 
 
 def _up_to(stepper: type[Stepper], equations: Equations, y: np.ndarray, t_a: float,

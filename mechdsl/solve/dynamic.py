@@ -43,7 +43,7 @@ from . import extrema, instants
 from .assembly import gauss_newton
 from .base import Progress, Run
 from .diagnose import constraint_names, jumps_text, variant_label
-from .options import SolverOptions
+from .options import SolverOptions, raised_to
 from ..symbolic.codegen import first_floats
 
 
@@ -117,11 +117,8 @@ class DynamicRun(Run):
         tol = system.tolerances  # the file's; options given explicitly override them
         self.rtol = self.opts.rtol or tol.get("rtol", RTOL)
         self.atol = self.opts.atol or tol.get("atol", ATOL)
-        if self.rtol < RTOL_FLOOR or self.atol < ATOL_FLOOR:
-            asked = [f"{name} {value:g}" for name, value, low in (
-                ("rtol", self.rtol, RTOL_FLOOR), ("atol", self.atol, ATOL_FLOOR))
-                if value < low]
-            self.rtol, self.atol = max(self.rtol, RTOL_FLOOR), max(self.atol, ATOL_FLOOR)
+        self.rtol, self.atol, asked = raised_to(self.rtol, self.atol, RTOL_FLOOR, ATOL_FLOOR)
+        if asked:
             self.warnings.append(
                 f"{' and '.join(asked)} {'are' if len(asked) > 1 else 'is'} below what "
                 f"double precision resolves: integrated at rtol {self.rtol:.3g}, atol "
@@ -481,9 +478,6 @@ class DynamicRun(Run):
         finally:  # an interrupt too: the instants solved are written, complete
             self._write(v)
         jumps = self._jumps(sol, equations, scale)
-        if sol.status == "ok":  # radau goes through a drive's jump in rate without a move
-            seen = {j.row for j in jumps}
-            jumps += [j for j in self._rate_jumps(equations, scale) if j.row not in seen]
         if jumps and sol.status != "failed":
             self.warnings.append(
                 f"{jumps_text(sysm, jumps)}{variant_label(sysm, v)}; the motion went on from "
@@ -515,15 +509,15 @@ class DynamicRun(Run):
                    INTEGRATORS[self.method].implicit and "underflow" in sol.message else ""))
         return sol.status
 
-    def _rate_jumps(self, equations, scale: np.ndarray) -> list:
+    def _rate_jumps(self, equations, floor: float) -> list:
         """The jumps of the drives' rates f'(t) between the output instants
         (:mod:`mechdsl.solve.jumps`): where a sampled change departs from both its
-        neighbours' by more than the tolerance and a thousand times the drive's median
-        departure (a smooth rate's departures are its curvature times the step squared),
-        located to round-off; the few intervals found are examined, not the run. The
-        implicit stepper, which keeps the constraints at its stages, passes such a jump
+        neighbours' by more than the tolerance ``floor`` and a thousand times the drive's
+        median departure (a smooth rate's departures are its curvature times the step
+        squared), located to round-off; the few intervals found are examined, not the run.
+        The implicit stepper, which keeps the constraints at its stages, passes such a jump
         by steps that shrink to it, and no projection shows it."""
-        from .jumps import MAX_ROWS, time_jumps
+        from .jumps import MAX_ROWS, departures, time_jumps
 
         nu = getattr(equations, "nu", None)
         T = self.times
@@ -531,14 +525,9 @@ class DynamicRun(Run):
             return []
         with np.errstate(all="ignore"):
             rates = eq.drive_values(self.one, T[None, :], "fd", (1, len(T)))[0]
-        d = np.diff(rates, axis=0)
-        before = np.concatenate((d[2:3], d[:-1]))
-        after = np.concatenate((d[1:], d[-3:-2]))
-        departs = np.minimum(np.abs(d - before), np.abs(d - after))
-        floor = self.atol * float(np.max(scale))
+        departs = np.nan_to_num(departures(np.diff(rates, axis=0)))
         found: dict[int, object] = {}
-        for col in range(d.shape[1]):
-            column = np.nan_to_num(departs[:, col])
+        for column in departs.T:
             limit = max(floor, 1e3 * float(np.median(column)))
             for k in np.flatnonzero(column > limit)[:MAX_ROWS]:
                 for j in time_jumps(None, nu, float(T[k]), float(T[k + 1]), floor):
@@ -546,27 +535,27 @@ class DynamicRun(Run):
         return list(found.values())
 
     def _jumps(self, sol, equations, scale: np.ndarray) -> list:
-        """The constraints that jump in time (:mod:`mechdsl.solve.jumps`) within the steps
-        whose projection moved the state far (``sol.moves``) and, where the integration
-        failed (not for its budget), around the instant it reached: a drive with a step."""
-        from .jumps import time_jumps
+        """The constraints that jump in time (:mod:`mechdsl.solve.jumps`): those the driver
+        met (``sol.jumps``), and where the integration failed (not for its budget) those
+        around the instant it reached (radau's step underflows at a drive's step), and in a
+        run that ended well the drives' jumps in rate (:meth:`_rate_jumps`); one per row."""
+        from .jumps import constraint_jumps
 
-        n = self.system.n
-        probes = [(a, b, y[:n]) for a, b, y in sol.moves]
-        if sol.status == "failed" and sol.reason != "budget" and len(sol.y):
+        floor = self.atol * float(np.max(scale))
+        found = list(sol.jumps)
+        if sol.status == "failed" and sol.reason != "budget" and len(sol.y) and \
+                self.system.m:
             t, span = float(sol.t_reached), float(self.times[-1] - self.times[0])
             width = max(1e-3 * span, 1e-9)
-            probes.append((max(t - width, float(self.times[0])), min(t + width,
-                           float(self.times[-1])), sol.y[-1][:n]))
-        phi_jac, nu = getattr(equations, "phi_jac", None), getattr(equations, "nu", None)
-        if phi_jac is None or not self.system.m:
-            return []
-        floor = self.atol * float(np.max(scale))
-        found: dict[int, object] = {}
-        for a, b, q in probes:
-            for j in time_jumps(lambda t, q=q: phi_jac(t, q)[0], nu, a, b, floor):
-                found.setdefault(j.row, j)
-        return sorted(found.values(), key=lambda j: j.t)
+            found += constraint_jumps(equations, sol.y[-1][:self.system.n],
+                                      max(t - width, float(self.times[0])),
+                                      min(t + width, float(self.times[-1])), floor)
+        elif sol.status == "ok":
+            found += self._rate_jumps(equations, floor)
+        rows: dict[int, object] = {}
+        for j in found:
+            rows.setdefault(j.row, j)
+        return sorted(rows.values(), key=lambda j: j.t)
 
     def _dissipation_integral(self):
         """Where an output asks for ``dissipated_energy``: the callback of each accepted step

@@ -56,11 +56,12 @@ class Jump:
     t_before: float = float("nan")
 
 
-def time_jumps(phi: Callable[[float], np.ndarray], nu: Callable[[float], np.ndarray] | None,
+def time_jumps(phi: Callable[[float], np.ndarray] | None,
+               nu: Callable[[float], np.ndarray] | None,
                a: float, b: float, floor: float) -> list[Jump]:
     """The jumps in [a, b] of ``phi(t)`` (Phi(q, t) at a fixed q, shape (m,)) and ``nu(t)``
-    (module docstring), each at most once per row, the position level first; ``floor``
-    the smallest change that counts."""
+    (module docstring; either may be None), each at most once per row, the position level
+    first; ``floor`` the smallest change that counts."""
     out: list[Jump] = []
     if not b > a:
         return out
@@ -90,11 +91,27 @@ def _locate(g: Callable[[float], float], a: float, b: float
         vals = np.array([g(float(x)) for x in ts])
         if not np.isfinite(vals).all():
             return None
-        d = np.diff(vals)
-        # how far each part's change departs from both its neighbours' (an end part's: from
-        # the next two parts'): a jump's part from both, a part beside it from one only
-        before = np.concatenate(([d[2]], d[:-1]))
-        after = np.concatenate((d[1:], [d[-3]]))
-        i = int(np.argmax(np.minimum(np.abs(d - before), np.abs(d - after))))
+        i = int(np.argmax(departures(np.diff(vals))))
         a, b = float(ts[i]), float(ts[i + 1])
     return a, b, g(b) - g(a)
+
+
+def departures(d: np.ndarray) -> np.ndarray:
+    """How far each change d[i] of successive parts (axis 0, at least three) departs from
+    both its neighbours' (an end part's: from the next two parts'): a jump's part departs
+    by the jump from both, a part beside it from one only, a smooth change's by its
+    curvature times the parts' width squared."""
+    before = np.concatenate((d[2:3], d[:-1]))
+    after = np.concatenate((d[1:], d[-3:-2]))
+    return np.minimum(np.abs(d - before), np.abs(d - after))
+
+
+def constraint_jumps(equations, q: np.ndarray, a: float, b: float, floor: float
+                     ) -> list[Jump]:
+    """:func:`time_jumps` of the equations' constraints (``phi_jac``, ``nu`` of
+    :class:`mechdsl.solve.stepper.Equations`) at the positions q; none where the equations
+    have no ``phi_jac``."""
+    phi_jac = getattr(equations, "phi_jac", None)
+    if phi_jac is None:
+        return []
+    return time_jumps(lambda t: phi_jac(t, q)[0], getattr(equations, "nu", None), a, b, floor)

@@ -280,3 +280,12 @@ class SolverOptions:
                              "augmented_krylov_iterations not negative")
         if self.level_split < 2:
             raise ValueError("level_split must be at least 2")
+
+
+def raised_to(rtol: float, atol: float, rtol_min: float, atol_min: float
+              ) -> tuple[float, float, list[str]]:
+    """(rtol, atol) raised to ``rtol_min``, ``atol_min`` where below them, and the values
+    asked for that were raised ("rtol 1e-12", ...), for the line that says so."""
+    asked = [f"{name} {value:g}" for name, value, low in
+             (("rtol", rtol, rtol_min), ("atol", atol, atol_min)) if value < low]
+    return max(rtol, rtol_min), max(atol, atol_min), asked

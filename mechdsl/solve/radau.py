@@ -93,6 +93,7 @@ from typing import Callable, ClassVar
 
 import numpy as np
 
+from .options import raised_to
 from .radau_stages import DENSE_MAX, CoupledStages, DenseLU, dense, triplets
 from .stepper import OUT_OF_BUDGET, Equations, Stepper
 from .triplets import Triplets
@@ -150,14 +151,13 @@ RTOL_MIN, ATOL_MIN = 1e-10, 1e-13
 def floored(rtol: float, atol: float) -> tuple[float, float, str | None]:
     """(rtol, atol) raised to :data:`RTOL_MIN`, :data:`ATOL_MIN` where below them, and the
     line that says so for the run's summary (None where nothing changed)."""
-    if rtol >= RTOL_MIN and atol >= ATOL_MIN:
+    rtol, atol, asked = raised_to(rtol, atol, RTOL_MIN, ATOL_MIN)
+    if not asked:
         return rtol, atol, None
-    asked = ", ".join(f"{name} {value:g}" for name, value, low in
-                      (("rtol", rtol, RTOL_MIN), ("atol", atol, ATOL_MIN)) if value < low)
-    rtol, atol = max(rtol, RTOL_MIN), max(atol, ATOL_MIN)
-    return rtol, atol, (f"radau at rtol {rtol:g}, atol {atol:g} (asked {asked}): tighter, the "
-                        "round-off of its index-3 equations grows the error instead of "
-                        "shrinking it; vern9 or dop853 integrate to tighter tolerances")
+    return rtol, atol, (f"radau at rtol {rtol:g}, atol {atol:g} (asked {', '.join(asked)}): "
+                        "tighter, the round-off of its index-3 equations grows the error "
+                        "instead of shrinking it; vern9 or dop853 integrate to tighter "
+                        "tolerances")
 
 
 #: the longest interval between two retries of the common Jacobian, in stagewise_retry's
