@@ -287,6 +287,26 @@ def stiff_pendulum_text(k: float, t1: float = 2.0, step: float = 0.01, rtol: flo
     ]) + "\n"
 
 
+def stiff_pendulum_off_centre_text(k: float) -> str:
+    """The stiff pendulum with the rod's frame at its centre: pinned at its point P, the
+    slider and the spring from P. The same motion (theta = rod.phi, s = |P bob|), but
+    the pin's equations are not affine in the rod's relative coordinates
+    (mechdsl.solve.reduced keeps them)."""
+    p = PENDULUM
+    return "\n".join([
+        f"param k = {k!r}", f"param l = {p['l']}", f"param mr = {p['mr']}",
+        f"param mb = {p['mb']}", f"param jb = {p['jb']}", f"param L0 = {p['l0']}",
+        "gravity = (0, -9.81)", "ground { }",
+        "body rod { guess = (l/2, 0, 0)  point P = (-l/2, 0)  mass = mr  inertia = mr*l^2/12 }",
+        "body bob { guess = (L0, 0, 0)  mass = mb  inertia = jb }",
+        "joint pivot: revolute(ground.origin, rod.P)",
+        "joint slide: prismatic(rod.P, bob.origin, axis = (1, 0))",
+        "force spring: spring(rod.P, bob.origin, k = k, length = L0)",
+        "simulate t = 0 .. 2 step 0.01, rtol = 1e-6, atol = 1e-8",
+        "output theta = rod.phi, s = distance(rod.P, bob.origin)",
+    ]) + "\n"
+
+
 def stiff_pendulum_rhs(t: float, y, k: float, g: float = G) -> np.ndarray:
     """y = (theta, s, theta', s'): Lagrange's equations of the module docstring."""
     p = PENDULUM

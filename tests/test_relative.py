@@ -1,7 +1,7 @@
 """Relative coordinates for radau (mechdsl.solve.relative): the map and its derivatives
 against finite differences, the transformed equations against the absolute ones' solution,
-the forest, and the runs that go on in them (the stiff pendulum: against its minimal ODE) or
-go back (a fast loop: against its energy)."""
+the forest, and a run that tries them and goes back (a fast loop: against its energy); the
+runs that go on in them are in test_reduced.py."""
 
 from __future__ import annotations
 
@@ -111,39 +111,6 @@ def test_the_transformed_equations_hold_at_the_absolute_solution():
     bob = 3 * kernels.system.body_names.index("bob")
     along = _fd(lambda x: rel.loads(0.0, x, zd), z)[bob, bob]  # the slider's coordinate
     assert dq[bob, bob] == pytest.approx(along, rel=1e-6) and along < -0.9e6
-
-
-def test_the_stiff_pendulum_goes_on_in_relative_coordinates_in_half_the_steps():
-    """k = 1e8: the spring turns with the rod; in absolute coordinates radau's stages need
-    their own Jacobians and it takes 139 attempts, in relative ones 73 (within 1e-6 rad
-    of the minimal ODE, as in absolute coordinates): a budget of 100 is enough for one
-    and not for the other."""
-    k = 1e8
-    text = dm.stiff_pendulum_text(k)
-    res = mechdsl.loads(text).simulate(options=SolverOptions(method="radau", max_steps=100))
-    assert res.ok, res.messages
-    assert "radau in relative coordinates from t = " in res.method, res.method
-    ref = dm.stiff_pendulum_oracle(k)
-    assert abs(res["theta"][-1] - ref[0]) < 1e-6
-    assert abs(res["s"][-1] - ref[1]) < 1e-6
-    absolute = mechdsl.loads(text).simulate(
-        options=SolverOptions(method="radau", max_steps=100, relative_max=0))
-    assert not absolute.ok and "budget" in " ".join(absolute.messages)
-
-
-def test_a_softer_spring_stays_in_relative_coordinates_where_their_steps_cost_less():
-    """k = 1e6: relative steps only 1.9 times as long as absolute ones, but an absolute
-    step takes a fresh Jacobian and 17 evaluations where a relative one takes 7: the trial
-    counts the work and keeps them (the step lengths alone sent the run back, 6.6e-7 rad
-    off at t = 2); theta and s within 2e-7 of the minimal ODE's."""
-    k = 1e6
-    res = mechdsl.loads(dm.stiff_pendulum_text(k)).simulate()
-    assert res.ok, res.messages
-    assert "radau in relative coordinates from t = " in res.method, res.method
-    assert "times less work per simulated second)" in res.method
-    ref = dm.stiff_pendulum_oracle(k)
-    assert abs(res["theta"][-1] - ref[0]) < 2e-7
-    assert abs(res["s"][-1] - ref[1]) < 2e-7
 
 
 def test_a_fast_loop_tries_relative_coordinates_and_goes_back():

@@ -145,6 +145,23 @@ class Dynamics:
                             np.array(rows, dtype=np.intp), np.array(cols, dtype=np.intp),
                             np.array(which, dtype=np.intp), tuple(nodes))
 
+    @functools.cached_property
+    def _floats(self) -> dict:
+        # the kernels of floats generated for this model, by name and nodes (:meth:`floats`)
+        return {}
+
+    def floats(self, nodes, name: str):
+        """The function of floats ``fn(q, qd, t, p, F)`` that gives ``nodes`` of this
+        model's graph (:func:`mechdsl.symbolic.codegen.scalar_kernel`), generated once
+        per model: every run on the model (each ``simulate()`` of a mechanism) reuses it."""
+        from ..symbolic.codegen import scalar_kernel
+
+        key = (name, tuple(nd.id for nd in nodes))
+        fn = self._floats.get(key)
+        if fn is None:
+            fn = self._floats[key] = scalar_kernel(self.graph, list(nodes), name).fn
+        return fn
+
     def load_derivative_values(self, q: np.ndarray, qd: np.ndarray, t: np.ndarray
                                ) -> np.ndarray:
         """The entries of dQ/dq and dQ/dqd in :attr:`load_jacobian`'s order, (V, b, nnz)."""

@@ -127,6 +127,15 @@ class Kernels:
         return one_state(self, 0)
 
     @functools.cached_property
+    def curvature(self):
+        """The constraints' second derivatives as code on floats
+        (:func:`mechdsl.compiled.curvature.curvature`; None where they are linear),
+        generated on first use, once per model."""
+        from .curvature import curvature
+
+        return curvature(self)
+
+    @functools.cached_property
     def scalar_kernels(self):
         """The forward dynamics' one-state kernels on floats
         (:func:`mechdsl.symbolic.codegen.scalar_kernel`): ``(phi_jac, motion, fixed)``.

@@ -190,14 +190,13 @@ class Motion:
         # the same on Python floats: one state at a time, the array kernel's numpy call per
         # operation costs a microsecond where a float operation costs a few dozen
         # nanoseconds (a chain of 300 links: 8.5 ms an evaluation against about 1 ms)
-        from ..symbolic.codegen import scalar_functions, scalar_kernel
+        from ..symbolic.codegen import scalar_functions
 
         self._mq_scalar = None
         self._mq_p = first_floats(d.params)
         self._mq_F = scalar_functions(d.functions)
         if len(varying):
-            self._mq_scalar = scalar_kernel(d.graph, [nodes[k] for k in varying],
-                                            "motion_terms").fn
+            self._mq_scalar = d.floats([nodes[k] for k in varying], "motion_terms")
 
     @functools.cached_property
     def _mq_kernel(self):
@@ -510,11 +509,7 @@ class Motion:
         positions of dQ/dq's and dQ/dqd's entries in its output."""
         d = self.kernels.dynamics
         lj = d.load_jacobian
-        fn = None
-        if lj.kernel is not None:
-            from ..symbolic.codegen import scalar_kernel
-
-            fn = scalar_kernel(d.graph, list(lj.nodes), "load_jacobian").fn
+        fn = d.floats(lj.nodes, "load_jacobian") if lj.kernel is not None else None
         return fn, np.flatnonzero(lj.wrt == 0), np.flatnonzero(lj.wrt == 1)
 
     def load_derivatives(self, t: float, q: np.ndarray, qd: np.ndarray
@@ -539,11 +534,9 @@ class Motion:
                 Triplets(vals[on_qd], lj.rows[on_qd], lj.cols[on_qd], shape))
 
 
-    @functools.cached_property
+    @property
     def _curvature(self):
-        from ..compiled.curvature import curvature
-
-        return curvature(self.kernels)
+        return self.kernels.curvature
 
     def constraint_curvature(self, t: float, q: np.ndarray, lam: np.ndarray) -> Triplets:
         """d/dq (Phi_q^T lambda) = sum_i lambda_i Phi_i,qq (n, n), exact

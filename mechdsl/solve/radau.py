@@ -225,9 +225,16 @@ class RadauStepper(Stepper):
                          first_step=first_step)
         self.n, self.m = int(equations.n), int(equations.m)
         n = self.n
+        #: Phi and Phi_q of equations without constraints (an ODE: module reduced)
+        self._unconstrained = (np.zeros(0), np.zeros((0, n)))
         self.y = self.y_old = np.array(self.y, dtype=float)
-        sc = np.broadcast_to(np.asarray(scale, dtype=float), (2 * n,)) if scale is not None \
-            else np.ones(2 * n)
+        own = getattr(equations, "own_scale", None)
+        if scale is None:
+            sc = np.ones(2 * n)
+        elif own is not None:
+            sc = own(scale)
+        else:
+            sc = np.broadcast_to(np.asarray(scale, dtype=float), (2 * n,))
         self._atol = atol * sc
         self.newton_tol = newton_tol if newton_tol is not None else \
             max(10 * np.finfo(float).eps / rtol, min(0.03, rtol ** 0.5))
@@ -246,6 +253,10 @@ class RadauStepper(Stepper):
             lambda t_, q_, v_: (equations.mass(q_), equations.loads(t_, q_, v_)))
         self.index3_scaling = index3_scaling
         self._error_map = getattr(equations, "error_map", None)
+        #: the error's tolerance in the coordinates ``error_map`` gives it in (the model's,
+        #: whose ``scale`` was given), where the equations have coordinates of their own
+        self._atol_error = self._atol if own is None or scale is None else \
+            atol * np.asarray(scale, dtype=float)
         self.curvature = curvature
         self.residual_tol = residual_tol
         self.max_newton_singular, self.singular_rate = max_newton_singular, singular_rate
@@ -278,7 +289,8 @@ class RadauStepper(Stepper):
         estimate reads (``_M0``: from the same evaluation)."""
         eq, n = self.equations, self.n
         q, v = y[:n], y[n:2 * n]
-        phi, G = phi_jac if phi_jac is not None else eq.phi_jac(t, q)
+        phi, G = phi_jac if phi_jac is not None else \
+            eq.phi_jac(t, q) if self.m else self._unconstrained
         self.nfev += 1
         if start:
             # M at the step's start, not the Jacobian's (kept over many steps): where M
@@ -326,7 +338,8 @@ class RadauStepper(Stepper):
         q, v = y[:n], y[n:]
         dq, dv = eq.load_derivatives(t, q, v)
         dq = self._stiffness(t, q, dq, self.lam)
-        self._jac = (_mat(eq.mass(q)), _mat(dq), _mat(dv), _mat(eq.phi_jac(t, q)[1]))
+        G = eq.phi_jac(t, q)[1] if self.m else self._unconstrained[1]
+        self._jac = (_mat(eq.mass(q)), _mat(dq), _mat(dv), _mat(G))
         self.njev += 1
         self._set_pattern()
         self._lu = None
@@ -425,8 +438,9 @@ class RadauStepper(Stepper):
     # -- one step ---------------------------------------------------------------------------
     def _norm(self, x: np.ndarray, sc: np.ndarray, h: float) -> float:
         """The rms norm of the (q, v) parts of x scaled by sc, v's multiplied by h (the
-        index-3 scaling); lambda excluded."""
-        n = self.n
+        index-3 scaling); lambda excluded. (Of the coordinates sc is given for: the
+        error of equations in coordinates of their own is measured in the model's.)"""
+        n = sc.size // 2
         s = np.concatenate((x[:n] / sc[:n], h * x[n:2 * n] / sc[n:]))
         return float(np.sqrt(np.mean(np.abs(s) ** 2)))
 
@@ -438,7 +452,7 @@ class RadauStepper(Stepper):
         which the tolerance is given for."""
         if self._error_map is not None:
             y, y_new, err = self._error_map(y, y_new, err)
-        sc = self._atol + self.rtol * np.maximum(np.abs(y), np.abs(y_new))
+        sc = self._atol_error + self.rtol * np.maximum(np.abs(y), np.abs(y_new))
         return self._norm(err, sc, self._hv(h))
 
     def _stage_weights(self, sc: np.ndarray, h: float) -> tuple:
@@ -502,7 +516,7 @@ class RadauStepper(Stepper):
             tj, qj, vj = t + _K["c"][j] * h, self.y[:n] + Z[j, :n], self.y[n:] + Z[j, n:2 * n]
             dq, dv = eq.load_derivatives(tj, qj, vj)
             dq = self._stiffness(tj, qj, dq, self.lam + Z[j, 2 * n:])
-            phi, G = eq.phi_jac(tj, qj)
+            phi, G = eq.phi_jac(tj, qj) if self.m else self._unconstrained
             M, Q = self._mass_loads(tj, qj, vj)
             terms.append((phi, G, M, Q))
             jacs.append((_mat(M), _mat(dq), _mat(dv), _mat(G)))
@@ -544,7 +558,7 @@ class RadauStepper(Stepper):
                 if k == 0 and at_guess is not None:
                     phi, G, M, Q = at_guess[j]
                 else:
-                    phi, G = eq.phi_jac(tj, qj)
+                    phi, G = eq.phi_jac(tj, qj) if self.m else self._unconstrained
                     M, Q = self._mass_loads(tj, qj, vj)
                 r[j, :n] = D[j, :n] - vj
                 r[j, n:2 * n] = M @ D[j, n:] - Q + G.T @ lj

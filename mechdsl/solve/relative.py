@@ -442,8 +442,35 @@ class Radau(Stepper):
         #: the last accepted steps: absolute ones, then relative ones
         self._steps: list[tuple[float, int]] = []
         self._gain = 0.0
+        self._before_steps: list[tuple[float, int]] = []
+        #: the relative coordinates left where the joints fix the others (module reduced)
+        self._left: tuple[int, int] | None = None
+        start = self._joint_coordinates(t0, np.asarray(y0, dtype=float), t_bound)
+        if start is not None:
+            # a tree whose joints leave an ODE in their own coordinates, with a force
+            # across a joint: those coordinates from the start, as one writes such a
+            # model by hand (module reduced), with no trial against absolute ones
+            equations, y0 = start
+            self.relative, self.relative_from = equations, t0
+        self._from_start = start is not None
         self.inner = RadauStepper(equations, t0, y0, t_bound, rtol=rtol, atol=atol,
                                   scale=scale, first_step=first_step, **options)
+
+    def _joint_coordinates(self, t0: float, y0: np.ndarray, t_bound: float):
+        """(equations, state) in the joints' own coordinates where the model is a tree of
+        joints that fix every other relative coordinate and a force acts across one of
+        them; else None."""
+        if not self._spanning:
+            return None
+        from .reduced import reduce
+
+        rel = Relative(self.equations, self._parent)
+        z = rel.relative(y0)
+        reduced = reduce(rel, t0, z[:rel.n], t_bound - t0)
+        if reduced is None or reduced.m:
+            return None
+        self._left = (reduced.n, rel.n)
+        return reduced, reduced.relative(y0)
 
     def _go_on(self, equations: Equations, y: np.ndarray) -> None:
         """A new inner stepper on ``equations`` from the inner stepper's time, with y in
@@ -457,9 +484,17 @@ class Radau(Stepper):
         self.inner = new
 
     def _to_relative(self) -> None:
+        from .reduced import reduce
+
         rel = Relative(self.equations, self._parent)
         t, y = self.inner.t, self.inner.y
-        self._go_on(rel, rel.relative(y))
+        z = rel.relative(y)
+        # the coordinates the joints fix, eliminated where there are any (module reduced)
+        reduced = reduce(rel, t, z[:rel.n], self.inner.t_bound - t)
+        if reduced is not None:
+            self._left = (reduced.n, rel.n)
+            rel, z = reduced, reduced.relative(y)
+        self._go_on(rel, z)
         self.relative, self.relative_from = rel, t
         self._before_steps, self._steps = self._steps[-10:], []
 
@@ -478,14 +513,20 @@ class Radau(Stepper):
     def _relative_note(self) -> str | None:
         if self.relative_from is None:
             return None
+        left = "" if self._left is None else \
+            f" ({self._left[0]} of {self._left[1]} left: the joints fix the others)"
+        if self._from_start:
+            return (f"radau in the joints' own coordinates{left} from the start, with "
+                    f"{_listed(self._spanning)} acting across a joint")
         why = (f"its stages needed their own Jacobians, with {_listed(self._spanning)} "
                "acting across a joint")
         if self.relative_until is not None:
-            return (f"radau tried relative coordinates from t = {self.relative_from:.6g} to "
-                    f"{self.relative_until:.6g} ({why}), which took {self._gain:.3g} times less "
-                    f"work per simulated second, under {RELATIVE_GAIN:g}: absolute ones kept")
-        return (f"radau in relative coordinates from t = {self.relative_from:.6g}, where "
-                f"{why} ({self._gain:.3g} times less work per simulated second)")
+            return (f"radau tried relative coordinates{left} from t = "
+                    f"{self.relative_from:.6g} to {self.relative_until:.6g} ({why}), which "
+                    f"took {self._gain:.3g} times less work per simulated second, under "
+                    f"{RELATIVE_GAIN:g}: absolute ones kept")
+        return (f"radau in relative coordinates{left} from t = {self.relative_from:.6g}, "
+                f"where {why} ({self._gain:.3g} times less work per simulated second)")
 
     def _absolute(self, y: np.ndarray) -> np.ndarray:
         return y if self.relative is None else self.relative.absolute(y)

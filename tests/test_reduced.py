@@ -1,0 +1,133 @@
+"""The relative coordinates that joints fix, eliminated (mechdsl.solve.reduced): which rows go
+(the stiff pendulum's all four; a pin away from the frame's origin none of its own, though
+one of its rows has a single gradient entry at the start), the equations left against
+Lagrange's equations written by hand, and the runs in them against the minimal ODE."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import mechdsl
+from mechdsl.solve.motion import Motion
+from mechdsl.solve.options import SolverOptions
+from mechdsl.solve.reduced import reduce
+from mechdsl.solve.relative import Relative, forest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import dynamics_models as dm  # noqa: E402
+
+P = dm.PENDULUM
+
+
+def _relative(text: str):
+    kernels = mechdsl.loads(text, "pendulum.mech").compile()
+    motion = Motion(kernels, SolverOptions())
+    parent = forest(kernels.system, tuple(f.bodies for f in kernels.dynamics.forces))
+    rel = Relative(motion, parent)
+    y0 = np.concatenate((kernels.system.guess[0], np.zeros(motion.n)))
+    return kernels, rel, rel.relative(y0)[:motion.n]
+
+
+def test_the_pendulums_joints_leave_its_two_joint_coordinates():
+    """The pin at both frames' origins fixes the rod's s (two rows), the slider through
+    the origins along the rod's axis the bob's offset across it and its angle (two rows):
+    left are the rod's angle and the bob's travel along the rod, and no equation."""
+    kernels, rel, z = _relative(dm.stiff_pendulum_text(1e8))
+    names = kernels.system.body_names
+    rod, bob = 3 * names.index("rod"), 3 * names.index("bob")
+    red = reduce(rel, 0.0, z, 2.0)
+    assert red is not None
+    assert sorted(red.free.tolist()) == sorted([rod + 2, bob])
+    assert red.m == 0 and red.n == 2
+
+
+def test_a_pin_away_from_the_frames_origin_stays_an_equation():
+    """The pin at P = (-l/2, 0) of a rod along x: its x row's gradient has one entry at
+    the start (d/dphi of -l/2 cos(phi) is zero at phi = 0), but it is not affine (the
+    probes at far states see it turn): both pin rows are kept, the slider's two go."""
+    kernels, rel, z = _relative(dm.stiff_pendulum_off_centre_text(1e8))
+    _, jac = rel.phi_jac(0.0, z)
+    singles = [r for r in range(rel.m)
+               if np.count_nonzero(np.abs(jac[r]) > 1e-12 * np.abs(jac[r]).max()) == 1]
+    pin = [int(r) for r in kernels.system.joint_rows[:2]]
+    assert set(pin) & set(singles), "the start has a pin row with a single entry"
+    red = reduce(rel, 0.0, z, 2.0)
+    assert red is not None
+    assert sorted(red.keep.tolist()) == sorted(pin)
+    assert red.n == 4 and red.m == 2
+
+
+@pytest.mark.parametrize("k", [1e2, 1e8])
+def test_the_equations_left_are_lagranges(k):
+    """At random states (theta, s, theta', s'): the reduced equations' accelerations are
+    those of the minimal ODE written by hand (dynamics_models.stiff_pendulum_rhs, Lagrange's
+    equations), and their loads' derivative along s holds the spring's -k exactly."""
+    kernels, rel, z = _relative(dm.stiff_pendulum_text(k))
+    names = kernels.system.body_names
+    red = reduce(rel, 0.0, z, 2.0)
+    theta_at = int(np.flatnonzero(red.free == 3 * names.index("rod") + 2)[0])
+    s_at = 1 - theta_at
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        y = np.array([rng.uniform(-3, 3), P["l0"] + rng.uniform(-0.2, 0.2),
+                      rng.normal(scale=3), rng.normal(scale=0.5)])
+        w, wd = np.empty(2), np.empty(2)
+        w[[theta_at, s_at]], wd[[theta_at, s_at]] = y[:2], y[2:]
+        wdd = red.rhs(0.3, np.concatenate((w, wd)))[2:]
+        want = dm.stiff_pendulum_rhs(0.3, y, k)[2:]
+        assert np.abs(wdd[[theta_at, s_at]] - want).max() < 1e-9 * (1 + np.abs(want).max())
+        dq, _ = red.load_derivatives(0.3, w, wd)
+        # the exact derivative is mb theta'^2 - k; the term from G's own derivative
+        # (mb theta'^2) is left out by design (module relative), the stiffness is exact
+        assert dq[s_at, s_at] == pytest.approx(-k, rel=1e-12)
+
+
+def test_the_stiff_pendulum_runs_in_its_joint_coordinates():
+    """k = 1e8, radau named: in the joints' two coordinates from the start, within 1e-7
+    of the minimal ODE at t = 2 (measured 7.7e-9 rad; 1.1e-7 in absolute coordinates), in
+    fewer than 100 attempts, which absolute coordinates exhaust."""
+    k = 1e8
+    text = dm.stiff_pendulum_text(k)
+    res = mechdsl.loads(text).simulate(options=SolverOptions(method="radau", max_steps=100))
+    assert res.ok, res.messages
+    assert "radau in the joints' own coordinates (2 of 6 left" in res.method, res.method
+    ref = dm.stiff_pendulum_oracle(k)
+    assert abs(res["theta"][-1] - ref[0]) < 1e-7
+    assert abs(res["s"][-1] - ref[1]) < 1e-7
+    absolute = mechdsl.loads(text).simulate(
+        options=SolverOptions(method="radau", max_steps=100, relative_max=0))
+    assert not absolute.ok and "budget" in " ".join(absolute.messages)
+
+
+def test_the_automatic_choice_goes_on_in_joint_coordinates():
+    """k = 1e6 with no method named: vern9 finds it stiff, radau goes on in the joints'
+    coordinates; theta and s within 1e-7 of the minimal ODE (2e-7 before, in relative
+    coordinates with every joint's equations)."""
+    k = 1e6
+    res = mechdsl.loads(dm.stiff_pendulum_text(k)).simulate()
+    assert res.ok, res.messages
+    assert "radau in the joints' own coordinates (2 of 6 left" in res.method, res.method
+    ref = dm.stiff_pendulum_oracle(k)
+    assert abs(res["theta"][-1] - ref[0]) < 1e-7
+    assert abs(res["s"][-1] - ref[1]) < 1e-7
+
+
+def test_a_pin_kept_as_an_equation_goes_through_the_trial():
+    """The off-centre pendulum at k = 1e8: its pin stays an equation, so radau starts in
+    absolute coordinates, finds its stages need their own Jacobians, tries relative ones
+    with the slider's coordinates eliminated (4 of 6 left) and keeps them (about 2.4
+    times less work per simulated second); theta and s within 1e-6 of the minimal ODE
+    (the same motion as the stiff pendulum's)."""
+    k = 1e8
+    res = mechdsl.loads(dm.stiff_pendulum_off_centre_text(k), "off.mech").simulate(
+        options=SolverOptions(method="radau"))
+    assert res.ok, res.messages
+    assert "radau in relative coordinates (4 of 6 left" in res.method, res.method
+    assert "times less work per simulated second)" in res.method
+    ref = dm.stiff_pendulum_oracle(k)
+    assert abs(res["theta"][-1] - ref[0]) < 1e-6
+    assert abs(res["s"][-1] - ref[1]) < 1e-6
