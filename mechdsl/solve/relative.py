@@ -516,7 +516,7 @@ class Radau(Stepper):
         left = "" if self._left is None else \
             f" ({self._left[0]} of {self._left[1]} left: the joints fix the others)"
         if self._from_start:
-            return (f"radau in the joints' own coordinates{left} from the start, with "
+            return (f"radau in the joints' own coordinates{left} from its start, with "
                     f"{_listed(self._spanning)} acting across a joint")
         why = (f"its stages needed their own Jacobians, with {_listed(self._spanning)} "
                "acting across a joint")
