@@ -352,8 +352,8 @@ class _Compiler:
                   or any(b.mass is not None or b.density is not None or b.v0 is not None
                          for b in self.bodies)
                   or any(isinstance(o, (ReactionOutput, EnergyOutput))
-                         or any(isinstance(i, ReactionOutput)  # a named output of loads
-                                for _, i in getattr(o, "inputs", ()))
+                         or any(isinstance(i, (ReactionOutput, EnergyOutput))
+                                for _, i in getattr(o, "inputs", ()))  # a named output
                          for o in outputs))
         if not wanted:
             return None
@@ -792,7 +792,7 @@ class _Compiler:
             parts = []
             for k, red in enumerate(r.reductions):
                 e = red.expr
-                if isinstance(e, E.Name) and "." in e.id:
+                if isinstance(e, E.Name) and self._reads(e.id):
                     spec = self._quantity(e.id, e.span or red.span, r.name)
                 else:
                     text = f"[{E.to_text(e)}]"
@@ -812,7 +812,7 @@ class _Compiler:
         """A column computed by the expression ``e`` of params, ``t`` and quantities; its
         dimension that of ``e``, or for the k-th time derivative of a column of dimension
         d (``rate_of`` = (d, k)) d / time^k."""
-        names = {n.id: n.span for n in E.walk(e) if isinstance(n, E.Name) and "." in n.id}
+        names = {n.id: n.span for n in E.walk(e) if isinstance(n, E.Name) and self._reads(n.id)}
         # resolved in reading order: the first wrong quantity is the one reported
         specs = {n: self._quantity(n, at or span, owner) for n, at in names.items()}
         inputs = tuple((n, specs[n]) for n in sorted(specs))
@@ -848,10 +848,16 @@ class _Compiler:
                 break
         return columns
 
+    def _reads(self, name: str) -> bool:
+        """Whether ``name`` in an output's expression is a quantity (``rod.phi``, an
+        energy where no param has its name), not a param or ``t``."""
+        return "." in name or (name in ENERGY_QUANTITIES and name not in self.param_names)
+
     def _quantity(self, name: str, span: Span, output: str) -> OutputSpec:
-        """The column spec of one quantity read by a named output (``rod.phi``)."""
+        """The column spec of one quantity read by a named output (``rod.phi``,
+        ``kinetic_energy``)."""
         parts = tuple(name.split("."))
-        if parts[-1] not in (*BODY_QUANTITIES, *POINT_QUANTITIES, *JOINT_QUANTITIES,
+        if parts[-1] not in ENERGY_QUANTITIES and parts[-1] not in (*BODY_QUANTITIES, *POINT_QUANTITIES, *JOINT_QUANTITIES,
                              *DRIVE_QUANTITIES):
             raise MechError(f"'{cut(name)}' in output '{cut(output)}' is not a quantity: write "
                             "body.x, body.phi, body.P.x, joint.fx, drive.torque, ... (or "

@@ -218,6 +218,13 @@ class System:
                        outputs=tuple(_output_variant(o, v) for o in self.outputs),
                        n_variants=1, scale=self.scale[v : v + 1], guess=self.guess[v : v + 1])
 
+    def reads(self, label: str) -> bool:
+        """Whether an output column is ``label`` (``dissipated_energy``) or an expression
+        column reads it."""
+        return any(o.label == label or any(s.label == label
+                                           for _, s in getattr(o, "inputs", ()))
+                   for o in self.outputs)
+
     @property
     def n_bodies(self) -> int:
         return len(self.body_names)

@@ -12,7 +12,7 @@ from . import expr as E
 from . import motion_functions
 from . import statements as S
 from .model import (
-    BODY_QUANTITIES, GROUND, ORIGIN, REDUCTIONS, Body, Drive, Force, Initial, Joint, Model, NamedOutput,
+    BODY_QUANTITIES, ENERGY_QUANTITIES, GROUND, ORIGIN, REDUCTIONS, Body, Drive, Force, Initial, Joint, Model, NamedOutput,
     Optimization, OutputRef, Param, Reduction, ReducedOutput,
     Point, Polygon, Simulate, Sweep, Vector,
 )
@@ -410,9 +410,15 @@ def named_output(out: NamedOutput, params: set[str]) -> NamedOutput | ReducedOut
                         "has a comma, which a CSV column name cannot", out.span)
     if any(_is_reduction(n) for n in E.walk(expr)):
         return _reduced_output(out.name, expr, params, out)
-    quantities = {n.id for n in E.walk(expr) if isinstance(n, E.Name) and "." in n.id}
-    check_expr(expr, params | quantities | {TIME}, f"output '{cut(out.name)}'")
+    check_expr(expr, params | _quantities(expr, params) | {TIME}, f"output '{cut(out.name)}'")
     return NamedOutput(out.name, expr, out.span, out.name_span)
+
+
+def _quantities(e: E.Expr, params: set[str]) -> set[str]:
+    """The quantities an output's expression reads: ``body.x``, ``joint.fx``, ... and the
+    energies (``kinetic_energy``, ...) where no param has their name."""
+    return {n.id for n in E.walk(e) if isinstance(n, E.Name) and (
+        "." in n.id or (n.id in ENERGY_QUANTITIES and n.id not in params))}
 
 
 def _is_reduction(e: E.Expr) -> bool:
@@ -440,14 +446,14 @@ def _reduced_output(name: str, expr: E.Expr, params: set[str],
                      None)
         if inner is not None:
             raise MechError(f"a reduction inside {e.func}(): reduce a history once", e.span)
-        quantities = {n.id for n in E.walk(arg) if isinstance(n, E.Name) and "." in n.id}
-        check_expr(arg, params | quantities | {TIME}, context)
+        check_expr(arg, params | _quantities(arg, params) | {TIME}, context)
         found.append(Reduction(e.func, arg, e.span or out.span))
         return E.Name(f"@{len(found) - 1}", e.span)
 
     outer = E.rewrite(expr, rule)
+    read = _quantities(outer, params)
     for n in E.walk(outer):
-        if isinstance(n, E.Name) and ("." in n.id or n.id == TIME):
+        if isinstance(n, E.Name) and (n.id in read or n.id == TIME):
             raise MechError(f"'{cut(n.id)}' is outside a reduction: an output with "
                             f"{found[0].func}() has one value per variant; reduce "
                             f"'{cut(n.id)}' too (max, min, mean, final, ...)",

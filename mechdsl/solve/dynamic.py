@@ -563,7 +563,7 @@ class DynamicRun(Run):
         Gauss-Legendre's 5 points on the step's dense output (exact for polynomials of degree
         9, beyond the order of every method's interpolant), adding W(t_b) = W(t_a) +
         int P, and W at each output instant inside the step; W(t0) = 0. None otherwise."""
-        if not any(o.label == "dissipated_energy" for o in self.system.outputs):
+        if not self.system.reads("dissipated_energy"):
             return None
         times, n, d = self.times, self.one.system.n, self.one.dynamics
         W = self.states["W"]

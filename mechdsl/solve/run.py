@@ -96,7 +96,7 @@ class KinematicRun(Run):
         super().__init__(kernels, options, progress=progress)
         opts = self.opts
         count_check(system)  # before anything the size of the model is allocated
-        if any(o.label == "dissipated_energy" for o in system.outputs):
+        if system.reads("dissipated_energy"):
             raise MechError("dissipated_energy is integrated over a forward-dynamics run; a "
                             "fully driven mechanism's dampers dissipate dissipated_power, "
                             "and its drives supply that energy", source=system.source)

@@ -126,3 +126,24 @@ def test_body_wrench_is_the_moment_about_the_frame_origin():
     a = np.array([np.cos(0.3) * 0.5 - np.sin(0.3) * 0.25, np.sin(0.3) * 0.5 + np.cos(0.3) * 0.25])
     assert (fx, fy) == (3.0, -1.0)
     assert n == pytest.approx(a[0] * -1.0 - a[1] * 3.0, abs=1e-15)
+
+
+def test_a_spring_of_free_length_zero_pulls_through_its_ends_meeting():
+    """A free body on a spring of free length 0 from the ground's origin, starting there
+    with a velocity: an isotropic oscillator, r(t) = v0 sin(w t) / w (w^2 = k / m), which
+    passes its ends' meeting at every half period. Its loads are k d, finite at d = 0 (the
+    run stopped at t = 0 with accelerations that are not numbers before)."""
+    import mechdsl
+
+    text = """ground { }
+body puck { guess = (0, 0, 0)  mass = 2  inertia = 0.1  v0 = (0.6, -0.8, 0) }
+force band: spring(ground.origin, puck.origin, k = 50)
+simulate t = 0 .. 2 step 0.01
+output x = puck.x, y = puck.y
+"""
+    res = mechdsl.loads(text, "band.mech").simulate()
+    assert res.ok, res.messages
+    w = np.sqrt(50 / 2)
+    shape = np.sin(w * res.times) / w
+    assert np.abs(res["x"] - 0.6 * shape).max() < 1e-8
+    assert np.abs(res["y"] + 0.8 * shape).max() < 1e-8
