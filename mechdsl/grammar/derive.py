@@ -15,8 +15,10 @@ from .expr import (
 )
 
 
-def derivative(e: Expr, var: str = "t") -> Expr:
-    """The exact derivative d e / d var as a new (simplified) tree.
+def derivative(e: Expr, var: str = "t", seeds: dict[str, Expr] | None = None) -> Expr:
+    """The exact derivative d e / d var as a new (simplified) tree; with ``seeds``, the
+    derivative along the directions the seeds give each name (forward mode: d name = the
+    name's seed, every name not in ``seeds`` a constant; ``var`` is then one of them).
 
     Piecewise expressions differentiate branch by branch: d/dt (if C then A else B) =
     if C then A' else B' (the derivative where it exists; at a switch point the branch the
@@ -27,9 +29,11 @@ def derivative(e: Expr, var: str = "t") -> Expr:
     of terms is as deep); a subtree shared by several parents is derived once, and the
     result shares the operands of ``e``.
     """
-    depends: dict[int, bool] = {}  # node -> does it read var?
+    if seeds is None:
+        seeds = {var: Num(1.0)}
+    depends: dict[int, bool] = {}  # node -> does it read a seeded name?
     for node in postorder(e):
-        depends[id(node)] = (node.id == var if isinstance(node, Name)
+        depends[id(node)] = (node.id in seeds if isinstance(node, Name)
                              else any(depends[id(k)] for k in children(node)))
 
     def needed(node: Expr) -> tuple:
@@ -45,16 +49,17 @@ def derivative(e: Expr, var: str = "t") -> Expr:
     done: dict[int, Expr] = {}
     d = lambda x: done[id(x)]  # noqa: E731
     for node in postorder(e, needed):
-        done[id(node)] = _rule(node, d, depends, var)
+        done[id(node)] = _rule(node, d, depends, seeds)
     return done[id(e)]
 
 
-def _rule(e: Expr, d: Callable[[Expr], Expr], depends: dict[int, bool], var: str) -> Expr:
+def _rule(e: Expr, d: Callable[[Expr], Expr], depends: dict[int, bool],
+          seeds: dict[str, Expr]) -> Expr:
     """The derivative of ``e`` given ``d``, the derivatives of its operands."""
     if not depends[id(e)]:  # numbers, references, other names, constant subtrees
         return Num(0.0)
     if isinstance(e, Name):
-        return Num(1.0)
+        return seeds[e.id]
     if isinstance(e, Unary):
         if e.op == "-":
             return neg(d(e.operand))
@@ -120,16 +125,15 @@ def total_derivative(e: Expr, functions: set[str], rates: dict[str, str],
     """d e / d var where the names ``functions`` are themselves functions of ``var``, each
     with the derivative named ``rates[name]`` (the chain rule: de/dvar = e_var +
     sum e_n n'); other names are constants. None where ``e`` depends on a function with no
-    derivative given (an acceleration: the jerk is not computed)."""
-    out = derivative(e, var)
-    # (only the functions that e reads: a derivative with respect to any other is 0, and
-    # each costs two walks of e, for every coordinate of the model)
-    read = {node.id for node in postorder(e) if isinstance(node, Name)}
-    for name in sorted(functions & read):
-        partial = derivative(e, name)
-        if isinstance(partial, Num) and partial.value == 0.0:
-            continue
-        if name not in rates:
-            return None
-        out = add(out, mul(partial, Name(rates[name])))
+    derivative given (an acceleration: the jerk is not computed). One pass in forward
+    mode (each function's seed its rate), not one per function read."""
+    seeds: dict[str, Expr] = {name: Name(rates.get(name, _NO_RATE)) for name in functions}
+    seeds[var] = Num(1.0)
+    out = derivative(e, var, seeds)
+    if any(isinstance(node, Name) and node.id == _NO_RATE for node in postorder(out)):
+        return None
     return out
+
+
+#: the seed of a function with no derivative given: a result that still reads it needs one
+_NO_RATE = "\x00no rate"

@@ -165,38 +165,48 @@ class Reduced:
 
     # -- the Equations protocol -------------------------------------------------------------
     def phi_jac(self, t: float, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The kept rows of Phi(g(z(w)), t) and of Phi_q G, their columns w."""
         phi, jac = self.rel.phi_jac(t, self._z(w))
         return phi[self.keep], np.asarray(jac)[self._kw]
 
     def nu(self, t: float) -> np.ndarray:
+        """nu's kept rows."""
         return np.asarray(self.rel.nu(t))[self.keep]
 
     def gamma(self, t: float, w: np.ndarray, wd: np.ndarray) -> np.ndarray:
+        """gamma - Phi_q c, kept rows (the eliminated coordinates' rates are zero)."""
         return self.rel.gamma(t, self._z(w), self._zd(wd))[self.keep]
 
     def mass(self, w: np.ndarray) -> np.ndarray:
+        """(G^T M G)_ww."""
         return self.rel.mass(self._z(w))[self._ww]
 
     def mass_loads(self, t: float, w: np.ndarray, wd: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
+        """(G^T M G)_ww and (G^T (Q - M c))_w, from one evaluation."""
         M, Q = self.rel.mass_loads(t, self._z(w), self._zd(wd))
         return M[self._ww], Q[self.free]
 
     def loads(self, t: float, w: np.ndarray, wd: np.ndarray) -> np.ndarray:
+        """(G^T (Q - M c))_w."""
         return self.mass_loads(t, w, wd)[1]
 
     def load_derivatives(self, t: float, w: np.ndarray, wd: np.ndarray
                          ) -> tuple[np.ndarray, np.ndarray]:
+        """The (w, w) blocks of the relative coordinates' load derivatives."""
         dz, dzd = self.rel.load_derivatives(t, self._z(w), self._zd(wd))
         return dz[self._ww], dzd[self._ww]
 
     def constraint_curvature(self, t: float, w: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """G^T (Phi_q^T lambda)_q G's (w, w) block, the eliminated rows' multipliers zero
+        (their Phi_r is affine in z: no curvature)."""
         full = np.zeros(self.rel.m)
         full[self.keep] = lam
         return self.rel.constraint_curvature(t, self._z(w), full)[self._ww]
 
     def accelerations(self, t: float, w: np.ndarray, wd: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray]:
+        """wdd and the kept multipliers."""
         if self.m == 0:
             # an ODE: (G^T M G)_ww wdd = (G^T (Q - M c))_w, no multiplier left
             M, Q = self.mass_loads(t, w, wd)
@@ -205,5 +215,6 @@ class Reduced:
         return zdd[self.free], np.asarray(lam)[self.keep]
 
     def rhs(self, t: float, y: np.ndarray) -> np.ndarray:
+        """(wd, wdd)."""
         n = self.n
         return np.concatenate((y[n:2 * n], self.accelerations(t, y[:n], y[n:2 * n])[0]))
