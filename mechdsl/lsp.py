@@ -560,18 +560,21 @@ def completions(text: str, line: int, character: int, registry) -> list[tuple[st
         if depth > 0:
             return [(w, "keyword", "body item") for w in _ITEMS]
         return [(w, "keyword", "statement") for w in _STATEMENTS]
-    from .grammar.model import REDUCTIONS, TRACE_FUNCTIONS
+    from .grammar.model import ENERGY_QUANTITIES, REDUCTIONS, TRACE_FUNCTIONS
 
+    reads_motion = statement in ("output", "minimize", "maximize", "subject")
     reductions = ([(name, "function", f"reduction: {what}") for name, what in REDUCTIONS.items()
-                   if name not in _FUNCTIONS]
-                  if statement in ("output", "minimize", "maximize", "subject") else [])
+                   if name not in _FUNCTIONS] if reads_motion else [])
+    # the energies are quantities of the motion too (an output's expression may read them)
+    energies = [(e, "quantity", _QUANTITY_TEXT[e]) for e in ENERGY_QUANTITIES] \
+        if reads_motion else []
     if statement == "trace":  # a point's path, or a trace function's curves
         return ([(b, "body", "body") for b in bodies if b != "ground"]
                 + [("ground", "body", "")]
                 + [(f, "function", what) for f, what in TRACE_FUNCTIONS.items()])
     return ([(p, "param", "param") for p in params]
             + [(b, "body", "body") for b in bodies if b != "ground"] + [("ground", "body", "")]
-            + [(f, "function", "function") for f in _FUNCTIONS] + reductions
+            + [(f, "function", "function") for f in _FUNCTIONS] + reductions + energies
             + [(c, "constant", "") for c in ("pi", "t")])
 
 

@@ -80,17 +80,41 @@ output w = 3 * dissipated_energy
         mechdsl.loads(text, "crank.mech").simulate()
 
 
-def test_a_param_of_an_energys_name_is_the_param():
-    """A model's own param named like an energy is read as the param (its value), as any
-    name the model declares."""
-    text = """param kinetic_energy = 7
-ground { }
-body crank { guess = (0, 0, 0) }
+@pytest.mark.parametrize("declaration", [
+    "param kinetic_energy = 7",
+    "body potential_energy { guess = (1, 1, 0) }",
+    "force kinetic_energy: torque(crank, 1)",
+    "output kinetic_energy = crank.phi"])
+def test_an_energys_name_names_nothing_else(declaration):
+    """The energies' names are reserved: a param, body, joint, force or output of that
+    name would make ``output w = kinetic_energy`` mean one thing to the run and another to
+    the editor; refused where declared."""
+    text = f"""ground {{ }}
+body crank {{ guess = (0, 0, 0)  mass = 1  inertia = 0.1 }}
 joint pin: revolute(ground.origin, crank.origin)
 drive turn: angle(crank) = 2*t
 simulate t = 0 .. 1 step 0.5
-output v = kinetic_energy + crank.phi
+{declaration}
 """
-    res = mechdsl.loads(text, "crank.mech").simulate()
-    assert res.ok, res.messages
-    assert np.abs(res["v"] - (7 + 2 * res.times)).max() < 1e-12
+    with pytest.raises(MechError, match="is reserved: it is an output quantity") as err:
+        mechdsl.loads(text, "crank.mech")
+    assert err.value.span.line == 6
+
+
+@pytest.mark.parametrize("goal, said", [
+    ("minimize kinetic_energy", "minimize takes one value per variant"),
+    ("minimize max(kinetic_energy)\nsubject to kinetic_energy <= 3",
+     "'kinetic_energy' is outside a reduction")])
+def test_an_energy_outside_a_reduction_of_an_objective_is_located(goal, said):
+    text = f"""param m = 1
+ground {{ }}
+body crank {{ guess = (0, 0, 0)  mass = m  inertia = 0.1  centroid = (0.5, 0) }}
+joint pin: revolute(ground.origin, crank.origin)
+drive turn: angle(crank) = 2*t
+simulate t = 0 .. 1 step 0.1
+optimize m in 0.5 .. 2
+{goal}
+"""
+    with pytest.raises(MechError, match=said) as err:
+        mechdsl.loads(text, "o.mech")
+    assert err.value.span is not None and err.value.span.line >= 8

@@ -131,3 +131,30 @@ def test_a_pin_kept_as_an_equation_goes_through_the_trial():
     ref = dm.stiff_pendulum_oracle(k)
     assert abs(res["theta"][-1] - ref[0]) < 1e-6
     assert abs(res["s"][-1] - ref[1]) < 1e-6
+
+
+def test_a_drive_at_rest_is_never_eliminated():
+    """A drive at rest until t = 1.3 (the rod, then 2 (t - 1.3)^3) is constant at t0 and at
+    every probe that falls before 1.3, but not after: its row stays an equation, and the
+    bob slides along the turning rod as s'' = s theta'^2 - g sin theta - k (s - 1) / mb
+    (solved apart at rtol 1e-12) says. Eliminated, the rod never turned in the stepper's
+    coordinates and s(2) was 0.2 m off."""
+    from scipy.integrate import solve_ivp
+
+    text = dm.stiff_pendulum_text(100.0, rtol=1e-8, atol=1e-10).replace(
+        "force spring", "drive turn: angle(rod) = if t < 1.3 then 0 else 2*(t - 1.3)^3\n"
+                        "force spring")
+    res = mechdsl.loads(text, "dwell.mech").simulate(options=SolverOptions(method="radau"))
+    assert res.ok, res.messages
+
+    def theta(t, order=0):
+        if t < 1.3:
+            return 0.0
+        return (2 * (t - 1.3) ** 3, 6 * (t - 1.3) ** 2)[order]
+
+    def f(t, y):
+        return [y[1], y[0] * theta(t, 1) ** 2 - 9.81 * np.sin(theta(t))
+                - 100.0 * (y[0] - P["l0"]) / P["mb"]]
+    ref = solve_ivp(f, (0, 2), [P["l0"], 0.0], method="DOP853", rtol=1e-12, atol=1e-14,
+                    max_step=0.01, t_eval=res.times)
+    assert np.abs(res["s"] - ref.y[0]).max() < 1e-6

@@ -850,8 +850,8 @@ class _Compiler:
 
     def _reads(self, name: str) -> bool:
         """Whether ``name`` in an output's expression is a quantity (``rod.phi``, an
-        energy where no param has its name), not a param or ``t``."""
-        return "." in name or (name in ENERGY_QUANTITIES and name not in self.param_names)
+        energy: their names are reserved), not a param or ``t``."""
+        return "." in name or name in ENERGY_QUANTITIES
 
     def _quantity(self, name: str, span: Span, output: str) -> OutputSpec:
         """The column spec of one quantity read by a named output (``rod.phi``,

@@ -100,11 +100,18 @@ def _keywords_once(statement: str, args) -> None:
 class _Names:
     """Detects a name declared twice and points at both places."""
 
-    def __init__(self, what: str) -> None:
-        self.what = what
+    def __init__(self, what: str, global_name: bool = False) -> None:
+        #: ``global_name``: a name an output's expression can read (a param, a body, a
+        #: joint's), which may not be a quantity's
+        self.what, self.global_name = what, global_name
         self.seen: dict[str, Span] = {}
 
     def add(self, name: str, span: Span) -> None:
+        if self.global_name and name in ENERGY_QUANTITIES:
+            # one name, one meaning: the compiler, the checks and the editor all read an
+            # energy's name in an output's expression as the energy
+            raise MechError(f"'{cut(name)}' is reserved: it is an output quantity (the "
+                            f"mechanism's energy); name the {self.what} otherwise", span)
         if name in self.seen:
             first = self.seen[name]
             raise MechError(f"{self.what} '{cut(name)}' is declared twice", span,
@@ -187,11 +194,11 @@ def build_model(source: Source, statements: list, files: tuple[str, ...] = ()) -
     """The :class:`Model` of the statements the parser gives, checked; ``files`` are the
     real paths of the files the model names."""
     params: list[Param] = []
-    param_names = _Names("param")
+    param_names = _Names("param", global_name=True)
     bodies: list[Body] = []
-    body_names = _Names("body")
+    body_names = _Names("body", global_name=True)
     body_names.add(GROUND, Span(1, 1, 1, 1))
-    constraint_names = _Names("joint, drive or force")
+    constraint_names = _Names("joint, drive or force", global_name=True)
     joints: list[Joint] = []
     drives: list[Drive] = []
     outputs: list[OutputRef] = []
@@ -350,7 +357,8 @@ def _optimization(found: dict[type, object], params: set[str]) -> Optimization:
     sense, expr, ospan = wanted.sense, wanted.expr, wanted.span
     objective = named_output(NamedOutput("objective", expr, ospan, ospan), params)
     if not isinstance(objective, ReducedOutput):
-        if any(isinstance(n, E.Name) and ("." in n.id or n.id == TIME)
+        read = _quantities(objective.expr)
+        if any(isinstance(n, E.Name) and (n.id in read or n.id == TIME)
                for n in E.walk(objective.expr)):
             raise MechError(f"{sense} takes one value per variant: a reduction of the motion "
                             "such as max(abs(slider.ax)) or mean(rod.omega^2), or params",
@@ -368,8 +376,9 @@ def _optimization(found: dict[type, object], params: set[str]) -> Optimization:
             slack = _SLACK[e.op](e.left, e.right)
             out = named_output(NamedOutput(f"requirement_{k}", slack, e.span, e.span), params)
             if not isinstance(out, ReducedOutput):  # of the params alone
+                read = _quantities(out.expr)
                 quantity = next((n for n in E.walk(out.expr) if isinstance(n, E.Name)
-                                 and ("." in n.id or n.id == TIME)), None)
+                                 and (n.id in read or n.id == TIME)), None)
                 if quantity is not None:
                     raise MechError(f"'{cut(quantity.id)}' is outside a reduction: a "
                                     "requirement holds for the whole run; reduce it (max, min, "
@@ -389,6 +398,9 @@ def named_output(out: NamedOutput, params: set[str]) -> NamedOutput | ReducedOut
     if out.name in RESERVED or out.name == TIME:
         raise MechError(f"'{cut(out.name)}' is reserved and cannot name an output",
                         out.name_span)
+    if out.name in ENERGY_QUANTITIES:
+        raise MechError(f"'{cut(out.name)}' is reserved: it is an output quantity (the "
+                        "mechanism's energy); name the output otherwise", out.name_span)
     if out.name in params:  # a swept param is a column of the CSV too
         raise MechError(f"'{cut(out.name)}' is a param; give the output another name",
                         out.name_span)
@@ -410,15 +422,15 @@ def named_output(out: NamedOutput, params: set[str]) -> NamedOutput | ReducedOut
                         "has a comma, which a CSV column name cannot", out.span)
     if any(_is_reduction(n) for n in E.walk(expr)):
         return _reduced_output(out.name, expr, params, out)
-    check_expr(expr, params | _quantities(expr, params) | {TIME}, f"output '{cut(out.name)}'")
+    check_expr(expr, params | _quantities(expr) | {TIME}, f"output '{cut(out.name)}'")
     return NamedOutput(out.name, expr, out.span, out.name_span)
 
 
-def _quantities(e: E.Expr, params: set[str]) -> set[str]:
+def _quantities(e: E.Expr) -> set[str]:
     """The quantities an output's expression reads: ``body.x``, ``joint.fx``, ... and the
-    energies (``kinetic_energy``, ...) where no param has their name."""
+    energies (``kinetic_energy``, ...: reserved names, :class:`_Names`)."""
     return {n.id for n in E.walk(e) if isinstance(n, E.Name) and (
-        "." in n.id or (n.id in ENERGY_QUANTITIES and n.id not in params))}
+        "." in n.id or n.id in ENERGY_QUANTITIES)}
 
 
 def _is_reduction(e: E.Expr) -> bool:
@@ -446,12 +458,12 @@ def _reduced_output(name: str, expr: E.Expr, params: set[str],
                      None)
         if inner is not None:
             raise MechError(f"a reduction inside {e.func}(): reduce a history once", e.span)
-        check_expr(arg, params | _quantities(arg, params) | {TIME}, context)
+        check_expr(arg, params | _quantities(arg) | {TIME}, context)
         found.append(Reduction(e.func, arg, e.span or out.span))
         return E.Name(f"@{len(found) - 1}", e.span)
 
     outer = E.rewrite(expr, rule)
-    read = _quantities(outer, params)
+    read = _quantities(outer)
     for n in E.walk(outer):
         if isinstance(n, E.Name) and (n.id in read or n.id == TIME):
             raise MechError(f"'{cut(n.id)}' is outside a reduction: an output with "

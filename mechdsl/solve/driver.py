@@ -131,6 +131,10 @@ class Solution:
     #: Jump`, module docstring): those gone through (velocity) and the one the run ended at
     #: (position)
     jumps: tuple = ()
+    #: the output instants inside steps that their projection moved far and that could not
+    #: be integrated again (no step ends there: a singular position), as the interpolant
+    #: gave them, projected
+    rough: tuple = ()
 
 
 def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
@@ -141,7 +145,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
               on_step: Callable[[float, int], None] | None = None,
               stiff: tuple[type[Stepper], Callable[[], Equations]] | None = None,
               on_interval: Callable[[float, float, Callable], None] | None = None,
-              raw_outputs: bool = False) -> Solution:
+              raw_outputs: bool = False, redo_outputs: bool = True) -> Solution:
     """Integrate y' = equations.rhs(t, y) from ``y0`` at ``t_eval[0]`` to ``t_eval[-1]``
     by steps of ``stepper``, returning the state at every instant of ``t_eval``
     (increasing). ``atol`` (times ``scale``, per component, if given) and ``rtol`` bound
@@ -158,7 +162,9 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
     feed back into the integration (those inside a step, and a constrained stepper's at a
     step's end) are given to ``on_output(k, t, y, raw)`` as the dense output or the stepper
     gives them, ``raw`` True, for the caller to project (all at once:
-    :mod:`mechdsl.solve.instants`); the others are projected here, ``raw`` False. A singular
+    :mod:`mechdsl.solve.instants`); the others are projected here, ``raw`` False, and with
+    ``redo_outputs`` one that its projection moves far is integrated again (:func:`_moved_far`).
+    A singular
     system (the equations raising
     numpy's LinAlgError where the stepper does not take it for a rejected step: the
     explicit pairs do at a stage) or a step the stepper cannot take (a derivative that is
@@ -192,27 +198,48 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         else:
             projecting[0] = tt  # (where a failure of the projection is)
             out = project(tt, yy)
-            if not stepper.constrained and _moved_far(out, yy, tol_abs, rtol):
+            if redo_outputs and not stepper.constrained and \
+                    _moved_far(out, yy, tol_abs, rtol):
                 out = again(tt, out)
             emit(k, tt, out)
             projecting[0] = None
 
     def again(tt: float, fallback: np.ndarray) -> np.ndarray:
         """The state at tt inside the current step, integrated apart from the step's start
-        to tt as a step's end (error-controlled there), not read off the dense output;
-        ``fallback`` where that integration does not reach it."""
-        used = int(before[:2].sum()) + s.attempts
+        to tt as a step's end (error-controlled there), not read off the dense output; where
+        no step can end at tt (a singular position there), read off the dense output of
+        steps eight times shorter; ``fallback`` where neither reaches it or the budget is
+        spent. Its work counts in the run's budget."""
+        if not s.t_old < tt < s.t:
+            return fallback
+        out = None
         # (the first step tried straight to tt: the step's own error held over a longer
         # span, and a fresh stepper's first-step guess crept over A02's passages)
-        sub = integrate(stepper, equations, s.y_old, np.array([s.t_old, tt]), rtol=rtol,
-                        atol=atol, scale=scale, max_step=max_step, first_step=tt - s.t_old,
-                        max_steps=max(max_steps - used, 1))
-        before[:] += (sub.steps, sub.rejected, sub.evaluations, sub.njev, sub.nlu)
-        return sub.y[-1] if sub.status == "ok" else fallback
+        for points, options in (([s.t_old, tt], dict(first_step=tt - s.t_old,
+                                                     max_step=max_step)),
+                                ([s.t_old, tt, s.t], dict(max_step=min(
+                                    max_step, (s.t - s.t_old) / 8), redo_outputs=False))):
+            left = max_steps - int(before[:2].sum()) - s.attempts
+            if left <= 0:
+                break
+            sub = integrate(stepper, equations, s.y_old, np.array(points), rtol=rtol,
+                            atol=atol, scale=scale, max_steps=left, **options)
+            before[:] += (sub.steps, sub.rejected, sub.evaluations, sub.njev, sub.nlu)
+            s.max_attempts = max_steps - int(before[:2].sum())
+            if sub.status == "interrupted":
+                raise KeyboardInterrupt
+            if len(sub.t) > 1 and sub.t[1] == tt:
+                out = sub.y[1]
+                break
+        if out is None:
+            rough.append(tt)
+            return fallback
+        return out
 
     before = np.zeros(5, dtype=int)  # the counters of a stepper switched from
     projecting: list[float | None] = [None]  # the output instant being projected
     met: list[Jump] = []  # the jumps of the constraints met (module docstring)
+    rough: list[float] = []  # the outputs that could not be integrated again (again)
     tol_abs = atol * (scale if scale is not None else 1.0)
     switched = None
 
@@ -222,7 +249,8 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         counts = [int(c) for c in counts]
         return Solution(np.array(outs_t), np.array(outs_y).reshape(len(outs_t), n), status,
                         message, *counts[:3], t, reason, *counts[3:], switched,
-                        None if s is None else getattr(s, "note", None), tuple(met))
+                        None if s is None else getattr(s, "note", None), tuple(met),
+                        tuple(rough))
 
     def over_jump(found: list[Jump]) -> Solution | None:
         """The step that went over the jumps ``found`` (those of its earliest instant)
@@ -241,6 +269,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                           raw_outputs=raw_outputs), on_step, used)
         before[:] += (sub.steps, sub.rejected, sub.evaluations, sub.njev, sub.nlu)
         met.extend(sub.jumps)
+        rough.extend(sub.rough)
         met.extend(found)
         k_next += int(np.searchsorted(t_eval[k_next:], jump.t_before, side="right"))
         if sub.status != "ok":

@@ -402,10 +402,11 @@ class DynamicRun(Run):
         try:
             # v0 and the initial statements' rates onto the constraints, with the warnings
             qd0, notes = velocities(self.kernels, v, t0, q0, self.D[v, 0], self.opts)
+            y0 = None
             y0 = self._projector()(t0, np.concatenate((q0, qd0)))
             self.ev.accelerations(t0, y0[:n], y0[n:])  # singular at the start?
         except np.linalg.LinAlgError:
-            self.failures.append(self._singular_message(v, t0))
+            self.failures.append(self._singular_message(v, t0, y0))
             return "failed"
         self.warnings.extend(notes)
 
@@ -477,6 +478,16 @@ class DynamicRun(Run):
                 sol = again  # its outputs replaced the first attempt's, instant by instant
         finally:  # an interrupt too: the instants solved are written, complete
             self._write(v)
+        if sol.rough:
+            listed = ", ".join(f"{r:.6g}" for r in sol.rough[:3]) + (
+                f" and {len(sol.rough) - 3} more" if len(sol.rough) > 3 else "")
+            self.warnings.append(
+                f"the output instant{'s' if len(sol.rough) > 1 else ''} t = {listed}"
+                f"{variant_label(sysm, v)} lie{'' if len(sol.rough) > 1 else 's'} inside a "
+                "step over a singular position, where its interpolant is far off the "
+                "constraints, and no step could end there to integrate it again: reported "
+                "as the interpolant gave it, projected (the velocities may be off by more "
+                "than the tolerance; move the output instant or tighten --rtol)")
         jumps = self._jumps(sol, equations, scale)
         if jumps and sol.status != "failed":
             self.warnings.append(
@@ -767,8 +778,24 @@ class DynamicRun(Run):
         if self.pose_rates is not None:
             self.pose_rates[v, :k, 0], self.pose_rates[v, :k, 1] = qd[0], qdd[0]
 
-    def _singular_message(self, v: int, t: float) -> str:
+    def _singular_message(self, v: int, t: float, y: np.ndarray | None = None) -> str:
+        """Why the equations of motion of variant ``v`` cannot be solved at t (at the
+        state y where known): loads that are not numbers there (the force elements on the
+        bodies concerned named), else bodies without mass or inertia, else the constraints."""
         sysm, d = self.one.system, self.one.dynamics
+        if y is not None:
+            n = sysm.n
+            with np.errstate(all="ignore"):
+                load = d.generalised_forces(y[None, None, :n], y[None, None, n:],
+                                            np.full((1, 1), t))[0, 0]
+            bad = {sysm.body_names[k // 3] for k in np.flatnonzero(~np.isfinite(load))}
+            if bad:
+                forces = [f.name for f in d.forces if bad & set(f.bodies)]
+                named = ", ".join(f"'{f}'" for f in forces[:5]) or "none of the forces"
+                return (f"the loads on {', '.join(sorted(bad)[:5])} are not finite numbers at "
+                        f"t = {t:g}{variant_label(sysm, v)}, from force "
+                        f"{named}: the force element is undefined in this state (a division "
+                        "by zero, a root of a negative number)")
         massless = [b + (" (no mass)" if d.mass[0, i] == 0 else " (no inertia)")
                     for i, b in enumerate(sysm.body_names)
                     if d.mass[0, i] == 0 or d.inertia[0, i] == 0]

@@ -255,8 +255,8 @@ class RadauStepper(Stepper):
         self._error_map = getattr(equations, "error_map", None)
         #: the error's tolerance in the coordinates ``error_map`` gives it in (the model's,
         #: whose ``scale`` was given), where the equations have coordinates of their own
-        self._atol_error = self._atol if own is None or scale is None else \
-            atol * np.asarray(scale, dtype=float)
+        self._atol_error = self._atol if own is None else \
+            atol * (np.asarray(scale, dtype=float) if scale is not None else 1.0)
         self.curvature = curvature
         self.residual_tol = residual_tol
         self.max_newton_singular, self.singular_rate = max_newton_singular, singular_rate

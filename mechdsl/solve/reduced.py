@@ -11,15 +11,20 @@ z_k and the rows that fix it leaves the joints' own coordinates: for a tree of s
 coordinates as the mechanism has degrees of freedom, the form scipy's Radau is given by hand
 in the benchmark (docs/dynamics.md), with none of the multipliers' arithmetic.
 
-Which rows. A row r is eliminated where its gradient in z has one entry, a at z_k (the
-others below :data:`PATTERN_RTOL` of it), its rate nu_r is zero, and at :data:`PROBES`
-states and instants drawn far from the run's (each coordinate moved by up to its scale:
-the model's length for positions, a radian for angles; the instants across the span) the
-gradient is the same and Phi_r moved by a dz_k alone (both to :data:`LINEAR_RTOL`): then
-Phi_r is a z_k + b for every state (an analytic function that is affine at random points
-is affine), and z_k = z_k0 - Phi_r(z0) / a exactly. A row that fails any check stays an
-equation of the stepper (loop closures, drives, a pin away from a frame's origin), with the
-remaining coordinates.
+Which rows. Only a joint's row, never a drive's (a drive at rest for a while is
+constant where it is probed, and not after), and only one whose traced expression is
+analytic in q: no opaque function (a table, a cam's profile: piecewise, affine over a
+dwell and not beyond it), no abs, sign or mod (the compiled model's member layout shows
+each row's expression; without it no row is eliminated). Such a row r is eliminated where
+its gradient in z has one entry, a at z_k (the others below :data:`PATTERN_RTOL` of it), its
+rate nu_r is zero, and at :data:`PROBES` states and instants drawn far from the run's (each
+coordinate moved by up to its scale: the model's length for positions, a radian for
+angles; the instants across the span) the gradient is the same and Phi_r moved by a dz_k
+alone (both to :data:`LINEAR_RTOL`): then Phi_r is a z_k + b for every state (an analytic
+function that is affine at random points is affine), and z_k = z_k0 - Phi_r(z0) / a
+exactly. A row that fails any check stays an equation of the stepper (loop closures,
+drives, a pin away from a frame's origin, a pin between two moving bodies, whose rows are
+in world axes), with the remaining coordinates.
 
 The equations. With w the coordinates left (``free``) and the rows kept (``keep``), every
 term is the relative coordinates' own restricted: (G^T M G)_ww, (G^T (Q - M c))_w, the
@@ -58,6 +63,23 @@ def _coordinate_scale(rel: Relative) -> np.ndarray:
     return D if D.size == rel.n else np.ones(rel.n)
 
 
+#: the operations that make a row's expression piecewise or opaque in q (module docstring)
+_NOT_ANALYTIC = frozenset(("call", "select", "abs", "sign", "mod"))
+
+
+def _analytic_rows(base) -> set[int]:
+    """The joints' rows of the base equations' compiled model whose traced expressions
+    are analytic in q (module docstring); none where the model's layout does not show
+    each row's expression."""
+    kernels = getattr(base, "kernels", None)
+    f = getattr(kernels, "fused", None)
+    if f is None or f.layout != "member" or f.graph is None or not f.phi_nodes:
+        return set()
+    drives = {int(r) for r in kernels.system.drive_rows}
+    return {r for r, node in enumerate(f.phi_nodes) if r not in drives
+            and not any(nd.op in _NOT_ANALYTIC for nd in f.graph.subgraph([node]))}
+
+
 def reduce(rel: Relative, t: float, z: np.ndarray, span: float) -> "Reduced | None":
     """The equations of ``rel`` with the coordinates that its joints fix eliminated (module
     docstring), checked at state z, time t and over ``span`` after it; None where no row
@@ -70,7 +92,7 @@ def reduce(rel: Relative, t: float, z: np.ndarray, span: float) -> "Reduced | No
     jac0 = np.asarray(jac0, dtype=float)
     nu0 = np.asarray(rel.nu(t), dtype=float)
     fixing: dict[int, int] = {}
-    for r in range(m):
+    for r in sorted(_analytic_rows(rel.base)):
         row = np.abs(jac0[r])
         big = row.max()
         if not big > 0 or nu0[r] != 0:

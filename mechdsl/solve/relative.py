@@ -382,6 +382,11 @@ RELATIVE_TRIAL = 8
 RELATIVE_GAIN = 2.0
 
 
+def _ratio(gain: float) -> str:
+    """'6.43 times less' (gain >= 1) or '3.38 times more' (below 1)."""
+    return f"{gain:.3g} times less" if gain >= 1 else f"{1 / gain:.3g} times more"
+
+
 def _gain(before: list[tuple[float, int]], after: list[tuple[float, int]]) -> float:
     """How much less work per simulated second the steps ``after`` take than the steps
     ``before`` ((step size, work) each): (median h_after / median h_before) times (median
@@ -523,10 +528,10 @@ class Radau(Stepper):
         if self.relative_until is not None:
             return (f"radau tried relative coordinates{left} from t = "
                     f"{self.relative_from:.6g} to {self.relative_until:.6g} ({why}), which "
-                    f"took {self._gain:.3g} times less work per simulated second, under "
+                    f"took {_ratio(self._gain)} work per simulated second, under "
                     f"{RELATIVE_GAIN:g}: absolute ones kept")
         return (f"radau in relative coordinates{left} from t = {self.relative_from:.6g}, "
-                f"where {why} ({self._gain:.3g} times less work per simulated second)")
+                f"where {why} ({_ratio(self._gain)} work per simulated second)")
 
     def _absolute(self, y: np.ndarray) -> np.ndarray:
         return y if self.relative is None else self.relative.absolute(y)

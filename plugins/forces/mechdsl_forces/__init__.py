@@ -56,9 +56,10 @@ class Spring(ForceType):
         length = d.norm()
         e = d / length
         rate = e.dot(r2.point(b2, args.p2) - r1.point(b1, args.p1))
-        # k (L - length) e written as k (1 - length / L) d: a spring of free length 0
-        # (a constant, folded) pulls with k d, finite where its ends meet, and so does
-        # one without a damper (c = 0 folds the rate's term away)
+        # k (L - length) e written as k (1 - length / L) d: a spring of free length 0 and
+        # no damper pulls with k d, finite where its ends meet (0 / L and c = 0 fold away
+        # where they are constants; a length or c that a sweep varies is traced as a
+        # param, and where the ends meet its loads are not numbers, as for any length)
         pull = d * (args.k * (1.0 - args.length / length)) + e * (args.c * rate)
         return b1.wrench(pull, args.p1), b2.wrench(-pull, args.p2)
 

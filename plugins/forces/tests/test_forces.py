@@ -147,3 +147,21 @@ output x = puck.x, y = puck.y
     shape = np.sin(w * res.times) / w
     assert np.abs(res["x"] - 0.6 * shape).max() < 1e-8
     assert np.abs(res["y"] + 0.8 * shape).max() < 1e-8
+
+
+def test_loads_that_are_not_numbers_at_the_start_name_their_force():
+    """A spring with a damper whose ends meet has no direction: the run stops at t0 and
+    says which force's loads are not numbers on which body (it blamed the constraints of a
+    model that has none)."""
+    import mechdsl
+
+    text = """ground { }
+body puck { guess = (0, 0, 0)  mass = 2  inertia = 0.1  v0 = (0.6, -0.8, 0) }
+force band: spring(ground.origin, puck.origin, k = 50, c = 0.5)
+simulate t = 0 .. 1 step 0.1
+output x = puck.x
+"""
+    res = mechdsl.loads(text, "band.mech").simulate()
+    assert not res.ok
+    assert "the loads on puck are not finite numbers at t = 0, from force 'band'" in \
+        res.messages[0], res.messages
