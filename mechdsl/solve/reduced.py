@@ -1,30 +1,37 @@
 """Relative coordinates that the joints fix, eliminated: the implicit integrator's minimal form.
 
 Why. In the relative coordinates z of :mod:`mechdsl.solve.relative` a joint along the
-forest's edge often holds a coordinate of the child's pose in its parent's frame constant: a
-pin at both frames' origins fixes s_i, a slider through them along a body axis fixes the
-offset across the axis and rho_i. Such an equation reads Phi_r(z) = a z_k + b, with a and b
-constant; the Radau IIA stages still carry it, with its multiplier, a velocity and an
-acceleration of z_k that are zero, and an iteration matrix of 3 (2n + m) unknowns. Removing
-z_k and the rows that fix it leaves the joints' own coordinates: for a tree of such joints
+forest's edge often holds coordinates of the child's pose in its parent's frame constant: a
+pin at the child's frame origin fixes s_i, a slider through the frames' origins along a body
+axis fixes the offset across the axis and rho_i. The Radau IIA stages still carry those
+equations, with their multipliers, velocities and accelerations of z_S that are zero, and an
+iteration matrix of 3 (2n + m) unknowns. Removing z_S and the rows that fix it leaves the
+joints' own coordinates: for a tree of such joints
 (the stiff pendulum: a rod on a pin, a bob on a slider along it) an ODE in as many
 coordinates as the mechanism has degrees of freedom, the form scipy's Radau is given by hand
 in the benchmark (docs/dynamics.md), with none of the multipliers' arithmetic.
 
-Which rows. Only a joint's row, never a drive's (a drive at rest for a while is
-constant where it is probed, and not after), and only one whose traced expression is
+Which rows. Only a joint's rows, never a drive's (a drive at rest for a while is
+constant where it is probed, and not after), and only those whose traced expressions are
 analytic in q: no opaque function (a table, a cam's profile: piecewise, affine over a
 dwell and not beyond it), no abs, sign or mod (the compiled model's member layout shows
-each row's expression; without it no row is eliminated). Such a row r is eliminated where
-its gradient in z has one entry, a at z_k (the others below :data:`PATTERN_RTOL` of it), its
-rate nu_r is zero, and at :data:`PROBES` states and instants drawn far from the run's (each
-coordinate moved by up to its scale: the model's length for positions, a radian for
-angles; the instants across the span) the gradient is the same and Phi_r moved by a dz_k
-alone (both to :data:`LINEAR_RTOL`): then Phi_r is a z_k + b for every state (an analytic
-function that is affine at random points is affine), and z_k = z_k0 - Phi_r(z0) / a
-exactly. A row that fails any check stays an equation of the stepper (loop closures,
-drives, a pin away from a frame's origin, a pin between two moving bodies, whose rows are
-in world axes), with the remaining coordinates.
+each row's expression; without it no row is eliminated). A joint's rows R (together, else
+each alone) fix the coordinates S where, at the start z0 (on the constraints), their
+gradient in z touches exactly |R| coordinates S (the others below :data:`PATTERN_RTOL` of
+it), Phi_R,S is regular (condition below :data:`MAX_COND`), their rates nu_R are zero, and
+at :data:`PROBES` states and instants drawn far from the run's (every coordinate outside
+the fixed ones moved by up to its scale: the model's length for positions, a radian for
+angles; the instants across the span) with every S at its value, Phi_R vanishes (to
+:data:`LINEAR_RTOL`) and Phi_R,S stays regular. Then Phi_R = 0 holds with z_S = z_S0
+whatever the other coordinates (an analytic function that vanishes at random points
+vanishes), and by the implicit function theorem only there: the joint's own equations are
+z_S = z_S0, with z_S0 solved from Phi_R(z0) = 0. A pin at the child's frame origin fixes
+its s_i in the parent's frame, whether the parent is the ground (two rows, each affine in
+one coordinate) or a moving body (two rows in world axes, A(phi_p) (s_A - s_i): they turn
+with the parent, yet vanish wherever s_i = s_A); a slider through the frames' origins along
+a body axis fixes the offset across the axis and rho_i. Every other row stays an equation
+of the stepper (loop closures, drives, a pin away from the child's frame origin), with the
+remaining coordinates.
 
 The equations. With w the coordinates left (``free``) and the rows kept (``keep``), every
 term is the relative coordinates' own restricted: (G^T M G)_ww, (G^T (Q - M c))_w, the
@@ -49,8 +56,13 @@ PATTERN_RTOL = 1e-12
 #: far states and instants at which an eliminated row is checked to be affine in one
 #: coordinate
 PROBES = 3
-#: agreement asked of the gradient and of Phi at the probes, relative to the row's scale
+#: how far from zero a joint's rows may be at the probes, relative to their gradient times
+#: the coordinates' scale (round-off is about 1e-16 of it; a row that the coordinates fixed
+#: do not fix is off by about the scale)
 LINEAR_RTOL = 1e-9
+#: the largest condition number of a joint's block Phi_R,S (rows R on the coordinates S
+#: they fix) at the start and at the probes: beyond it the rows do not fix S uniquely
+MAX_COND = 1e8
 
 
 def _coordinate_scale(rel: Relative) -> np.ndarray:
@@ -80,54 +92,98 @@ def _analytic_rows(base) -> set[int]:
             and not any(nd.op in _NOT_ANALYTIC for nd in f.graph.subgraph([node]))}
 
 
+def _groups(base, rows: set[int]) -> list[list[int]]:
+    """``rows`` grouped by the joint that owns them (in the compiled model's order); each
+    row alone where the base equations do not say which joint owns it."""
+    system = getattr(getattr(base, "kernels", None), "system", None)
+    if system is None:
+        return [[r] for r in sorted(rows)]
+    out: list[list[int]] = []
+    for c in system.constraints:
+        group = [r for r in range(*c.rows) if r in rows]
+        if group:
+            out.append(group)
+    return out
+
+
 def reduce(rel: Relative, t: float, z: np.ndarray, span: float) -> "Reduced | None":
     """The equations of ``rel`` with the coordinates that its joints fix eliminated (module
-    docstring), checked at state z, time t and over ``span`` after it; None where no row
+    docstring), checked at state z, time t and over ``span`` after it; None where no joint
     fixes a coordinate (or a probe cannot be evaluated)."""
     z = np.asarray(z, dtype=float)
     n, m = rel.n, rel.m
     if m == 0:
         return None
     phi0, jac0 = rel.phi_jac(t, z)
-    jac0 = np.asarray(jac0, dtype=float)
+    phi0, jac0 = np.asarray(phi0, dtype=float), np.asarray(jac0, dtype=float)
     nu0 = np.asarray(rel.nu(t), dtype=float)
-    fixing: dict[int, int] = {}
-    for r in sorted(_analytic_rows(rel.base)):
-        row = np.abs(jac0[r])
-        big = row.max()
-        if not big > 0 or nu0[r] != 0:
-            continue
-        touched = np.flatnonzero(row > PATTERN_RTOL * big)
-        if len(touched) == 1:
-            fixing[r] = int(touched[0])
-    if not fixing:
+    rows = {r for r in _analytic_rows(rel.base) if nu0[r] == 0 and np.abs(jac0[r]).max() > 0}
+    candidates: list[tuple[list[int], list[int]]] = []
+    taken: set[int] = set()
+    for group in _groups(rel.base, rows):
+        # a joint's rows together (a pin between two moving bodies: two rows in world axes
+        # that fix the child's position in its parent's frame), else each row alone
+        for R in [group] + ([[r] for r in group] if len(group) > 1 else []):
+            if set(R) & {r for c in candidates for r in c[0]}:
+                continue
+            block = jac0[R]
+            S = [int(k) for k in np.flatnonzero(np.abs(block).max(axis=0)
+                                                > PATTERN_RTOL * np.abs(block).max())]
+            if len(S) == len(R) and not taken & set(S) and \
+                    np.linalg.cond(block[:, S]) < MAX_COND:
+                candidates.append((R, S))
+                taken.update(S)
+    if not candidates:
         return None
-    rng = np.random.default_rng(12345)  # the same probes every run: the same choice
+    value = z.copy()
+    for R, S in candidates:  # the fixed coordinates where the joints' rows hold exactly
+        value[S] = z[S] - np.linalg.solve(jac0[np.ix_(R, S)], phi0[R])
     scale = _coordinate_scale(rel)
+    while candidates:
+        failed = _failing(rel, candidates, value, t, span, scale)
+        if failed is None:
+            return None
+        if not failed:
+            break
+        # (the others are probed again: with these coordinates free, theirs still hold)
+        candidates = [c for c in candidates if c not in failed]
+    if not candidates:
+        return None
+    fixed = sorted(k for _, S in candidates for k in S)
+    eliminated = {r for R, _ in candidates for r in R}
+    free = np.array([k for k in range(n) if k not in fixed], dtype=np.intp)
+    keep = np.array([r for r in range(m) if r not in eliminated], dtype=np.intp)
+    return Reduced(rel, free, keep, value)
+
+
+def _failing(rel: Relative, candidates: list, value: np.ndarray, t: float, span: float,
+             scale: np.ndarray) -> list | None:
+    """The candidates (rows R, coordinates S) whose rows do not vanish at :data:`PROBES`
+    far states that hold every candidate's S at its value and draw the other coordinates
+    (each within its scale) and the instant (within the span) at random, or whose block
+    Phi_R,S turns singular there; None where a probe cannot be evaluated."""
+    rng = np.random.default_rng(12345)  # the same probes every run: the same choice
+    fixed = [k for _, S in candidates for k in S]
+    failed: list = []
     for _ in range(PROBES):
-        dz = rng.uniform(-1.0, 1.0, n) * scale
+        zp = value + rng.uniform(-1.0, 1.0, rel.n) * scale
+        zp[fixed] = value[fixed]
         tp = t + rng.uniform(0.0, 1.0) * span
         try:
             with np.errstate(all="raise"):
-                phi, jac = rel.phi_jac(tp, z + dz)
-        except (ArithmeticError, ValueError):
+                phi, jac = rel.phi_jac(tp, zp)
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError):
             return None
-        jac = np.asarray(jac, dtype=float)
-        for r, k in list(fixing.items()):
-            a = jac0[r, k]
-            tol = LINEAR_RTOL * abs(a) * (1.0 + abs(dz[k]))
-            if np.abs(jac[r] - jac0[r]).max() > LINEAR_RTOL * abs(a) or \
-                    abs(phi[r] - phi0[r] - a * dz[k]) > tol:
-                del fixing[r]
-        if not fixing:
-            return None
-    value = z.copy()
-    for r, k in fixing.items():
-        value[k] = z[k] - phi0[r] / jac0[r, k]
-    fixed = sorted(set(fixing.values()))
-    free = np.array([k for k in range(n) if k not in fixed], dtype=np.intp)
-    keep = np.array([r for r in range(m) if r not in fixing], dtype=np.intp)
-    return Reduced(rel, free, keep, value)
+        phi, jac = np.asarray(phi, dtype=float), np.asarray(jac, dtype=float)
+        for c in candidates:
+            R, S = c
+            block = jac[np.ix_(R, S)]
+            size = np.abs(block).max()
+            if c not in failed and (
+                    not size > 0 or np.linalg.cond(block) > MAX_COND
+                    or np.abs(phi[R]).max() > LINEAR_RTOL * size * scale.max()):
+                failed.append(c)
+    return failed
 
 
 class Reduced:
