@@ -290,8 +290,8 @@ def stiff_pendulum_text(k: float, t1: float = 2.0, step: float = 0.01, rtol: flo
 def stiff_pendulum_off_centre_text(k: float) -> str:
     """The stiff pendulum with the rod's frame at its centre: pinned at its point P, the
     slider and the spring from P. The same motion (theta = rod.phi, s = |P bob|), but
-    the pin's equations are not affine in the rod's relative coordinates
-    (mechdsl.solve.reduced keeps them)."""
+    the pin's equations do not fix the rod's frame origin (mechdsl.solve.reduced takes the
+    pin's point as the rod's reference point, where they do)."""
     p = PENDULUM
     return "\n".join([
         f"param k = {k!r}", f"param l = {p['l']}", f"param mr = {p['mr']}",
@@ -304,6 +304,29 @@ def stiff_pendulum_off_centre_text(k: float) -> str:
         "force spring: spring(rod.P, bob.origin, k = k, length = L0)",
         "simulate t = 0 .. 2 step 0.01, rtol = 1e-6, atol = 1e-8",
         "output theta = rod.phi, s = distance(rod.P, bob.origin)",
+    ]) + "\n"
+
+
+def stiff_pendulum_skew_text(k: float) -> str:
+    """The stiff pendulum with the rod's frame turned by -atan2(0.8, 0.6) (its x axis at
+    53 degrees to the rod) and the slider's axis (0.6, 0.8) in it: the same motion (theta
+    = rod.phi + atan2(0.8, 0.6), s = |rod.origin bob.origin|), but the slider's offset
+    across its axis reads in two of the bob's relative coordinates (mechdsl.solve.reduced
+    keeps that row as an equation)."""
+    p = PENDULUM
+    return "\n".join([
+        f"param k = {k!r}", f"param l = {p['l']}", f"param mr = {p['mr']}",
+        f"param mb = {p['mb']}", f"param jb = {p['jb']}", f"param L0 = {p['l0']}",
+        "param ca = 0.6", "param sa = 0.8",
+        "gravity = (0, -9.81)", "ground { }",
+        "body rod { guess = (0, 0, -atan2(sa, ca))  mass = mr  inertia = mr*l^2/12  "
+        "centroid = (l/2*ca, l/2*sa) }",
+        "body bob { guess = (L0, 0, -atan2(sa, ca))  mass = mb  inertia = jb }",
+        "joint pivot: revolute(ground.origin, rod.origin)",
+        "joint slide: prismatic(rod.origin, bob.origin, axis = (ca, sa))",
+        "force spring: spring(rod.origin, bob.origin, k = k, length = L0)",
+        "simulate t = 0 .. 2 step 0.01, rtol = 1e-6, atol = 1e-8",
+        "output theta = rod.phi + atan2(sa, ca), s = distance(rod.origin, bob.origin)",
     ]) + "\n"
 
 

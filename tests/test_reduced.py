@@ -1,7 +1,8 @@
 """The relative coordinates that joints fix, eliminated (mechdsl.solve.reduced): which rows go
-(the stiff pendulum's all four; a pin away from the frame's origin none of its own, though
-one of its rows has a single gradient entry at the start), the equations left against
-Lagrange's equations written by hand, and the runs in them against the minimal ODE."""
+(the stiff pendulum's all four; a pin away from the frame's origin none on the frames'
+origins, though one of its rows has a single gradient entry at the start, and both at its
+own point; a drive at rest none), the equations left against Lagrange's equations written
+by hand, and the runs in them against the minimal ODE."""
 
 from __future__ import annotations
 
@@ -45,10 +46,14 @@ def test_the_pendulums_joints_leave_its_two_joint_coordinates():
     assert red.m == 0 and red.n == 2
 
 
-def test_a_pin_away_from_the_frames_origin_stays_an_equation():
-    """The pin at P = (-l/2, 0) of a rod along x: its x row's gradient has one entry at
-    the start (d/dphi of -l/2 cos(phi) is zero at phi = 0), but it is not affine (the
-    probes at far states see it turn): both pin rows are kept, the slider's two go."""
+def test_a_pin_away_from_the_frames_origin_is_eliminated_at_its_point():
+    """The pin at P = (-l/2, 0) of a rod along x, in relative coordinates on the frames'
+    origins: its x row's gradient has one entry at the start (d/dphi of -l/2 cos(phi) is
+    zero at phi = 0), but the probes see it move: both pin rows are kept, the slider's two
+    go. With the pin's point found from the rows' gradient (exactly P) as the rod's
+    reference point, the pin fixes it and goes too."""
+    from mechdsl.solve.reduced import pin_points
+
     kernels, rel, z = _relative(dm.stiff_pendulum_off_centre_text(1e8))
     _, jac = rel.phi_jac(0.0, z)
     singles = [r for r in range(rel.m)
@@ -59,6 +64,13 @@ def test_a_pin_away_from_the_frames_origin_stays_an_equation():
     assert red is not None
     assert sorted(red.keep.tolist()) == sorted(pin)
     assert red.n == 4 and red.m == 2
+    points = pin_points(rel, 0.0, z)
+    rod = kernels.system.body_names.index("rod")
+    assert np.abs(points[rod] - (-P["l"] / 2, 0.0)).max() < 1e-12
+    at_pin = Relative(rel.base, rel.parent, points)
+    y0 = np.concatenate((kernels.system.guess[0], np.zeros(rel.n)))
+    red = reduce(at_pin, 0.0, at_pin.relative(y0)[:rel.n], 2.0)
+    assert red.n == 2 and red.m == 0
 
 
 @pytest.mark.parametrize("k", [1e2, 1e8])
@@ -116,17 +128,32 @@ def test_the_automatic_choice_goes_on_in_joint_coordinates():
     assert abs(res["s"][-1] - ref[1]) < 1e-7
 
 
-def test_a_pin_kept_as_an_equation_goes_through_the_trial():
-    """The off-centre pendulum at k = 1e8: its pin stays an equation, so radau starts in
-    absolute coordinates, finds its stages need their own Jacobians, tries relative ones
-    with the slider's coordinates eliminated (4 of 6 left) and keeps them (about 2.4
-    times less work per simulated second); theta and s within 1e-6 of the minimal ODE
-    (the same motion as the stiff pendulum's)."""
+def test_a_haug_style_pendulum_runs_in_its_joint_coordinates():
+    """The rod's frame at its centre of mass (Haug's), pinned at its end: the pin's point
+    is the rod's reference point, and radau runs in the two joint coordinates, within 1e-7
+    of the minimal ODE at k = 1e8 (3.6e-7 rad in relative coordinates with the pin kept)."""
     k = 1e8
     res = mechdsl.loads(dm.stiff_pendulum_off_centre_text(k), "off.mech").simulate(
         options=SolverOptions(method="radau"))
     assert res.ok, res.messages
-    assert "radau in relative coordinates (4 of 6 left" in res.method, res.method
+    assert "radau in the joints' own coordinates (2 of 6 left" in res.method, res.method
+    ref = dm.stiff_pendulum_oracle(k)
+    assert abs(res["theta"][-1] - ref[0]) < 1e-7
+    assert abs(res["s"][-1] - ref[1]) < 1e-7
+
+
+def test_a_skewed_slider_stays_an_equation_and_goes_through_the_trial():
+    """The slider's axis at 53 degrees in the rod's frame: its offset across the axis reads
+    in two of the bob's relative coordinates and stays an equation, so radau starts in
+    absolute coordinates, finds its stages need their own Jacobians, tries relative ones
+    with the pin and the slider's angle eliminated (3 of 6 left) and keeps them (about 8
+    times less work per simulated second); theta and s within 1e-6 of the minimal ODE (the
+    same motion as the stiff pendulum's)."""
+    k = 1e8
+    res = mechdsl.loads(dm.stiff_pendulum_skew_text(k), "skew.mech").simulate(
+        options=SolverOptions(method="radau"))
+    assert res.ok, res.messages
+    assert "radau in relative coordinates (3 of 6 left" in res.method, res.method
     assert "times less work per simulated second)" in res.method
     ref = dm.stiff_pendulum_oracle(k)
     assert abs(res["theta"][-1] - ref[0]) < 1e-6

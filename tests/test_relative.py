@@ -45,9 +45,11 @@ def _fd(f, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
     return np.column_stack([(f(x + h * e) - f(x - h * e)) / (2 * h) for e in np.eye(x.size)])
 
 
-def test_the_map_its_derivatives_and_the_convective_term_match_finite_differences():
-    # a branching forest: 0 on the ground, 1 and 3 on 0, 2 on 1
-    rel = Relative(_Shape(12), np.array([-1, 0, 1, 0]))
+@pytest.mark.parametrize("points", [None, [(0.3, -0.2), (-0.5, 0.1), (0.0, 0.0), (0.7, 0.4)]])
+def test_the_map_its_derivatives_and_the_convective_term_match_finite_differences(points):
+    # a branching forest: 0 on the ground, 1 and 3 on 0, 2 on 1; with reference points
+    # off the frames' origins too (s_i the point's position in the parent's frame)
+    rel = Relative(_Shape(12), np.array([-1, 0, 1, 0]), points)
     rng = np.random.default_rng(1)
     z, zd = rng.normal(size=12), rng.normal(size=12)
     _, G = rel._map(z)

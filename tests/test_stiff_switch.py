@@ -202,10 +202,10 @@ def test_a_stiffness_the_pair_resolves_is_found_by_a_trial_of_the_implicit_metho
 
 def test_a_moderate_spring_keeps_its_pair_until_a_trial_says_yes(monkeypatch):
     """Where the rest of the run takes fewer than TRIAL_MIN_STEPS explicit steps (k = 1e5:
-    about 400) nothing is tried and the pair goes on. The pendulum pinned away from its
-    rod's frame at k = 2e6 (whose pin radau keeps as an equation, in absolute
-    coordinates: test_reduced.py): the first trial finds radau's steps under TRIAL_RATIO
-    times the pair's and declines; the trial is asked again after pauses that double, and
+    about 400) nothing is tried and the pair goes on. The pendulum whose slider's axis is
+    skewed in the rod's frame at k = 1e6 (radau keeps that row as an equation and starts
+    in absolute coordinates: test_reduced.py): the first trial finds radau's steps under
+    TRIAL_RATIO times the pair's and declines; the trial is asked again after pauses that double, and
     a later one, against the pair's mean step over the run, finds them long enough: the
     run goes on with radau, within 1e-5 rad of the minimal ODE. (The stiff pendulum itself
     at k = 1e6 now says yes at the first trial, radau's steps in its joint coordinates
@@ -224,8 +224,8 @@ def test_a_moderate_spring_keeps_its_pair_until_a_trial_says_yes(monkeypatch):
     assert res.ok and "radau" not in res.method, res.method
     assert tried and all(why is None and not spent.any() for why, spent, _ in tried)
     tried.clear()
-    k = 2e6
-    res = mechdsl.loads(dm.stiff_pendulum_off_centre_text(k)).simulate()
+    k = 1e6
+    res = mechdsl.loads(dm.stiff_pendulum_skew_text(k)).simulate()
     assert res.ok and "radau from t = " in res.method, res.method
     assert tried[0][0] is None and tried[0][1][0] > 0  # ran, and declined
     assert tried[-1][0] is not None  # the one that said yes

@@ -48,7 +48,7 @@ import numpy as np
 
 from .relative import Relative
 
-__all__ = ["Reduced", "reduce"]
+__all__ = ["Reduced", "pin_points", "reduce"]
 
 #: gradient entries below this fraction of a row's largest are round-off of the map
 #: (Phi_q G formed in floating point), not a dependence
@@ -104,6 +104,49 @@ def _groups(base, rows: set[int]) -> list[list[int]]:
         if group:
             out.append(group)
     return out
+
+
+def pin_points(rel: Relative, t: float, z: np.ndarray) -> np.ndarray | None:
+    """Each body's reference point u_i (body axes) for relative coordinates in which its
+    pin to its parent fixes s_i: where the joint along the forest's edge has two rows,
+    analytic in q, whose gradient at z (the frames' origins as reference, on the
+    constraints) touches the child's s_i and rho_i alone, with Phi_s regular. A pin at the
+    child's point u reads Phi = A(phi_p) (v - s_i - A(rho_i) u) (to a sign), so that
+    Phi_s^-1 Phi_rho = A(rho_i) perp(u) and u = perp^-1(A(rho_i)^T Phi_s^-1 Phi_rho). Any
+    point is a valid reference (the map stays one to one); :func:`reduce` checks what the
+    joint fixes. None where no body gets a point off its origin."""
+    system = getattr(getattr(rel.base, "kernels", None), "system", None)
+    if system is None:
+        return None
+    _, jac = rel.phi_jac(t, z)
+    jac = np.asarray(jac, dtype=float)
+    analytic = _analytic_rows(rel.base)
+    names = {name: i for i, name in enumerate(system.body_names)}
+    points = np.zeros((len(rel.parent), 2))
+    for c in system.constraints:
+        R = [r for r in range(*c.rows) if r in analytic]
+        ends = {names.get(b, -1) for b in c.bodies}
+        if len(R) != 2 or len(R) != c.rows[1] - c.rows[0] or len(ends) != 2:
+            continue
+        child = next((i for i in ends if i >= 0 and rel.parent[i] in ends), None)
+        if child is None:
+            continue
+        k = 3 * child
+        block = jac[R]
+        big = np.abs(block).max()
+        own = np.zeros(rel.n, dtype=bool)
+        own[k:k + 3] = True
+        if not big > 0 or np.abs(block[:, ~own]).max(initial=0.0) > PATTERN_RTOL * big:
+            continue
+        Js, Jr = block[:, k:k + 2], block[:, k + 2]
+        if np.linalg.cond(Js) > MAX_COND:
+            continue
+        x = np.linalg.solve(Js, Jr)  # A(rho) perp(u)
+        rho = float(z[k + 2])
+        cr, sr = np.cos(rho), np.sin(rho)
+        px, py = cr * x[0] + sr * x[1], -sr * x[0] + cr * x[1]  # perp(u)
+        points[child] = (py, -px)
+    return points if np.abs(points).max() > 0 else None
 
 
 def reduce(rel: Relative, t: float, z: np.ndarray, span: float) -> "Reduced | None":

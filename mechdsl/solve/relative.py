@@ -13,19 +13,22 @@ one Jacobian in relative ones; docs/dynamics.md).
 
 The coordinates. Every moving body i has a parent p(i): the ground or a body it is jointed
 to (:func:`forest`: a spanning forest of the joints and drives, a joint that a force element
-spans preferred). Its coordinates z_i = (s_i, rho_i) are its frame's position and angle in
-the parent's frame,
+spans preferred). Its coordinates z_i = (s_i, rho_i) are the position of its reference
+point u_i (body axes; its frame's origin unless given: :func:`mechdsl.solve.reduced.
+pin_points` takes a pin's point) and its angle in the parent's frame,
 
-    r_i = r_p + A(phi_p) s_i,     phi_i = phi_p + rho_i,
+    r_i = r_p + A(phi_p) s_i - A(phi_i) u_i,     phi_i = phi_p + rho_i,
 
-(z_i = q_i where the parent is the ground). This is a change of variables q = g(z), one to
-one, whatever the forest: every constraint is kept, the joints along the forest's edges
-included (theirs become simple: a pin at the parent's frame origin fixes s_i), and the loops'
-closures too. With G = dg/dz (lower triangular by bodies in the forest's order),
+(the parent's terms absent where it is the ground). This is a change of variables q = g(z),
+one to one, whatever the forest and the points: every constraint is kept, the joints along
+the forest's edges included (theirs become simple: a pin at the reference point fixes s_i),
+and the loops' closures too. With G = dg/dz (lower triangular by bodies in the forest's
+order),
 
-    qd = G zd,    qdd = G zdd + c,    c_i = c_p - phi_p'^2 d_i + 2 phi_p' B(phi_p) s_i'
+    qd = G zd,    qdd = G zdd + c,
+    c_i = c_p - phi_p'^2 e_i + 2 phi_p' B(phi_p) s_i' + phi_i'^2 A(phi_i) u_i
 
-(d_i = A(phi_p) s_i, B = dA/dphi, c = 0 for a body on the ground), Haug's equations of motion
+(e_i = A(phi_p) s_i, B = dA/dphi, c_p = 0 for the ground), Haug's equations of motion
 become, multiplying the force balance by G^T,
 
     G^T M G zdd + (Phi_q G)^T lambda = G^T (Q - M c),    Phi(g(z), t) = 0,
@@ -150,10 +153,15 @@ class Relative:
     One evaluation of g, G and c serves the calls at one state (the stages ask for Phi,
     Phi_q, M and Q at the same z in turn)."""
 
-    def __init__(self, base: Equations, parent: np.ndarray) -> None:
+    def __init__(self, base: Equations, parent: np.ndarray,
+                 points: np.ndarray | None = None) -> None:
         self.base = base
         self.n, self.m = int(base.n), int(base.m)
         self.parent = [int(p) for p in parent]
+        #: each body's reference point u_i (body axes; the frame's origin by default):
+        #: s_i is that point's position in the parent's frame (:func:`pin_points`)
+        self.points = [(0.0, 0.0)] * len(self.parent) if points is None else \
+            [(float(u[0]), float(u[1])) for u in np.asarray(points, dtype=float)]
         # parents before children
         order: list[int] = []
         placed = {-1}
@@ -172,9 +180,10 @@ class Relative:
     # -- the map ----------------------------------------------------------------------------
     def _map(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """q = g(z) and G = dg/dz (n, n), kept for the next call at the same z. Body by
-        body, parents first: G's rows of body i are its parent's, plus the turn of d_i with
-        phi_p (dr_i/dphi_p = S d_i, S the rotation by a right angle), plus A(phi_p) on s_i
-        and 1 on rho_i. (A loop over the bodies: 5 us for two bodies, 18 for five, 80 for
+        body, parents first: G's rows of body i are its parent's, plus the turn of e_i =
+        A(phi_p) s_i with phi_p (dr_i/dphi_p = S e_i, S the rotation by a right angle), plus
+        A(phi_p) on s_i and 1 on rho_i, less the turn of A(phi_i) u_i with phi_i (S A(phi_i)
+        u_i times phi_i's row). (A loop over the bodies: 5 us for two bodies, 18 for five, 80 for
         twenty; numpy's array expressions cost 20 us at any of these sizes.)"""
         key = z.tobytes()
         if key == self._key:
@@ -184,19 +193,35 @@ class Relative:
         G = np.zeros((self.n, self.n))
         for i in self.order:
             p, k = self.parent[i], 3 * i
+            ux, uy = self.points[i]
             if p < 0:
                 G[k, k] = G[k + 1, k + 1] = G[k + 2, k + 2] = 1.0
+                if ux or uy:  # r_i = s_i - A(psi_i) u_i, psi_i = rho_i
+                    psi = zl[k + 2]
+                    c, s = math.cos(psi), math.sin(psi)
+                    ax, ay = c * ux - s * uy, s * ux + c * uy
+                    q[k], q[k + 1] = zl[k] - ax, zl[k + 1] - ay
+                    G[k, k + 2], G[k + 1, k + 2] = ay, -ax  # -B(psi) u = -perp(A u)
                 continue
             j = 3 * p
             sx, sy = zl[k], zl[k + 1]
             phi = q[j + 2]
             c, s = math.cos(phi), math.sin(phi)
-            dx, dy = c * sx - s * sy, s * sx + c * sy  # d_i = A(phi_p) s_i
-            q[k], q[k + 1], q[k + 2] = q[j] + dx, q[j + 1] + dy, phi + zl[k + 2]
+            dx, dy = c * sx - s * sy, s * sx + c * sy  # A(phi_p) s_i
+            psi = phi + zl[k + 2]
+            q[k + 2] = psi
             G[k:k + 3] = G[j:j + 3]
             G[k] -= dy * G[j + 2]
             G[k + 1] += dx * G[j + 2]
             G[k, k], G[k, k + 1], G[k + 1, k], G[k + 1, k + 1], G[k + 2, k + 2] = c, -s, s, c, 1.0
+            if ux or uy:
+                # the frame's origin is the point's position less A(psi_i) u_i
+                cp, sp = math.cos(psi), math.sin(psi)
+                ax, ay = cp * ux - sp * uy, sp * ux + cp * uy
+                dx, dy = dx - ax, dy - ay
+                G[k] += ay * G[k + 2]
+                G[k + 1] -= ax * G[k + 2]
+            q[k], q[k + 1] = q[j] + dx, q[j + 1] + dy
         out = np.array(q)
         self._key, self._q, self._G = key, out, G
         return out, G
@@ -220,18 +245,33 @@ class Relative:
         H = np.zeros((self.n, self.n)) if with_h else None
         for i in self.order:
             p, k = self.parent[i], 3 * i
+            ux, uy = self.points[i]
+            # a = A(psi_i) u_i, psi_i' (the reference point's turn about the frame's origin)
+            bx = by = 0.0
+            if ux or uy:
+                cp, sp = math.cos(ql[k + 2]), math.sin(ql[k + 2])
+                bx, by = cp * ux - sp * uy, sp * ux + cp * uy
             if p < 0:
+                if ux or uy:  # r_i = s_i - A(psi) u: qd_i = s_i' - psi' perp(a)
+                    v = zdl[k + 2]
+                    qd[k], qd[k + 1] = zdl[k] + v * by, zdl[k + 1] - v * bx
+                    c_out[k], c_out[k + 1] = v * v * bx, v * v * by
+                    if H is not None:
+                        H[k] += v * bx * G[k + 2]
+                        H[k + 1] += v * by * G[k + 2]
                 continue
             j = 3 * p
             w = qd[j + 2]
-            dx, dy = ql[k] - ql[j], ql[k + 1] - ql[j + 1]
+            v = w + zdl[k + 2]  # psi_i'
+            # e = A(phi_p) s_i, the reference point's offset from the parent's origin
+            dx, dy = ql[k] - ql[j] + bx, ql[k + 1] - ql[j + 1] + by
             c, s = math.cos(ql[j + 2]), math.sin(ql[j + 2])
             ax, ay = c * zdl[k] - s * zdl[k + 1], s * zdl[k] + c * zdl[k + 1]  # A s_i'
-            qd[k] = qd[j] - w * dy + ax
-            qd[k + 1] = qd[j + 1] + w * dx + ay
-            qd[k + 2] = w + zdl[k + 2]
-            c_out[k] = c_out[j] - w * w * dx - 2 * w * ay
-            c_out[k + 1] = c_out[j + 1] - w * w * dy + 2 * w * ax
+            qd[k] = qd[j] - w * dy + ax + v * by
+            qd[k + 1] = qd[j + 1] + w * dx + ay - v * bx
+            qd[k + 2] = v
+            c_out[k] = c_out[j] - w * w * dx - 2 * w * ay + v * v * bx
+            c_out[k + 1] = c_out[j + 1] - w * w * dy + 2 * w * ax + v * v * by
             if H is not None:
                 H[k:k + 2] = H[j:j + 2]
                 H[k] += (-w * dx - ay) * G[j + 2]
@@ -240,6 +280,9 @@ class Relative:
                 H[k, k + 1] -= w * c
                 H[k + 1, k] += w * c
                 H[k + 1, k + 1] -= w * s
+                if ux or uy:
+                    H[k] += v * bx * G[k + 2]
+                    H[k + 1] += v * by * G[k + 2]
         self._rates_key, self._qd, self._c, self._H = key, np.array(qd), np.array(c_out), H
         return self._qd, self._c, H
 
@@ -250,7 +293,8 @@ class Relative:
         return np.concatenate((q, self._rates(y[:n], y[n:2 * n])[0]))
 
     def relative(self, y: np.ndarray) -> np.ndarray:
-        """(z, zd) of the state (q, qd): s_i = A(phi_p)^T (r_i - r_p), rho_i = phi_i - phi_p,
+        """(z, zd) of the state (q, qd): s_i = A(phi_p)^T (r_i + A(phi_i) u_i - r_p), rho_i =
+        phi_i - phi_p,
         and zd from qd = G zd (G is invertible: block triangular, rotations on its
         diagonal)."""
         n = self.n
@@ -258,11 +302,16 @@ class Relative:
         z = q[:]
         for i in self.order:
             p, k = self.parent[i], 3 * i
+            ux, uy = self.points[i]
+            cp, sp = math.cos(q[k + 2]), math.sin(q[k + 2])
+            # the reference point r_i + A(phi_i) u_i
+            px, py = q[k] + cp * ux - sp * uy, q[k + 1] + sp * ux + cp * uy
             if p < 0:
+                z[k], z[k + 1] = px, py
                 continue
             j = 3 * p
             c, s = math.cos(q[j + 2]), math.sin(q[j + 2])
-            dx, dy = q[k] - q[j], q[k + 1] - q[j + 1]
+            dx, dy = px - q[j], py - q[j + 1]
             z[k], z[k + 1], z[k + 2] = c * dx + s * dy, -s * dx + c * dy, q[k + 2] - q[j + 2]
         z = np.array(z)
         _, G = self._map(z)
@@ -469,7 +518,7 @@ class Radau(Stepper):
             return None
         from .reduced import reduce
 
-        rel = Relative(self.equations, self._parent)
+        rel = self._relative_at(t0, y0)
         z = rel.relative(y0)
         reduced = reduce(rel, t0, z[:rel.n], t_bound - t0)
         if reduced is None or reduced.m:
@@ -491,8 +540,8 @@ class Radau(Stepper):
     def _to_relative(self) -> None:
         from .reduced import reduce
 
-        rel = Relative(self.equations, self._parent)
         t, y = self.inner.t, self.inner.y
+        rel = self._relative_at(t, y)
         z = rel.relative(y)
         # the coordinates the joints fix, eliminated where there are any (module reduced)
         reduced = reduce(rel, t, z[:rel.n], self.inner.t_bound - t)
@@ -502,6 +551,17 @@ class Radau(Stepper):
         self._go_on(rel, z)
         self.relative, self.relative_from = rel, t
         self._before_steps, self._steps = self._steps[-10:], []
+
+    def _relative_at(self, t: float, y: np.ndarray) -> Relative:
+        """The relative coordinates on the forest, each body's reference point at its pin
+        to its parent where it has one (:func:`mechdsl.solve.reduced.pin_points`), so that
+        the pin fixes that point's position: a body whose frame is at its centre of mass
+        (Haug's) pinned at its end."""
+        from .reduced import pin_points
+
+        rel = Relative(self.equations, self._parent)
+        points = pin_points(rel, t, rel.relative(y)[:rel.n])
+        return rel if points is None else Relative(self.equations, self._parent, points)
 
     def _to_absolute(self) -> None:
         t, y = self.inner.t, self.relative.absolute(self.inner.y)
