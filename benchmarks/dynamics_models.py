@@ -262,6 +262,14 @@ def chain_oracle(n: int, t1: float = 0.2, rtol: float = 1e-12, length: float = 1
 PENDULUM = dict(l=1.0, mr=1.0, mb=1.0, jb=0.01, l0=1.0)
 
 
+def _pendulum_params(k: float) -> list[str]:
+    """The stiff pendulum's params (:data:`PENDULUM` and the spring's k), the lines every
+    variant of its text starts with."""
+    p = PENDULUM
+    return [f"param k = {k!r}", f"param l = {p['l']}", f"param mr = {p['mr']}",
+            f"param mb = {p['mb']}", f"param jb = {p['jb']}", f"param L0 = {p['l0']}"]
+
+
 def stiff_pendulum_text(k: float, t1: float = 2.0, step: float = 0.01, rtol: float = 1e-6,
                         atol: float = 1e-8) -> str:
     """The ``.mech`` text of the stiff pendulum with spring stiffness ``k`` (N/m).
@@ -271,12 +279,9 @@ def stiff_pendulum_text(k: float, t1: float = 2.0, step: float = 0.01, rtol: flo
     axis = (1, 0))`` (on the rod's axis, turning with it); ``spring(rod.origin, bob.origin,
     k, length = L0)``. Outputs: ``theta = rod.phi`` and ``s = distance(rod.origin,
     bob.origin)``."""
-    p = PENDULUM
     return "\n".join([
         f"# a pendulum carrying a bob on a spring of stiffness k = {k:g} N/m",
-        f"param k = {k!r}", f"param l = {p['l']}", f"param mr = {p['mr']}",
-        f"param mb = {p['mb']}", f"param jb = {p['jb']}", f"param L0 = {p['l0']}",
-        "gravity = (0, -9.81)", "ground { }",
+        *_pendulum_params(k), "gravity = (0, -9.81)", "ground { }",
         "body rod { guess = (0, 0, 0)  mass = mr  inertia = mr*l^2/12  centroid = (l/2, 0) }",
         "body bob { guess = (L0, 0, 0)  mass = mb  inertia = jb }",
         "joint pivot: revolute(ground.origin, rod.origin)",
@@ -292,11 +297,8 @@ def stiff_pendulum_off_centre_text(k: float) -> str:
     slider and the spring from P. The same motion (theta = rod.phi, s = |P bob|), but
     the pin's equations do not fix the rod's frame origin (mechdsl.solve.reduced takes the
     pin's point as the rod's reference point, where they do)."""
-    p = PENDULUM
     return "\n".join([
-        f"param k = {k!r}", f"param l = {p['l']}", f"param mr = {p['mr']}",
-        f"param mb = {p['mb']}", f"param jb = {p['jb']}", f"param L0 = {p['l0']}",
-        "gravity = (0, -9.81)", "ground { }",
+        *_pendulum_params(k), "gravity = (0, -9.81)", "ground { }",
         "body rod { guess = (l/2, 0, 0)  point P = (-l/2, 0)  mass = mr  inertia = mr*l^2/12 }",
         "body bob { guess = (L0, 0, 0)  mass = mb  inertia = jb }",
         "joint pivot: revolute(ground.origin, rod.P)",
@@ -313,11 +315,8 @@ def stiff_pendulum_skew_text(k: float) -> str:
     = rod.phi + atan2(0.8, 0.6), s = |rod.origin bob.origin|), but the slider's offset
     across its axis reads in two of the bob's relative coordinates (mechdsl.solve.reduced
     keeps that row as an equation)."""
-    p = PENDULUM
     return "\n".join([
-        f"param k = {k!r}", f"param l = {p['l']}", f"param mr = {p['mr']}",
-        f"param mb = {p['mb']}", f"param jb = {p['jb']}", f"param L0 = {p['l0']}",
-        "param ca = 0.6", "param sa = 0.8",
+        *_pendulum_params(k), "param ca = 0.6", "param sa = 0.8",
         "gravity = (0, -9.81)", "ground { }",
         "body rod { guess = (0, 0, -atan2(sa, ca))  mass = mr  inertia = mr*l^2/12  "
         "centroid = (l/2*ca, l/2*sa) }",
