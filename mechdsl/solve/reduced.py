@@ -17,8 +17,9 @@ analytic in q: no opaque function (a table, a cam's profile: piecewise, affine o
 dwell and not beyond it), no abs, sign or mod (the compiled model's member layout shows
 each row's expression; without it no row is eliminated). A joint's rows R (together, else
 each alone) fix the coordinates S where, at the start z0 (on the constraints), their
-gradient in z touches exactly |R| coordinates S (the others below :data:`PATTERN_RTOL` of
-it), Phi_R,S is regular (condition below :data:`MAX_COND`), their rates nu_R are zero, and
+gradient in z touches exactly |R| coordinates S (each column weighted by its coordinate's
+scale, the others below :data:`PATTERN_RTOL` of the largest and ten times the rows'
+residual), Phi_R,S is regular (condition below :data:`MAX_COND`), their rates nu_R are zero, and
 at :data:`PROBES` states and instants drawn far from the run's (every coordinate outside
 the fixed ones moved by up to its scale: the model's length for positions, a radian for
 angles; the instants across the span) with every S at its value, Phi_R vanishes (to
@@ -29,15 +30,18 @@ z_S = z_S0, with z_S0 solved from Phi_R(z0) = 0. A pin at the child's frame orig
 its s_i in the parent's frame, whether the parent is the ground (two rows, each affine in
 one coordinate) or a moving body (two rows in world axes, A(phi_p) (s_A - s_i): they turn
 with the parent, yet vanish wherever s_i = s_A); a slider through the frames' origins along
-a body axis fixes the offset across the axis and rho_i. Every other row stays an equation
-of the stepper (loop closures, drives, a pin away from the child's frame origin), with the
-remaining coordinates.
+a body axis fixes the offset across the axis and rho_i. A redundant joint's rows that
+touch only coordinates another joint fixed (a second pin where the first is) go too, where
+they vanish at the probes: on the coordinates left they are rows of zeros, which would
+leave the implicit stepper's matrix singular. Every other row stays an equation of the
+stepper (loop closures, drives, a slider whose axis is skewed in the parent's frame), with
+the remaining coordinates.
 
 The equations. With w the coordinates left (``free``) and the rows kept (``keep``), every
 term is the relative coordinates' own restricted: (G^T M G)_ww, (G^T (Q - M c))_w, the
 kept rows of Phi, gamma and Phi_q G (their columns w), the loads' derivatives' (w, w)
-blocks and the kept multipliers' curvature (an eliminated row's is zero: its Phi_r is
-affine in z). The accelerations are those of z (the absolute ones solved with every row,
+blocks and the kept multipliers' curvature (an eliminated row's is zero: it vanishes
+identically on the coordinates w). The accelerations are those of z (the absolute ones solved with every row,
 mapped back), which keep z_k's zero. Nothing is approximated beyond the relative
 coordinates' own Jacobian terms.
 """
@@ -118,8 +122,9 @@ def pin_points(rel: Relative, t: float, z: np.ndarray) -> np.ndarray | None:
     system = getattr(getattr(rel.base, "kernels", None), "system", None)
     if system is None:
         return None
-    _, jac = rel.phi_jac(t, z)
-    jac = np.asarray(jac, dtype=float)
+    phi, jac = rel.phi_jac(t, z)
+    phi, jac = np.asarray(phi, dtype=float), np.asarray(jac, dtype=float)
+    scale = _coordinate_scale(rel)
     analytic = _analytic_rows(rel.base)
     names = {name: i for i, name in enumerate(system.body_names)}
     points = np.zeros((len(rel.parent), 2))
@@ -133,10 +138,8 @@ def pin_points(rel: Relative, t: float, z: np.ndarray) -> np.ndarray | None:
             continue
         k = 3 * child
         block = jac[R]
-        big = np.abs(block).max()
-        own = np.zeros(rel.n, dtype=bool)
-        own[k:k + 3] = True
-        if not big > 0 or np.abs(block[:, ~own]).max(initial=0.0) > PATTERN_RTOL * big:
+        if not np.abs(block).max() > 0 or \
+                set(_touched(block, phi[R], scale).tolist()) - {k, k + 1, k + 2}:
             continue
         Js, Jr = block[:, k:k + 2], block[:, k + 2]
         if np.linalg.cond(Js) > MAX_COND:
@@ -147,6 +150,17 @@ def pin_points(rel: Relative, t: float, z: np.ndarray) -> np.ndarray | None:
         px, py = cr * x[0] + sr * x[1], -sr * x[0] + cr * x[1]  # perp(u)
         points[child] = (py, -px)
     return points if np.abs(points).max() > 0 else None
+
+
+def _touched(block: np.ndarray, phi: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """The coordinates that rows of gradient ``block`` and values ``phi`` depend on: the
+    columns, each weighted by its coordinate's scale (a length's and an angle's entries
+    compared in the same units), above :data:`PATTERN_RTOL` of the largest and ten times
+    the rows' residual (a pin between moving bodies turns with its parent by its residual:
+    round-off, or the tolerance mid-run)."""
+    weighted = np.abs(block) * scale
+    floor = PATTERN_RTOL * weighted.max() + 10.0 * np.abs(phi).max(initial=0.0)
+    return np.flatnonzero(weighted.max(axis=0) > floor)
 
 
 def reduce(rel: Relative, t: float, z: np.ndarray, span: float) -> "Reduced | None":
@@ -160,8 +174,10 @@ def reduce(rel: Relative, t: float, z: np.ndarray, span: float) -> "Reduced | No
     phi0, jac0 = rel.phi_jac(t, z)
     phi0, jac0 = np.asarray(phi0, dtype=float), np.asarray(jac0, dtype=float)
     nu0 = np.asarray(rel.nu(t), dtype=float)
+    scale = _coordinate_scale(rel)
     rows = {r for r in _analytic_rows(rel.base) if nu0[r] == 0 and np.abs(jac0[r]).max() > 0}
-    candidates: list[tuple[list[int], list[int]]] = []
+    #: (rows R, coordinates S they fix, the size of their gradient)
+    candidates: list[tuple[list[int], list[int], float]] = []
     taken: set[int] = set()
     for group in _groups(rel.base, rows):
         # a joint's rows together (a pin between two moving bodies: two rows in world axes
@@ -170,18 +186,23 @@ def reduce(rel: Relative, t: float, z: np.ndarray, span: float) -> "Reduced | No
             if set(R) & {r for c in candidates for r in c[0]}:
                 continue
             block = jac0[R]
-            S = [int(k) for k in np.flatnonzero(np.abs(block).max(axis=0)
-                                                > PATTERN_RTOL * np.abs(block).max())]
+            S = [int(k) for k in _touched(block, phi0[R], scale)]
             if len(S) == len(R) and not taken & set(S) and \
                     np.linalg.cond(block[:, S]) < MAX_COND:
-                candidates.append((R, S))
+                candidates.append((R, S, float(np.abs(block[:, S]).max())))
                 taken.update(S)
     if not candidates:
         return None
+    # a redundant joint's rows on coordinates another joint fixed (a second pin where the
+    # first is): identically zero once those are held, and no equation to keep (a row of
+    # zeros left the implicit stepper's matrix singular)
+    for r in sorted(rows - {r for c in candidates for r in c[0]}):
+        if set(_touched(jac0[[r]], phi0[[r]], scale).tolist()) <= taken:
+            candidates.append(([r], [], float(np.abs(jac0[r]).max())))
     value = z.copy()
-    for R, S in candidates:  # the fixed coordinates where the joints' rows hold exactly
-        value[S] = z[S] - np.linalg.solve(jac0[np.ix_(R, S)], phi0[R])
-    scale = _coordinate_scale(rel)
+    for R, S, _ in candidates:  # the fixed coordinates where the joints' rows hold exactly
+        if S:
+            value[S] = z[S] - np.linalg.solve(jac0[np.ix_(R, S)], phi0[R])
     while candidates:
         failed = _failing(rel, candidates, value, t, span, scale)
         if failed is None:
@@ -190,10 +211,10 @@ def reduce(rel: Relative, t: float, z: np.ndarray, span: float) -> "Reduced | No
             break
         # (the others are probed again: with these coordinates free, theirs still hold)
         candidates = [c for c in candidates if c not in failed]
-    if not candidates:
+    if not any(S for _, S, _ in candidates):
         return None
-    fixed = sorted(k for _, S in candidates for k in S)
-    eliminated = {r for R, _ in candidates for r in R}
+    fixed = sorted(k for _, S, _ in candidates for k in S)
+    eliminated = {r for R, _, _ in candidates for r in R}
     free = np.array([k for k in range(n) if k not in fixed], dtype=np.intp)
     keep = np.array([r for r in range(m) if r not in eliminated], dtype=np.intp)
     return Reduced(rel, free, keep, value)
@@ -201,12 +222,13 @@ def reduce(rel: Relative, t: float, z: np.ndarray, span: float) -> "Reduced | No
 
 def _failing(rel: Relative, candidates: list, value: np.ndarray, t: float, span: float,
              scale: np.ndarray) -> list | None:
-    """The candidates (rows R, coordinates S) whose rows do not vanish at :data:`PROBES`
-    far states that hold every candidate's S at its value and draw the other coordinates
-    (each within its scale) and the instant (within the span) at random, or whose block
-    Phi_R,S turns singular there; None where a probe cannot be evaluated."""
+    """The candidates (rows R, coordinates S, gradient size) whose rows do not vanish at
+    :data:`PROBES` far states that hold every candidate's S at its value and draw the
+    other coordinates (each within its scale) and the instant (within the span) at random,
+    or whose block Phi_R,S turns singular there; None where a probe cannot be evaluated.
+    A row that is not a number at a probe does not vanish."""
     rng = np.random.default_rng(12345)  # the same probes every run: the same choice
-    fixed = [k for _, S in candidates for k in S]
+    fixed = [k for _, S, _ in candidates for k in S]
     failed: list = []
     for _ in range(PROBES):
         zp = value + rng.uniform(-1.0, 1.0, rel.n) * scale
@@ -219,12 +241,12 @@ def _failing(rel: Relative, candidates: list, value: np.ndarray, t: float, span:
             return None
         phi, jac = np.asarray(phi, dtype=float), np.asarray(jac, dtype=float)
         for c in candidates:
-            R, S = c
-            block = jac[np.ix_(R, S)]
-            size = np.abs(block).max()
-            if c not in failed and (
-                    not size > 0 or np.linalg.cond(block) > MAX_COND
-                    or np.abs(phi[R]).max() > LINEAR_RTOL * size * scale.max()):
+            R, S, size = c
+            if c in failed:
+                continue
+            residual = np.abs(phi[R])
+            if not np.all(residual <= LINEAR_RTOL * size * scale.max()) or (
+                    S and np.linalg.cond(jac[np.ix_(R, S)]) > MAX_COND):
                 failed.append(c)
     return failed
 
@@ -320,7 +342,8 @@ class Reduced:
 
     def constraint_curvature(self, t: float, w: np.ndarray, lam: np.ndarray) -> np.ndarray:
         """G^T (Phi_q^T lambda)_q G's (w, w) block, the eliminated rows' multipliers zero
-        (their Phi_r is affine in z: no curvature)."""
+        (their Phi_R vanishes identically on the coordinates w, and so do its derivatives:
+        they add no curvature there)."""
         full = np.zeros(self.rel.m)
         full[self.keep] = lam
         return self.rel.constraint_curvature(t, self._z(w), full)[self._ww]

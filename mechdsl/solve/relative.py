@@ -590,8 +590,10 @@ class Radau(Stepper):
                     f"{self.relative_from:.6g} to {self.relative_until:.6g} ({why}), which "
                     f"took {_ratio(self._gain)} work per simulated second, under "
                     f"{RELATIVE_GAIN:g}: absolute ones kept")
+        rated = (f"{_ratio(self._gain)} work per simulated second" if self._gain else
+                 f"the run ended before the trial's {RELATIVE_TRIAL} steps rated them")
         return (f"radau in relative coordinates{left} from t = {self.relative_from:.6g}, "
-                f"where {why} ({_ratio(self._gain)} work per simulated second)")
+                f"where {why} ({rated})")
 
     def _absolute(self, y: np.ndarray) -> np.ndarray:
         return y if self.relative is None else self.relative.absolute(y)
