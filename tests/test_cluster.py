@@ -81,7 +81,8 @@ def test_a_worker_killed_mid_run_costs_only_its_chunks(client, rods):
     ls = list(np.linspace(2.2, 4.0, 120))
     ov = Overrides(sweeps={"l": ls}, t1=1.0)
     here = solve_sweep(rods, ov, chunk=4)
-    victims = list(client.run(os.getpid).values())
+    workers = client.run(os.getpid)  # {address: pid}
+    victims, victim = list(workers.values()), list(workers)[0]
     killed = []
 
     def kill_one(done: int, total: int) -> None:
@@ -96,11 +97,14 @@ def test_a_worker_killed_mid_run_costs_only_its_chunks(client, rods):
     assert int(there.n_solved.min()) == len(here.times)  # complete
     for label in here.labels:
         assert same(here.data[label], there.data[label]), label
-    # the killed worker is reported, its chunks solved again; on a loaded machine another
-    # worker may also miss its heartbeats and be reported the same way (seen once in five
-    # runs of the fresh-clone check): what matters is that each loss is said and repaired
+    # the killed worker is reported, its chunks solved again; on a loaded machine other
+    # workers (the restarted one too) may also miss their heartbeats and be reported the
+    # same way (two or three losses, seen in about one run in five): what matters is that
+    # the killed one is said, each loss once, and each repaired
     lost = [w for w in there.warnings if "was lost during the run" in w]
-    assert 1 <= len(lost) <= 2, lost
+    assert any(f"the worker {victim} was lost" in w for w in lost), (victim, lost)
+    named = [w.split("the worker ", 1)[1].split(" ", 1)[0] for w in lost]
+    assert len(named) == len(set(named)), lost
     assert all("solved again on another worker" in w for w in lost)
     t = here.times
     np.testing.assert_allclose(there.data["slider.x"][-1], closed_form_x(4.0, t), rtol=1e-12)
