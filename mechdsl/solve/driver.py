@@ -333,7 +333,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             at_output = k_end < n_out and t_eval[k_end] <= t_new
             if project is not None and not stepper.constrained:
                 end = (project if at_output else settle)(t_new, y_new)
-                if np.max(np.abs(end - y_new) / (tol_abs + rtol * np.abs(end))) > JUMP_MOVE:
+                if _moved_far(end, y_new, tol_abs, rtol):
                     found = _first_jumps(equations, t, t_new, y_new[:n // 2], tol_abs)
                     if found:
                         ended = over_jump(found)
@@ -469,8 +469,9 @@ class _Watch:
 
 
 def _moved_far(out: np.ndarray, y: np.ndarray, tol_abs, rtol: float) -> bool:
-    """Whether the projection of a dense output's state y to ``out`` moved it by more
-    than JUMP_MOVE times the tolerance. A step's error estimate controls its end, not its
+    """Whether the projection of a state y to ``out`` moved it by more than JUMP_MOVE
+    times the tolerance: a step's end (a jump of the constraints: module docstring) or a
+    dense output's state. A step's error estimate controls its end, not its
     interpolant: across a singular position, where the augmented Lagrangian's
     accelerations turn within a small interval (docs/dynamics.md), the interpolant of a
     long step can miss the velocities by far (a parallelogram with redundant cranks and a

@@ -225,8 +225,10 @@ class RadauStepper(Stepper):
                          first_step=first_step)
         self.n, self.m = int(equations.n), int(equations.m)
         n = self.n
-        #: Phi and Phi_q of equations without constraints (an ODE: module reduced)
-        self._unconstrained = (np.zeros(0), np.zeros((0, n)))
+        #: Phi and Phi_q at (t, q): the equations', or for equations without constraints
+        #: (an ODE: module reduced) none, not evaluated
+        unconstrained = (np.zeros(0), np.zeros((0, n)))
+        self._phi_jac = equations.phi_jac if self.m else (lambda t_, q_: unconstrained)
         self.y = self.y_old = np.array(self.y, dtype=float)
         own = getattr(equations, "own_scale", None)
         if scale is None:
@@ -289,8 +291,7 @@ class RadauStepper(Stepper):
         estimate reads (``_M0``: from the same evaluation)."""
         eq, n = self.equations, self.n
         q, v = y[:n], y[n:2 * n]
-        phi, G = phi_jac if phi_jac is not None else \
-            eq.phi_jac(t, q) if self.m else self._unconstrained
+        phi, G = phi_jac if phi_jac is not None else self._phi_jac(t, q)
         self.nfev += 1
         if start:
             # M at the step's start, not the Jacobian's (kept over many steps): where M
@@ -338,8 +339,7 @@ class RadauStepper(Stepper):
         q, v = y[:n], y[n:]
         dq, dv = eq.load_derivatives(t, q, v)
         dq = self._stiffness(t, q, dq, self.lam)
-        G = eq.phi_jac(t, q)[1] if self.m else self._unconstrained[1]
-        self._jac = (_mat(eq.mass(q)), _mat(dq), _mat(dv), _mat(G))
+        self._jac = (_mat(eq.mass(q)), _mat(dq), _mat(dv), _mat(self._phi_jac(t, q)[1]))
         self.njev += 1
         self._set_pattern()
         self._lu = None
@@ -516,7 +516,7 @@ class RadauStepper(Stepper):
             tj, qj, vj = t + _K["c"][j] * h, self.y[:n] + Z[j, :n], self.y[n:] + Z[j, n:2 * n]
             dq, dv = eq.load_derivatives(tj, qj, vj)
             dq = self._stiffness(tj, qj, dq, self.lam + Z[j, 2 * n:])
-            phi, G = eq.phi_jac(tj, qj) if self.m else self._unconstrained
+            phi, G = self._phi_jac(tj, qj)
             M, Q = self._mass_loads(tj, qj, vj)
             terms.append((phi, G, M, Q))
             jacs.append((_mat(M), _mat(dq), _mat(dv), _mat(G)))
@@ -558,7 +558,7 @@ class RadauStepper(Stepper):
                 if k == 0 and at_guess is not None:
                     phi, G, M, Q = at_guess[j]
                 else:
-                    phi, G = eq.phi_jac(tj, qj) if self.m else self._unconstrained
+                    phi, G = self._phi_jac(tj, qj)
                     M, Q = self._mass_loads(tj, qj, vj)
                 r[j, :n] = D[j, :n] - vj
                 r[j, n:2 * n] = M @ D[j, n:] - Q + G.T @ lj

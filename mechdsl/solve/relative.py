@@ -516,15 +516,11 @@ class Radau(Stepper):
         them; else None."""
         if not self._spanning:
             return None
-        from .reduced import reduce
-
-        rel = self._relative_at(t0, y0)
-        z = rel.relative(y0)
-        reduced = reduce(rel, t0, z[:rel.n], t_bound - t0)
-        if reduced is None or reduced.m:
+        equations, z = self._relative_at(t0, y0, t_bound)
+        if equations.m or self._left is None:
+            self._left = None
             return None
-        self._left = (reduced.n, rel.n)
-        return reduced, reduced.relative(y0)
+        return equations, z
 
     def _go_on(self, equations: Equations, y: np.ndarray) -> None:
         """A new inner stepper on ``equations`` from the inner stepper's time, with y in
@@ -538,30 +534,30 @@ class Radau(Stepper):
         self.inner = new
 
     def _to_relative(self) -> None:
-        from .reduced import reduce
-
         t, y = self.inner.t, self.inner.y
-        rel = self._relative_at(t, y)
-        z = rel.relative(y)
-        # the coordinates the joints fix, eliminated where there are any (module reduced)
-        reduced = reduce(rel, t, z[:rel.n], self.inner.t_bound - t)
-        if reduced is not None:
-            self._left = (reduced.n, rel.n)
-            rel, z = reduced, reduced.relative(y)
+        rel, z = self._relative_at(t, y, self.inner.t_bound)
         self._go_on(rel, z)
         self.relative, self.relative_from = rel, t
         self._before_steps, self._steps = self._steps[-10:], []
 
-    def _relative_at(self, t: float, y: np.ndarray) -> Relative:
-        """The relative coordinates on the forest, each body's reference point at its pin
-        to its parent where it has one (:func:`mechdsl.solve.reduced.pin_points`), so that
-        the pin fixes that point's position: a body whose frame is at its centre of mass
-        (Haug's) pinned at its end."""
-        from .reduced import pin_points
+    def _relative_at(self, t: float, y: np.ndarray, t_bound: float):
+        """(equations, state) in relative coordinates from (t, y) on: on the forest, each
+        body's reference point at its pin to its parent where it has one
+        (:func:`mechdsl.solve.reduced.pin_points`: a body whose frame is at its centre of
+        mass, Haug's, pinned at its end), the coordinates the joints fix eliminated where
+        there are any (:func:`mechdsl.solve.reduced.reduce`; ``_left`` says how many are
+        left)."""
+        from .reduced import pin_points, reduce
 
         rel = Relative(self.equations, self._parent)
         points = pin_points(rel, t, rel.relative(y)[:rel.n])
-        return rel if points is None else Relative(self.equations, self._parent, points)
+        if points is not None:
+            rel = Relative(self.equations, self._parent, points)
+        reduced = reduce(rel, t, rel.relative(y)[:rel.n], t_bound - t)
+        if reduced is None:
+            return rel, rel.relative(y)
+        self._left = (reduced.n, rel.n)
+        return reduced, reduced.relative(y)
 
     def _to_absolute(self) -> None:
         t, y = self.inner.t, self.relative.absolute(self.inner.y)
