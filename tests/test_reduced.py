@@ -92,10 +92,21 @@ def test_the_equations_left_are_lagranges(k):
         wdd = red.rhs(0.3, np.concatenate((w, wd)))[2:]
         want = dm.stiff_pendulum_rhs(0.3, y, k)[2:]
         assert np.abs(wdd[[theta_at, s_at]] - want).max() < 1e-9 * (1 + np.abs(want).max())
-        dq, _ = red.load_derivatives(0.3, w, wd)
-        # the exact derivative is mb theta'^2 - k; the term from G's own derivative
-        # (mb theta'^2) is left out by design (module relative), the stiffness is exact
-        assert dq[s_at, s_at] == pytest.approx(-k, rel=1e-12)
+        dq, dqd = red.load_derivatives(0.3, w, wd)
+        # f_s = mb s theta'^2 - k (s - L0) - mb g sin(theta): d/ds = mb theta'^2 - k
+        assert dq[s_at, s_at] == pytest.approx(P["mb"] * y[2] ** 2 - k, rel=1e-12)
+        # every entry against central differences of the loads f_w
+        step = 1e-6
+        for j in range(4):
+            e = np.zeros(4)
+            e[j] = step
+            up = red.loads(0.3, w + e[:2], wd + e[2:])
+            down = red.loads(0.3, w - e[:2], wd - e[2:])
+            column = (up - down) / (2 * step)
+            got = (dq if j < 2 else dqd)[:, j % 2]
+            # (the differences' round-off: eps |f| / step, |f| up to k (s - L0))
+            size = 1 + np.abs(column).max() + np.abs(up).max()
+            assert np.abs(got - column).max() < 1e-6 * size
 
 
 @pytest.mark.parametrize("model", ["stiff_pendulum_text", "stiff_pendulum_off_centre_text"])

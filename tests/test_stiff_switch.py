@@ -420,7 +420,8 @@ def test_a_pair_counts_stiff_steps_afresh_once_its_detection_is_on_again():
     while s.step() != STIFF:
         steps += 1
         assert steps < 10 * STIFF_STEPS
-    assert s.stiff_steps >= STIFF_STEPS
+    # (at k = 1e8 the first step's h rho is far past the boundary: reported at once)
+    assert s.stiff_steps >= STIFF_STEPS or (s.naccepted == 1 and s.stiff_steps == 1)
     s.detect_stiffness = False
     assert s.step() is None
     s.detect_stiffness = True
@@ -452,3 +453,28 @@ def test_a_chain_stiff_enough_to_be_rigid_falls_as_one_bar():
     phi = bar.y[0, -1]
     assert abs(res["tipx"][-1] - n * np.cos(phi)) < 1e-6
     assert abs(res["tipy"][-1] - n * np.sin(phi)) < 1e-6
+
+
+@pytest.mark.parametrize("k, early", [(1e8, True), (1e4, False)])
+def test_a_first_step_far_past_the_boundary_reports_stiffness_at_once(k, early):
+    """Hairer's first step is chosen for accuracy; where stability allows far less (h rho
+    above EARLY_STIFF times the boundary: the stiff pendulum at k = 1e8, h rho about 22
+    against vern9's 2.64) the pair reports STIFF after that step, not after STIFF_STEPS
+    more; at k = 1e4 (h rho 5e-4 at the first step) it does not. The run then goes on
+    with radau, its summary saying so, within 1e-7 rad of the minimal ODE."""
+    from mechdsl.solve.explicit import EARLY_STIFF, Vern9, stiffness_probe
+    from mechdsl.solve.stepper import STIFF
+
+    motion = Motion(mechdsl.loads(dm.stiff_pendulum_text(k)).compile())
+    y0 = np.concatenate((motion.system.guess.reshape(-1)[:motion.n], np.zeros(motion.n)))
+    y0 = motion.project(0.0, y0)
+    s = Vern9(motion, 0.0, y0, 2.0, rtol=1e-6, atol=1e-8, scale=np.ones(2 * motion.n))
+    s.detect_stiffness = True
+    report = s.step()
+    bound = stiffness_probe("vern9")[1]
+    assert (report == STIFF) == early
+    assert (s.h_rho > EARLY_STIFF * bound) == early
+    if early:
+        res = mechdsl.loads(dm.stiff_pendulum_text(k)).simulate()
+        assert "h rho = " in res.method and "at its first step" in res.method, res.method
+        assert abs(res["theta"][-1] - dm.stiff_pendulum_oracle(k)[0]) < 1e-7

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, replace
-from typing import NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
@@ -147,8 +147,17 @@ class Dynamics:
 
     @functools.cached_property
     def _floats(self) -> dict:
-        # the kernels of floats generated for this model, by name and nodes (:meth:`floats`)
+        # the kernels of floats generated for this model, by name and nodes (:meth:`floats`),
+        # and what :meth:`memo` keeps
         return {}
+
+    def memo(self, key: tuple, make: Callable[[], Any]) -> Any:
+        """What ``make()`` builds for ``key`` from this model's graph (a solver's traced
+        terms, e.g. :func:`mechdsl.solve.reduced_terms.traced`), built once per model: the
+        next run on it (each ``simulate()`` of a mechanism) reuses it."""
+        if key not in self._floats:
+            self._floats[key] = make()
+        return self._floats[key]
 
     def floats(self, nodes, name: str):
         """The function of floats ``fn(q, qd, t, p, F)`` that gives ``nodes`` of this

@@ -29,7 +29,9 @@ and owns
   (``switched``). A trial is made
 
   - where the pair reports :data:`STIFF` (rule 7: h rho at its stability boundary for
-    ``STIFF_STEPS`` steps in a row) and the rest of the span would take it more than
+    ``STIFF_STEPS`` steps in a row, or ``EARLY_STIFF`` times the boundary at its first
+    step: then against that step and TRIAL_RATIO) and the rest of the span would take it
+    more than
     :data:`STIFF_MIN_STEPS` steps; the typical step is the median of its last
     :data:`TRIAL_AFTER`, those the stability holds. A stiff spring's oscillation that the
     pair resolves to the tolerance holds h rho there too, and the implicit steps are then
@@ -439,12 +441,17 @@ class _Watch:
             # tolerance holds h rho at the stability boundary too, and there the implicit
             # stepper's steps are no longer (a four-bar on a spring of 1e4 N/m: radau took
             # 2.3 times vern9's time for 500 times its error)
+            in_row = getattr(s, "stiff_steps", 0)
+            first = in_row == 1 and s.naccepted == 1
             held = (f"{s.name}'s step held by stability: h rho = "
-                    f"{getattr(s, 'h_rho', float('nan')):.3g} at "
-                    f"{getattr(s, 'stiff_steps', 0)} steps in a row")
+                    f"{getattr(s, 'h_rho', float('nan')):.3g} " +
+                    ("at its first step" if first else f"at {in_row} steps in a row"))
+            # (after the first step alone, against that step and the plain ratio: the
+            # first step is Hairer's guess, not a step that stability is seen to hold)
             why, spent, kept = _trial(self.stiff, t, y, self.t_end,
                                       float(np.median(self.taken)), s.name,
-                                      *self.tolerances, STIFF_MIN_STEPS, self.ratio)
+                                      *self.tolerances, STIFF_MIN_STEPS,
+                                      max(self.ratio, TRIAL_RATIO) if first else self.ratio)
             if why is not None:
                 return f"{held}, and {why}", spent, kept
             s.detect_stiffness, self.resume_at = False, s.naccepted + self.stiff_pause

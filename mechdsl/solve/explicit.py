@@ -78,6 +78,13 @@ class Pair:
 #: make a model stiff, and steps below it that reset the count
 STIFF_STEPS, CALM_STEPS = 15, 6
 
+#: A first accepted step whose h rho is this many times the stability boundary proves the
+#: model stiff at once: its first step, Hairer's guess from the accuracy the motion asks
+#: for, is far beyond what stability allows (the stiff pendulum at k = 1e8: h rho = 22 at
+#: the first step, 8.3 times vern9's boundary, and 15 more steps to the report in a row;
+#: at k = 1e4 5e-4). The driver's trial still decides (module driver)
+EARLY_STIFF = 4.0
+
 
 @functools.cache
 def stiffness_probe(name: str) -> tuple[int | None, float, np.ndarray]:
@@ -233,7 +240,8 @@ class RungeKutta(Stepper):
         eigenvalue of the Jacobian along the step's error; h rho above the pair's stability
         boundary (:func:`stiffness_probe`) at ``STIFF_STEPS`` accepted steps in a row, not
         broken by ``CALM_STEPS`` below it, means the step size is held by stability, not by
-        accuracy: an implicit method takes far fewer steps."""
+        accuracy: an implicit method takes far fewer steps. So does h rho above
+        ``EARLY_STIFF`` times the boundary at the first accepted step."""
         unit, bound, weights = stiffness_probe(self.name)
         if unit is None:
             return False
@@ -242,6 +250,9 @@ class RungeKutta(Stepper):
         df = f_new - K[unit]
         den = float(dy @ dy)
         self.h_rho = h * math.sqrt(float(df @ df) / den) if den > 0 else 0.0
+        if self.naccepted == 1 and self.h_rho > EARLY_STIFF * bound:
+            self._stiff_steps = 1
+            return True
         if self.h_rho > bound:
             self._calm_steps = 0
             self._stiff_steps += 1

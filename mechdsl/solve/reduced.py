@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .reduced_terms import TracedReduced, traced
 from .relative import Relative
 
 __all__ = ["Reduced", "pin_points", "reduce"]
@@ -67,6 +68,10 @@ LINEAR_RTOL = 1e-9
 #: the largest condition number of a joint's block Phi_R,S (rows R on the coordinates S
 #: they fix) at the start and at the probes: beyond it the rows do not fix S uniquely
 MAX_COND = 1e8
+
+
+#: what the generated terms raise outside a function's domain (the map then gives NaN or inf)
+_OUTSIDE = (ValueError, ZeroDivisionError, OverflowError)
 
 
 def _coordinate_scale(rel: Relative) -> np.ndarray:
@@ -266,6 +271,17 @@ class Reduced:
         self._value = np.asarray(value, dtype=float)
         self._ww = np.ix_(free, free)
         self._kw = np.ix_(keep, free)
+        self._terms: TracedReduced | None | bool = False  # traced on first use
+        self._pose_key: bytes | None = None
+        self._pose_at: tuple | None = None
+
+    @property
+    def traced(self) -> "TracedReduced | None":
+        """The generated M_w, f_w and their derivatives (:mod:`.reduced_terms`), or None
+        where the model is not traced."""
+        if self._terms is False:
+            self._terms = traced(self)
+        return self._terms
 
     # -- the coordinates --------------------------------------------------------------------
     def _z(self, w: np.ndarray) -> np.ndarray:
@@ -288,9 +304,25 @@ class Reduced:
         scale = np.broadcast_to(np.asarray(scale, dtype=float), (2 * self.N,))
         return np.concatenate((scale[self.free], scale[self.N + self.free]))
 
+    def _pose(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """(q, qd) and G = dq/dw at the state y = (w, wd) by the generated terms (the last
+        state's kept: a step's end is the next one's start), None where not traced."""
+        if self.traced is None:
+            return None
+        key = y.tobytes()
+        if key != self._pose_key:
+            n = self.n
+            try:
+                self._pose_at = self.traced.absolute(y[:n], y[n:2 * n])
+            except _OUTSIDE:
+                return None
+            self._pose_key = key
+        return self._pose_at
+
     def absolute(self, y: np.ndarray) -> np.ndarray:
         """(q, qd) of the state (w, wd)."""
-        return self.rel.absolute(self._full(y))
+        pose = self._pose(y)
+        return self.rel.absolute(self._full(y)) if pose is None else pose[0].copy()
 
     def relative(self, y: np.ndarray) -> np.ndarray:
         """(w, wd) of the state (q, qd) (the eliminated coordinates are the joints')."""
@@ -302,6 +334,11 @@ class Reduced:
         """The step's start, end and error in absolute coordinates (the relative
         coordinates' map; the eliminated coordinates' errors are zero)."""
         n = self.n
+        start, end = self._pose(y), self._pose(y_new)
+        if start is not None and end is not None:
+            G = end[1]
+            return start[0], end[0], np.concatenate((G @ err[:n], G @ err[n:2 * n],
+                                                     err[2 * n:]))
         full = np.concatenate((self._zd(err[:n]), self._zd(err[n:2 * n]),
                                err[2 * n:]))
         return self.rel.error_map(self._full(y), self._full(y_new), full)
@@ -321,22 +358,38 @@ class Reduced:
         return self.rel.gamma(t, self._z(w), self._zd(wd))[self.keep]
 
     def mass(self, w: np.ndarray) -> np.ndarray:
-        """(G^T M G)_ww."""
+        """M_w = (G^T M G)_ww."""
+        if self.traced is not None:
+            return self.mass_loads(0.0, w, np.zeros(self.n))[0]
         return self.rel.mass(self._z(w))[self._ww]
 
     def mass_loads(self, t: float, w: np.ndarray, wd: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
-        """(G^T M G)_ww and (G^T (Q - M c))_w, from one evaluation."""
+        """M_w = (G^T M G)_ww and f_w = (G^T (Q - M c))_w, from one evaluation: the
+        generated terms where traced (outside a function's domain, where they raise, and
+        elsewhere through the map)."""
+        if self.traced is not None:
+            try:
+                return self.traced.terms(t, w, wd)
+            except _OUTSIDE:
+                pass
         M, Q = self.rel.mass_loads(t, self._z(w), self._zd(wd))
         return M[self._ww], Q[self.free]
 
     def loads(self, t: float, w: np.ndarray, wd: np.ndarray) -> np.ndarray:
-        """(G^T (Q - M c))_w."""
+        """f_w = (G^T (Q - M c))_w."""
         return self.mass_loads(t, w, wd)[1]
 
     def load_derivatives(self, t: float, w: np.ndarray, wd: np.ndarray
                          ) -> tuple[np.ndarray, np.ndarray]:
-        """The (w, w) blocks of the relative coordinates' load derivatives."""
+        """df_w/dw and df_w/dwd: exact where traced (:mod:`.reduced_terms`), else the (w, w)
+        blocks of the relative coordinates' load derivatives (which leave out the
+        derivatives of G^T and of M c but for their velocity terms)."""
+        if self.traced is not None:
+            try:
+                return self.traced.derivatives(t, w, wd)
+            except _OUTSIDE:
+                pass
         dz, dzd = self.rel.load_derivatives(t, self._z(w), self._zd(wd))
         return dz[self._ww], dzd[self._ww]
 

@@ -431,6 +431,27 @@ class Graph:
                 adj[arg.id] = term if prev is None else self.op("add", prev, term)
         return adj
 
+    def substitute(self, roots: Sequence[Node], values: Mapping[tuple, Node]) -> list[Node]:
+        """The roots with each variable whose key is in ``values`` replaced by that node:
+        the composition f(g(z)) of the roots f(q) with q = g(z). Every operation is built
+        again on its replaced operands (folded and shared like any other), so that the
+        result is an ordinary graph of the new variables, which the derivatives and the
+        code generators read. The replaced variables may themselves be keys of the new
+        expressions (f(q) with q_k = g_k(q)): each old node is rebuilt once, by id."""
+        new: dict[int, Node] = {}
+        for n in self.subgraph(roots):
+            if n.op == "const":
+                new[n.id] = n
+            elif n.op == "var":
+                new[n.id] = self.lift(values.get(n.value, n))
+            elif n.op == "call":
+                new[n.id] = self.call(n.value[0], n.value[1], new[n.args[0].id])
+            elif n.op in UNARY or n.op in BINARY:
+                new[n.id] = self.op(n.op, *[new[a.id] for a in n.args])
+            else:
+                raise GraphError(f"cannot substitute into a {n.op!r} node")
+        return [new[r.id] for r in roots]
+
     def time_derivative(self, roots: Sequence[Node], rate: Callable[[Node], Node | None]
                         ) -> list[Node]:
         """D r for each root: the total derivative along the motion, forward over the graph.

@@ -1,0 +1,189 @@
+"""The reduced equations of motion traced and generated as one function of floats.
+
+Why. An evaluation of :class:`~mechdsl.solve.reduced.Reduced` goes through the relative
+map (q = g(z), G = dg/dz, qd = G zd and the convective term c, body by body), the compiled
+model's kernels of M and Q in absolute coordinates, and the dense products G^T M G and
+G^T (Q - M c), each a Python call or a numpy operation on a small array: about 20 us on the
+stiff pendulum, four times a hand-written right-hand side, and the implicit stepper
+evaluates it at every stage of every Newton iteration.
+
+What. With w the coordinates left (the eliminated ones constants at their values) and q =
+g(w) the absolute coordinates written out as expressions of the graph (module relative:
+r_i = r_p + A(phi_p) s_i - A(phi_i) u_i), the equations of motion in w (Haug, sec. 11.2, the
+velocity transformation qd = G wd, G = dq/dw) are
+
+    M_w wdd = f_w,     M_w = G^T M(q) G,     f_w = G^T (Q(q, qd, t) - M(q) c),
+
+with c = (d/dt G) wd the absolute accelerations at wdd = 0. G is the exact gradient of q's
+nodes, qd and c their time derivatives along (wd, wdd = 0) (:meth:`Graph.time_derivative`);
+M's and Q's nodes of the compiled model are composed with q(w) and qd(w, wd)
+(:meth:`Graph.substitute`) and the products written out on them, zeros folded away. One
+generated function of floats then gives M_w's upper triangle and f_w; the exact derivatives
+df_w/dw and df_w/dwd (reverse accumulation over f_w's graph, the same traced arithmetic)
+give the implicit stepper's Jacobian. Traced where the model is small
+(:data:`TRACE_MAX` absolute coordinates: the products grow like the cube of the bodies'
+number, the code with them) and its terms analytic enough to be traced (no member-layout
+group values); elsewhere :class:`Reduced` evaluates through the map as before.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from ..symbolic.graph import Graph, GraphError, Node
+
+__all__ = ["TRACE_MAX", "TracedReduced", "traced"]
+
+#: the most absolute coordinates (three a moving body) whose reduced equations are traced:
+#: M_w's products grow like the cube of the bodies' number, the generated code with them
+TRACE_MAX = 30
+
+
+class TracedReduced:
+    """M_w, f_w and f_w's derivatives of one reduction as generated functions of floats
+    (module docstring). ``terms(t, w, wd)`` -> (M_w (n, n), f_w (n,)) and
+    ``derivatives(t, w, wd)`` -> (df_w/dw, df_w/dwd), ``absolute(w, wd)`` -> ((q, qd), G);
+    each raises ValueError,
+    ZeroDivisionError or OverflowError outside a function's domain (the caller then
+    evaluates through the map)."""
+
+    def __init__(self, graph: Graph, mass: list[list[Node]], force: list[Node],
+                 w: list[Node], wd: list[Node], pose: list[Node], floats: Callable, p: list,
+                 F: tuple) -> None:
+        n = len(force)
+        self.n, self.N = n, len(pose) // (2 + n)
+        self._pose = pose
+        self._pose_fn: Callable | None = None
+        self._graph, self._force, self._w, self._wd = graph, force, w, wd
+        self._floats, self._p, self._F = floats, p, F
+        upper = [(a, b) for a in range(n) for b in range(a, n)]
+        self._nodes = [mass[a][b] for a, b in upper] + list(force)
+        self._upper = np.array([a * n + b for a, b in upper], dtype=np.intp)
+        self._lower = np.array([b * n + a for a, b in upper], dtype=np.intp)
+        self._fn = floats(self._nodes, "reduced_terms")
+        self._dfn: Callable | None = None
+
+    def terms(self, t: float, w: np.ndarray, wd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """M_w (n, n) and f_w (n,) at (t, w, wd)."""
+        n = self.n
+        vals = np.array(self._fn(w.tolist(), wd.tolist(), t, self._p, self._F))
+        M = np.empty(n * n)
+        k = len(self._upper)
+        M[self._upper] = vals[:k]
+        M[self._lower] = vals[:k]
+        return M.reshape(n, n), vals[k:]
+
+    def absolute(self, w: np.ndarray, wd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """q = g(w) and qd = G wd (N,) each, and G = dq/dw (N, n)."""
+        if self._pose_fn is None:
+            self._pose_fn = self._floats(self._pose, "reduced_pose")
+        N = self.N
+        vals = np.array(self._pose_fn(w.tolist(), wd.tolist(), 0.0, self._p, self._F))
+        return vals[:2 * N], vals[2 * N:].reshape(N, self.n)
+
+    def derivatives(self, t: float, w: np.ndarray, wd: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """df_w/dw and df_w/dwd (n, n) at (t, w, wd), exact; generated on first use."""
+        if self._dfn is None:
+            g, wrt = self._graph, self._w + self._wd
+            nodes = [d for root in self._force for d in g.gradient(root, wrt)]
+            self._dfn = self._floats(nodes, "reduced_derivatives")
+        n = self.n
+        vals = np.array(self._dfn(w.tolist(), wd.tolist(), t, self._p, self._F))
+        vals = vals.reshape(n, 2 * n)
+        return vals[:, :n], vals[:, n:]
+
+
+def _positions(g: Graph, parent: list[int], order: list[int], points: list,
+               z: list[Node]) -> list[Node]:
+    """q = g(z) as nodes (module relative's map), body by body, parents first: r_i = r_p +
+    A(phi_p) s_i - A(phi_i) u_i, phi_i = phi_p + rho_i (a root body's s_i and rho_i are
+    its reference point's position and its angle)."""
+    q: list[Node] = list(z)
+    for i in order:
+        p, k = parent[i], 3 * i
+        ux, uy = points[i]
+        if p < 0:
+            psi = z[k + 2]
+            dx, dy = z[k], z[k + 1]
+        else:
+            j = 3 * p
+            phi = q[j + 2]
+            c, s = g.op("cos", phi), g.op("sin", phi)
+            sx, sy = z[k], z[k + 1]
+            psi = phi + z[k + 2]
+            dx, dy = q[j] + (c * sx - s * sy), q[j + 1] + (s * sx + c * sy)
+        if ux or uy:
+            cp, sp = g.op("cos", psi), g.op("sin", psi)
+            dx, dy = dx - (cp * ux - sp * uy), dy - (sp * ux + cp * uy)
+        q[k], q[k + 1], q[k + 2] = g.lift(dx), g.lift(dy), g.lift(psi)
+    return q
+
+
+def traced(reduced, limit: int = TRACE_MAX) -> TracedReduced | None:
+    """The generated terms of ``reduced`` (a :class:`~mechdsl.solve.reduced.Reduced` on
+    the base equations of a compiled model), kept with the model's dynamics for the next
+    run of the same reduction; None where the model has more than ``limit`` absolute
+    coordinates or its terms cannot be traced."""
+    rel, base = reduced.rel, reduced.base
+    d = getattr(getattr(base, "kernels", None), "dynamics", None)
+    p, F = getattr(base, "_mq_p", None), getattr(base, "_mq_F", None)
+    if d is None or d.graph is None or p is None or rel.n > limit:
+        return None
+    key = ("reduced", tuple(rel.parent), tuple(rel.points), tuple(reduced.free.tolist()),
+           reduced._value.tobytes())
+
+    def make() -> TracedReduced | None:
+        try:
+            return _trace(d, rel, reduced.free, reduced._value, p, F)
+        except GraphError:
+            return None
+    return d.memo(key, make)
+
+
+def _trace(d, rel, free: np.ndarray, value: np.ndarray, p: list, F: tuple) -> TracedReduced:
+    """Trace M_w and f_w (module docstring) into the dynamics' graph."""
+    g: Graph = d.graph
+    N, n = rel.n, len(free)
+    w = [g.var("q", a) for a in range(n)]
+    wd = [g.var("qd", a) for a in range(n)]
+    z: list[Node] = [g.const(float(v)) for v in value]
+    for a, k in enumerate(free.tolist()):
+        z[k] = w[a]
+    q = _positions(g, rel.parent, rel.order, rel.points, z)
+    on_w = {x.id: a for a, x in enumerate(w)}
+
+    def rate(v: Node) -> Node | None:  # D w = wd, D wd = wdd = 0
+        return wd[on_w[v.id]] if v.id in on_w else None
+    qd = g.time_derivative(q, rate)
+    c = g.time_derivative(qd, rate)
+    G = [g.gradient(qk, w) for qk in q]  # (N, n)
+    values = {("q", k): q[k] for k in range(N)}
+    values.update({("qd", k): qd[k] for k in range(N)})
+    subst = g.substitute([*d.mass_nodes, *d.load_nodes], values)
+    n_mass = len(d.mass_nodes)
+    mass, Q = subst[:n_mass], subst[n_mass:]
+    MG = [[g.zero] * n for _ in range(N)]   # M G
+    Mc = [g.zero] * N                        # M c
+    for e, (r, col) in enumerate(zip(d.rows.tolist(), d.cols.tolist())):
+        m = mass[e]
+        if m is g.zero:
+            continue
+        for b in range(n):
+            MG[r][b] = g.op("add", MG[r][b], g.op("mul", m, G[col][b]))
+        Mc[r] = g.op("add", Mc[r], g.op("mul", m, c[col]))
+    Mw = [[g.zero] * n for _ in range(n)]
+    fw = [g.zero] * n
+    for r in range(N):
+        rest = g.op("sub", Q[r], Mc[r])
+        for a in range(n):
+            if G[r][a] is g.zero:
+                continue
+            fw[a] = g.op("add", fw[a], g.op("mul", G[r][a], rest))
+            for b in range(a, n):
+                Mw[a][b] = g.op("add", Mw[a][b], g.op("mul", G[r][a], MG[r][b]))
+    pose = [*q, *qd, *(x for row in G for x in row)]
+    return TracedReduced(g, Mw, fw, w, wd, pose, d.floats, p, F)
+
