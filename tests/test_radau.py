@@ -508,3 +508,35 @@ def test_andrews_at_an_atol_below_the_floor_runs_instead_of_underflowing():
     assert "(asked atol 1e-14)" in res.method
     got = np.array([res[name][-1] for name in ANDREWS_NAMES])
     assert (np.abs(got - ANDREWS_Q) / np.abs(ANDREWS_Q)).max() < 1e-7
+
+
+def test_the_small_odes_newton_operators_invert_the_iteration_matrices():
+    """For an ODE (no constraint) of a few coordinates, radau's Newton corrections come
+    from explicit inverses (_ode_operators): E(c)^-1 times E(c) = [[c I, -I], [-K, c M -
+    C]] is the identity for c = gamma / h and the complex (alpha + i beta) / h, and the
+    whole correction L r equals the transformed iteration written out: dW = -E^-1 (T^-1
+    r), dZ = T (dW_real, Re dW_complex, Im dW_complex)."""
+    from mechdsl.solve.radau import _K, _ode_operators
+
+    rng = np.random.default_rng(2)
+    n, h = 3, 0.013
+    a = rng.normal(size=(n, n))
+    M = a @ a.T + n * np.eye(n)
+    K = -1e6 * np.diag(rng.uniform(1, 2, n)) + rng.normal(size=(n, n))
+    C = rng.normal(size=(n, n))
+    Er, L = _ode_operators(h, M, C, K, True)
+    assert np.array_equal(_ode_operators(h, M, C, K, False)[0], Er)
+
+    def E(c):
+        out = np.zeros((2 * n, 2 * n), dtype=complex)
+        out[:n, :n], out[:n, n:] = c * np.eye(n), -np.eye(n)
+        out[n:, :n], out[n:, n:] = -K, c * M - C
+        return out
+    c_real, c_complex = _K["mu_real"] / h, _K["mu_complex"] / h
+    assert np.abs(Er @ E(c_real) - np.eye(2 * n)).max() < 1e-9
+    r = rng.normal(size=(3, 2 * n))
+    dWr = -np.linalg.solve(E(c_real), _K["TI_real"] @ r)
+    dWc = -np.linalg.solve(E(c_complex), _K["TI_complex"] @ r)
+    want = _K["T"] @ np.vstack((dWr.real, dWc.real, dWc.imag))
+    got = (L @ r.ravel()).reshape(3, 2 * n)
+    assert np.abs(got - want).max() < 1e-9 * np.abs(want).max()

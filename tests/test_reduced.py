@@ -204,6 +204,14 @@ joint ps: pin_slot(a.Q, b.P, axis = (1, 0))
 """}
 
 
+def _double_pendulum_text(bodies: str = "frames at the pins", k: float = 1e4) -> str:
+    """The double pendulum of :data:`DOUBLE` on a rotary spring of stiffness k."""
+    return ("gravity = (0, -9.81)\nground { }\n" + DOUBLE[bodies]
+            + f"force s2: rotary_spring(a, b, k = {k!r})\n"
+            "simulate t = 0 .. 0.5 step 0.01, rtol = 1e-8, atol = 1e-10\n"
+            "output th1 = a.phi, th2 = b.phi\n")
+
+
 @pytest.mark.parametrize("bodies", list(DOUBLE), ids=list(DOUBLE))
 def test_a_pin_between_two_moving_bodies_is_eliminated_too(bodies):
     """The double pendulum's second pin: its rows are in world axes and turn with the first
@@ -217,10 +225,7 @@ def test_a_pin_between_two_moving_bodies_is_eliminated_too(bodies):
     from scipy.integrate import solve_ivp
 
     k = 1e4
-    text = ("gravity = (0, -9.81)\nground { }\n" + DOUBLE[bodies]
-            + f"force s2: rotary_spring(a, b, k = {k!r})\n"
-            "simulate t = 0 .. 0.5 step 0.01, rtol = 1e-8, atol = 1e-10\n"
-            "output th1 = a.phi, th2 = b.phi\n")
+    text = _double_pendulum_text(bodies, k)
     res = mechdsl.loads(text, "double.mech").simulate(options=SolverOptions(method="radau"))
     assert res.ok, res.messages
     assert "radau in the joints' own coordinates (2 of 6 left" in res.method, res.method
@@ -248,3 +253,75 @@ def test_a_run_that_ends_during_the_trial_says_so():
     res = mechdsl.loads(text, "skew.mech").simulate(options=SolverOptions(method="radau"))
     assert res.ok, res.messages
     assert "the run ended before the trial's 8 steps rated them" in res.method, res.method
+
+
+@pytest.mark.parametrize("model", ["stiff_pendulum_text", "stiff_pendulum_off_centre_text",
+                                   "double"])
+def test_the_generated_terms_equal_the_map(model):
+    """The reduced equations traced and generated (mechdsl.solve.reduced_terms) against
+    the same terms through the relative map and the absolute kernels, at random states:
+    M_w and f_w, the three stages' residuals M_w a - f_w in one call, the absolute state
+    (q, qd) and G = dq/dw (its columns against central differences of q); on the
+    pendulum with its frames at the pins, at the rod's centre (pin points) and on a double
+    pendulum on a rotary spring (a pin between two moving bodies)."""
+    from mechdsl.solve.reduced import pin_points
+
+    text = _double_pendulum_text() if model == "double" else getattr(dm, model)(1e6)
+    kernels, rel, z = _relative(text)
+    points = pin_points(rel, 0.0, z)
+    if points is not None:
+        rel = Relative(rel.base, rel.parent, points)
+        y0 = np.concatenate((kernels.system.guess[0], np.zeros(rel.n)))
+        z = rel.relative(y0)[:rel.n]
+    red = reduce(rel, 0.0, z, 2.0)
+    assert red is not None and red.m == 0
+    traced = red.traced
+    assert traced is not None
+    rng = np.random.default_rng(11)
+    n = red.n
+    for _ in range(4):
+        w = z[red.free] + rng.uniform(-0.3, 0.3, n)
+        wd = rng.normal(size=n)
+        t = float(rng.uniform(0, 2))
+        M1, f1 = red.rel.mass_loads(t, red._z(w), red._zd(wd))
+        M2, f2 = traced.terms(t, w, wd)
+        assert np.abs(M2 - M1[red._ww]).max() < 1e-12 * np.abs(M1).max()
+        assert np.abs(f2 - f1[red.free]).max() < 1e-10 * (1 + np.abs(f1).max())
+        W, Wd, A = (rng.normal(size=(3, n)) for _ in range(3))
+        W += w
+        ts = [t, t + 0.1, t + 0.2]
+        want = np.array([traced.terms(ts[j], W[j], Wd[j])[0] @ A[j]
+                         - traced.terms(ts[j], W[j], Wd[j])[1] for j in range(3)])
+        got = red.stage_residuals(ts, W, Wd, A)
+        assert np.abs(got - want).max() < 1e-10 * (1 + np.abs(want).max())
+        state, G = traced.absolute(w, wd)
+        assert np.abs(state - red.rel.absolute(red._full(np.concatenate((w, wd))))).max() \
+            < 1e-12
+        for a in range(n):
+            e = np.zeros(n)
+            e[a] = 1e-6
+            fd = (traced.state(w + e, wd)[:red.N] - traced.state(w - e, wd)[:red.N]) / 2e-6
+            assert np.abs(G[:, a] - fd).max() < 1e-8
+
+
+def test_a_run_in_the_joints_own_coordinates_is_on_the_constraints_unprojected():
+    """In the joints' own coordinates with no equation left, every state satisfies the
+    constraints identically: the outputs are reported as integrated (rule 6's
+    exact_outputs), and the largest constraint residual over the run, measured at every
+    output, is round-off."""
+    res = mechdsl.loads(dm.stiff_pendulum_text(1e8)).simulate()
+    assert res.ok and "joints' own coordinates" in res.method
+    assert res.residual < 1e-12
+
+
+def test_the_condition_of_a_joints_block_in_closed_form():
+    """The 2 x 2 blocks' condition number in closed form equals numpy's SVD's; a singular
+    block's is infinite."""
+    from mechdsl.solve.reduced import _cond
+
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        a = rng.normal(size=(2, 2)) * 10.0 ** rng.uniform(-3, 3)
+        assert _cond(a) == pytest.approx(np.linalg.cond(a), rel=1e-10)
+    assert _cond(np.array([[1.0, 2.0], [2.0, 4.0]])) == np.inf
+    assert _cond(np.array([[0.0]])) == np.inf and _cond(np.array([[-3.0]])) == 1.0

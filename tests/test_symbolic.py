@@ -360,3 +360,38 @@ def test_branching_and_untraceable_operations_raise():
         node + Graph().var("q", 0)  # a node of another graph
     with pytest.raises(GraphError):
         g.gradient(x % y, [x])  # mod by a variable has no derivative
+
+
+def test_substitute_composes_with_a_map_of_the_same_variables():
+    """f(q) with q = g(q') written in the same variables (q0 <- q0 + sin(q1), q1 <- q0 q1),
+    substituted: the composed graph's kernel equals f evaluated at g by numpy, its
+    gradient equals the chain rule's (finite differences), and a registered function
+    (an opaque call) is rebuilt on its new argument."""
+    from mechdsl.symbolic.codegen import scalar_kernel
+
+    g = Graph()
+    q0, q1, qd0 = g.var("q", 0), g.var("q", 1), g.var("qd", 0)
+    idx = g.function(np.tanh, lambda x: 1 - np.tanh(x) ** 2,
+                     lambda x: -2 * np.tanh(x) * (1 - np.tanh(x) ** 2))
+    f = [np.sin(q0) * q1 + qd0 * q0 ** 2, g.call(idx, 0, q1) - np.sqrt(q0 * q0 + 1.0)]
+    values = {("q", 0): q0 + np.sin(q1), ("q", 1): q0 * q1}
+    composed = g.substitute(f, values)
+    fn = scalar_kernel(g, composed, "composed").fn
+    grad = scalar_kernel(g, [d for r in composed for d in g.gradient(r, [q0, q1])],
+                         "grad").fn
+
+    def direct(z0: float, z1: float, v: float) -> np.ndarray:
+        a, b = z0 + math.sin(z1), z0 * z1
+        return np.array([math.sin(a) * b + v * a * a, math.tanh(b) - math.sqrt(a * a + 1)])
+
+    F = ((math.tanh, lambda x: 1 - math.tanh(x) ** 2, None),)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        z0, z1, v = rng.uniform(-1.5, 1.5, 3)
+        assert np.allclose(fn([z0, z1], [v], 0.0, [], F), direct(z0, z1, v), rtol=1e-14,
+                           atol=1e-14)
+        e = 1e-6
+        fd = np.column_stack([(direct(z0 + e, z1, v) - direct(z0 - e, z1, v)) / (2 * e),
+                              (direct(z0, z1 + e, v) - direct(z0, z1 - e, v)) / (2 * e)])
+        got = np.array(grad([z0, z1], [v], 0.0, [], F)).reshape(2, 2)
+        assert np.abs(got - fd).max() < 1e-8

@@ -195,7 +195,9 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
     def emit_inside(k: int, tt: float, yy: np.ndarray) -> None:
         """An output inside a step, from its dense output (integrated again from the
         step's start where its projection moves it far: :func:`_moved_far`)."""
-        if raw_outputs or project is None:
+        if s.exact_outputs:  # (on the constraints by construction: rule 6)
+            emit(k, tt, yy)
+        elif raw_outputs or project is None:
             emit(k, tt, yy, project is not None)
         else:
             projecting[0] = tt  # (where a failure of the projection is)
@@ -355,7 +357,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                     emit_inside(k_next, te, dense(te))
                     k_next += 1
             raw = False
-            if project is not None and stepper.constrained:
+            if project is not None and stepper.constrained and not s.exact_outputs:
                 # rule 6: the stepper keeps the constraints; only what is reported is
                 # projected (velocities onto Phi_q qd = nu to the solver's tolerance)
                 if at_output and raw_outputs:

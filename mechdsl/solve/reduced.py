@@ -74,6 +74,21 @@ MAX_COND = 1e8
 _OUTSIDE = (ValueError, ZeroDivisionError, OverflowError)
 
 
+def _cond(a: np.ndarray) -> float:
+    """The 2-norm condition number of a square block: a joint's are 1 x 1 or 2 x 2, in
+    closed form (sigma_max^2 + sigma_min^2 = |a|_F^2, sigma_max sigma_min = |det a|: an
+    SVD per block cost half of the elimination's checks), larger ones by numpy's SVD."""
+    if a.shape == (1, 1):
+        return 1.0 if a[0, 0] != 0 else np.inf
+    if a.shape == (2, 2):
+        det = abs(float(a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]))
+        fro = float(np.vdot(a, a))
+        if not det > 0 or not np.isfinite(fro):
+            return np.inf
+        return (fro + np.sqrt(max(fro * fro - 4 * det * det, 0.0))) / (2 * det)
+    return float(np.linalg.cond(a))
+
+
 def _coordinate_scale(rel: Relative) -> np.ndarray:
     """Each relative coordinate's scale for the probes: the base equations' column scale
     (the model's length for x and y, 1 for phi; the same kinds in z), else 1."""
@@ -147,7 +162,7 @@ def pin_points(rel: Relative, t: float, z: np.ndarray) -> np.ndarray | None:
                 set(_touched(block, phi[R], scale).tolist()) - {k, k + 1, k + 2}:
             continue
         Js, Jr = block[:, k:k + 2], block[:, k + 2]
-        if np.linalg.cond(Js) > MAX_COND:
+        if _cond(Js) > MAX_COND:
             continue
         x = np.linalg.solve(Js, Jr)  # A(rho) perp(u)
         rho = float(z[k + 2])
@@ -193,7 +208,7 @@ def reduce(rel: Relative, t: float, z: np.ndarray, span: float) -> "Reduced | No
             block = jac0[R]
             S = [int(k) for k in _touched(block, phi0[R], scale)]
             if len(S) == len(R) and not taken & set(S) and \
-                    np.linalg.cond(block[:, S]) < MAX_COND:
+                    _cond(block[:, S]) < MAX_COND:
                 candidates.append((R, S, float(np.abs(block[:, S]).max())))
                 taken.update(S)
     if not candidates:
@@ -251,7 +266,7 @@ def _failing(rel: Relative, candidates: list, value: np.ndarray, t: float, span:
                 continue
             residual = np.abs(phi[R])
             if not np.all(residual <= LINEAR_RTOL * size * scale.max()) or (
-                    S and np.linalg.cond(jac[np.ix_(R, S)]) > MAX_COND):
+                    S and _cond(jac[np.ix_(R, S)]) > MAX_COND):
                 failed.append(c)
     return failed
 
@@ -272,6 +287,7 @@ class Reduced:
         self._ww = np.ix_(free, free)
         self._kw = np.ix_(keep, free)
         self._terms: TracedReduced | None | bool = False  # traced on first use
+        self._fast = None  # its terms(t, w, wd), once traced
         self._pose_key: bytes | None = None
         self._pose_at: tuple | None = None
 
@@ -281,6 +297,8 @@ class Reduced:
         where the model is not traced."""
         if self._terms is False:
             self._terms = traced(self)
+            if self._terms is not None:
+                self._fast = self._terms.terms
         return self._terms
 
     # -- the coordinates --------------------------------------------------------------------
@@ -321,8 +339,15 @@ class Reduced:
 
     def absolute(self, y: np.ndarray) -> np.ndarray:
         """(q, qd) of the state (w, wd)."""
-        pose = self._pose(y)
-        return self.rel.absolute(self._full(y)) if pose is None else pose[0].copy()
+        if self.traced is not None:
+            if self._pose_key is not None and y.tobytes() == self._pose_key:
+                return self._pose_at[0].copy()  # (a step's end, mapped for its error)
+            n = self.n
+            try:
+                return self.traced.state(y[:n], y[n:2 * n])
+            except _OUTSIDE:
+                pass
+        return self.rel.absolute(self._full(y))
 
     def relative(self, y: np.ndarray) -> np.ndarray:
         """(w, wd) of the state (q, qd) (the eliminated coordinates are the joints')."""
@@ -368,13 +393,28 @@ class Reduced:
         """M_w = (G^T M G)_ww and f_w = (G^T (Q - M c))_w, from one evaluation: the
         generated terms where traced (outside a function's domain, where they raise, and
         elsewhere through the map)."""
-        if self.traced is not None:
+        if self._fast is not None or self.traced is not None:
             try:
-                return self.traced.terms(t, w, wd)
+                return self._fast(t, w, wd)
             except _OUTSIDE:
                 pass
         M, Q = self.rel.mass_loads(t, self._z(w), self._zd(wd))
         return M[self._ww], Q[self.free]
+
+    def stage_residuals(self, ts: list, W: np.ndarray, Wd: np.ndarray, A: np.ndarray
+                        ) -> np.ndarray:
+        """M_w(W_j) A_j - f_w(t_j, W_j, Wd_j) for the rows j (an implicit stepper's stages),
+        by the generated terms where traced (:mod:`.reduced_terms`), else stage by stage."""
+        if self.traced is not None:
+            try:
+                return self.traced.stage_residuals(ts, W, Wd, A)
+            except _OUTSIDE:
+                pass
+        out = np.empty(A.shape)
+        for j, t in enumerate(ts):
+            M, f = self.mass_loads(t, W[j], Wd[j])
+            out[j] = M @ A[j] - f
+        return out
 
     def loads(self, t: float, w: np.ndarray, wd: np.ndarray) -> np.ndarray:
         """f_w = (G^T (Q - M c))_w."""

@@ -44,8 +44,8 @@ TRACE_MAX = 30
 class TracedReduced:
     """M_w, f_w and f_w's derivatives of one reduction as generated functions of floats
     (module docstring). ``terms(t, w, wd)`` -> (M_w (n, n), f_w (n,)) and
-    ``derivatives(t, w, wd)`` -> (df_w/dw, df_w/dwd), ``absolute(w, wd)`` -> ((q, qd), G);
-    each raises ValueError,
+    ``derivatives(t, w, wd)`` -> (df_w/dw, df_w/dwd), ``absolute(w, wd)`` -> ((q, qd), G)
+    ``state(w, wd)`` -> (q, qd) and ``stage_residuals(ts, W, Wd, A)``; each raises ValueError,
     ZeroDivisionError or OverflowError outside a function's domain (the caller then
     evaluates through the map)."""
 
@@ -56,32 +56,69 @@ class TracedReduced:
         self.n, self.N = n, len(pose) // (2 + n)
         self._pose = pose
         self._pose_fn: Callable | None = None
+        self._state_fn: Callable | None = None
         self._graph, self._force, self._w, self._wd = graph, force, w, wd
         self._floats, self._p, self._F = floats, p, F
-        upper = [(a, b) for a in range(n) for b in range(a, n)]
-        self._nodes = [mass[a][b] for a, b in upper] + list(force)
-        self._upper = np.array([a * n + b for a, b in upper], dtype=np.intp)
-        self._lower = np.array([b * n + a for a, b in upper], dtype=np.intp)
-        self._fn = floats(self._nodes, "reduced_terms")
+        # M_w's entries both triangles (the upper's nodes: one name each in the code),
+        # then f_w: one array of the kernel's list, two views
+        nodes = [mass[min(a, b)][max(a, b)] for a in range(n) for b in range(n)]
+        self._fn = floats(nodes + list(force), "reduced_terms")
+        self._mass = [nodes[a * n:(a + 1) * n] for a in range(n)]
+        self._stages_fn: Callable | None = None
         self._dfn: Callable | None = None
 
     def terms(self, t: float, w: np.ndarray, wd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """M_w (n, n) and f_w (n,) at (t, w, wd)."""
         n = self.n
         vals = np.array(self._fn(w.tolist(), wd.tolist(), t, self._p, self._F))
-        M = np.empty(n * n)
-        k = len(self._upper)
-        M[self._upper] = vals[:k]
-        M[self._lower] = vals[:k]
-        return M.reshape(n, n), vals[k:]
+        return vals[:n * n].reshape(n, n), vals[n * n:]
 
     def absolute(self, w: np.ndarray, wd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """q = g(w) and qd = G wd (N,) each, and G = dq/dw (N, n)."""
+        """(q, qd) = (g(w), G wd) (2N,) and G = dq/dw (N, n)."""
         if self._pose_fn is None:
             self._pose_fn = self._floats(self._pose, "reduced_pose")
         N = self.N
         vals = np.array(self._pose_fn(w.tolist(), wd.tolist(), 0.0, self._p, self._F))
         return vals[:2 * N], vals[2 * N:].reshape(N, self.n)
+
+    def state(self, w: np.ndarray, wd: np.ndarray) -> np.ndarray:
+        """(q, qd) = (g(w), G wd) (2N,) alone (an output's state: no G)."""
+        if self._state_fn is None:
+            self._state_fn = self._floats(self._pose[:2 * self.N], "reduced_state")
+        return np.array(self._state_fn(w.tolist(), wd.tolist(), 0.0, self._p, self._F))
+
+    def stage_residuals(self, ts: list, W: np.ndarray, Wd: np.ndarray, A: np.ndarray
+                        ) -> np.ndarray:
+        """M_w(W_j) A_j - f_w(t_j, W_j, Wd_j) for the stages j (rows of W, Wd, A; ``ts``
+        their instants): the implicit stepper's residuals of the equations of motion, all
+        stages in one generated function (generated on first use)."""
+        if self._stages_fn is None:
+            self._stages_fn = self._floats(self._stage_nodes(len(ts)), "reduced_stages")
+        k = len(ts)
+        vals = self._stages_fn(W.ravel().tolist(), Wd.ravel().tolist(), 0.0,
+                               self._p + list(ts) + A.ravel().tolist(), self._F)
+        return np.array(vals).reshape(k, self.n)
+
+    def _stage_nodes(self, k: int) -> list[Node]:
+        """The nodes of :meth:`stage_residuals` for k stages: stage j's coordinates are the
+        variables q[j n + a], qd[j n + a], its instant p[P + j] and its accelerations
+        p[P + k + j n + b] (P the model's parameters)."""
+        g, n, P = self._graph, self.n, len(self._p)
+        roots = [x for row in self._mass for x in row] + list(self._force)
+        out = []
+        for j in range(k):
+            values = {("q", a): g.var("q", j * n + a) for a in range(n)}
+            values.update({("qd", a): g.var("qd", j * n + a) for a in range(n)})
+            values[("t",)] = g.var("p", P + j)
+            new = g.substitute(roots, values)
+            M, f = new[:n * n], new[n * n:]
+            for a in range(n):
+                acc = g.zero
+                for b in range(n):
+                    acc = g.op("add", acc, g.op("mul", M[a * n + b],
+                                                g.var("p", P + k + j * n + b)))
+                out.append(g.op("sub", acc, f[a]))
+        return out
 
     def derivatives(self, t: float, w: np.ndarray, wd: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:

@@ -595,6 +595,9 @@ class Radau(Stepper):
         return y if self.relative is None else self.relative.absolute(y)
 
     # what the driver reads and sets on the stepper it was given
+    exact_outputs = property(lambda self: getattr(self.relative, "m", None) == 0,
+                             doc="rule 6: in the joints' own coordinates, with no "
+                                 "equation left")
     t = property(lambda self: self.inner.t)
     t_old = property(lambda self: self.inner.t_old)
     y = property(lambda self: self._absolute(self.inner.y))

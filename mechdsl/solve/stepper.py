@@ -46,7 +46,11 @@ The rules a stepper keeps:
    tolerance, velocities within its error estimate). The driver then projects only the
    outputs it reports and never the state the stepper continues from, so that the stepper
    keeps its extrapolation, its multipliers and its Jacobian across steps (a projection and
-   restart after every step cost Radau on A02 a third of its Newton iterations).
+   restart after every step cost Radau on A02 a third of its Newton iterations). A
+   stepper whose ``exact_outputs`` is true (an instance attribute, which may change
+   between steps) integrates, for now, in coordinates in which the constraints hold
+   identically (the joints' own: :mod:`mechdsl.solve.reduced`): its states satisfy them
+   to round-off, and the driver reports them unprojected.
 7. **Stiffness**: a stepper whose ``detect_stiffness`` the driver sets may return
    :data:`STIFF` from ``step`` after an accepted step (``t``, ``y`` advanced): the driver
    then tries the implicit stepper it was given (``stiff``) from that state and goes on
@@ -143,6 +147,8 @@ class Stepper:
     summary: ClassVar[str] = ""
     auto: ClassVar[bool] = False
     constrained: ClassVar[bool] = False
+    #: its states satisfy the constraints identically, not to a tolerance (rule 6)
+    exact_outputs: bool = False
     #: an explicit pair whose error estimate stays reliable where the right-hand side is
     #: smooth only to a tolerance (the augmented Lagrangian's accelerations: an iteration
     #: stopped at round-off, and near a singular position the penalty's blend): the
