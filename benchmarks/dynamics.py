@@ -81,7 +81,8 @@ def _have_exudyn() -> bool:
 def _worker() -> None:
     """Read {"text", "repeat", "budget", "outputs"} as JSON on stdin; time
     ``mechdsl.loads(text).simulate()`` up to ``repeat`` times (fewer once ``budget`` seconds
-    are spent or a run fails); print {"times", "status", "ok", "messages", "t_last",
+    are spent or a run fails), and with "loaded" also ``simulate()`` of one loaded mechanism
+    ``repeat`` times ("loaded_times"); print {"times", "status", "ok", "messages", "t_last",
     "last": {output: value at the last instant}} as JSON. An exception is recorded as the
     status "exception" with its type and message."""
     spec = json.load(sys.stdin)
@@ -98,6 +99,29 @@ def _worker() -> None:
             out["times"].append(time.perf_counter() - start)
             if not res.ok or sum(out["times"]) > spec["budget"]:
                 break
+        if spec.get("loaded") and res is not None and res.ok:
+            # simulate() again on one loaded mechanism (the model parsed and compiled
+            # once, as an API user or a study runs it): what the solve alone costs; with
+            # "beside" = k, interleaved with scipy's Radau on the stiff pendulum's minimal
+            # ODE at its own steps and at the model's 201 output instants (one process,
+            # turn by turn: a shared machine's speed drifts by two within minutes)
+            model = mechdsl.loads(spec["text"], "bench.mech")
+            model.simulate(options=options)
+            k = spec.get("beside")
+            every = np.linspace(0.0, 2.0, 201)
+            runs = {"loaded_times": lambda: model.simulate(options=options)}
+            if k is not None:
+                runs["radau_times"] = lambda: dm.stiff_pendulum_solve(k, 2.0, "Radau", 1e-6,
+                                                                      1e-8)
+                runs["radau_201_times"] = lambda: dm.stiff_pendulum_solve(
+                    k, 2.0, "Radau", 1e-6, 1e-8, t_eval=every)
+            for name in runs:
+                out[name] = []
+            for _ in range(spec["repeat"]):
+                for name, run in runs.items():
+                    start = time.perf_counter()
+                    run()
+                    out[name].append(time.perf_counter() - start)
         t = np.asarray(res["t"], dtype=float)
         out.update(status=str(res.status), ok=bool(res.ok), method=str(res.method),
                    messages=[str(m) for m in res.messages],
@@ -110,14 +134,17 @@ def _worker() -> None:
 
 
 def mechdsl_api(text: str, outputs: tuple[str, ...], repeat: int = 3, budget: float = 30.0,
-                timeout: float = 300.0, method: str | None = None) -> dict[str, Any]:
+                timeout: float = 300.0, method: str | None = None, loaded: bool = False,
+                beside: float | None = None) -> dict[str, Any]:
     """Time ``mechdsl.loads(text).simulate()`` in a worker process (module docstring).
 
     Returns the worker's record with ``time`` (the median of ``times``, None if no run
-    finished); a worker that exceeds ``timeout`` seconds is killed and recorded with the
+    finished) and, ``loaded``, ``loaded_time`` (the median of ``simulate()`` of a loaded
+    mechanism; with ``beside`` = k, interleaved with scipy's Radau on the stiff pendulum,
+    ``radau_time`` and ``radau_201_time``); a worker that exceeds ``timeout`` seconds is killed and recorded with the
     status "timeout", one that dies with the status "crashed" and its standard error's end."""
     spec = json.dumps({"text": text, "repeat": repeat, "budget": budget, "outputs": outputs,
-                       "method": method})
+                       "method": method, "loaded": loaded, "beside": beside})
     env = dict(os.environ, OMP_NUM_THREADS=os.environ.get("OMP_NUM_THREADS", "1"))
     try:
         proc = subprocess.run([sys.executable, __file__, "--worker"], input=spec, text=True,
@@ -133,6 +160,9 @@ def mechdsl_api(text: str, outputs: tuple[str, ...], repeat: int = 3, budget: fl
                 "t_last": None, "last": {}}
     rec["time"] = statistics.median(rec["times"]) if rec["times"] and rec["ok"] else (
         rec["times"][0] if rec["times"] else None)
+    for name in ("loaded", "radau", "radau_201"):
+        rec[f"{name}_time"] = statistics.median(rec[f"{name}_times"]) \
+            if rec.get(f"{name}_times") else None
     return rec
 
 
@@ -442,12 +472,13 @@ def exudyn_stiff(k: float, h: float, t1: float = 2.0) -> dict[str, Any]:
 
 
 def scipy_stiff(k: float, method: str, rtol: float = 1e-6, atol: float = 1e-8,
-                repeat: int = 3) -> dict[str, Any]:
-    """scipy's solve_ivp on the minimal ODE (exact Jacobian): median time, theta(2)."""
+                repeat: int = 3, t_eval=None) -> dict[str, Any]:
+    """scipy's solve_ivp on the minimal ODE (exact Jacobian): median time, theta(2);
+    ``t_eval``: the solution also at these instants (its dense output there)."""
     times, sol = [], None
     for _ in range(repeat):
         start = time.perf_counter()
-        sol = dm.stiff_pendulum_solve(k, 2.0, method, rtol, atol)
+        sol = dm.stiff_pendulum_solve(k, 2.0, method, rtol, atol, t_eval=t_eval)
         times.append(time.perf_counter() - start)
         if times[-1] > 20:
             break
@@ -460,24 +491,33 @@ def bench_stiff(rep, quick: bool, out: Path) -> None:
     ks = (1e2, 1e4, 1e6, 1e8) if quick else (1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10)
     timeout = 150 if quick else 600
     have_exu = _have_exudyn()
-    rows, curves = [], {"mechdsl": [], "scipy Radau": [], "scipy BDF": [],
+    rows, curves = [], {"mechdsl": [], "mechdsl simulate()": [], "scipy Radau": [],
+                        "scipy Radau, 201 outputs": [], "scipy BDF": [],
                         "Exudyn h = 1e-3": [], "Exudyn h = 2e-4": []}
     first_process = None
     for k in ks:
         theta_ref = float(dm.stiff_pendulum_oracle(k)[0])
         text = dm.stiff_pendulum_text(k, rtol=1e-6, atol=1e-8)
-        rec = mechdsl_api(text, ("theta", "s"), repeat=3, budget=30, timeout=timeout)
+        rec = mechdsl_api(text, ("theta", "s"), repeat=3 if quick else 11, budget=30,
+                          timeout=timeout, loaded=True, beside=k)
         if first_process is None:
             first_process = mechdsl_process(text, timeout=timeout)
         cells = [f"{k:.0e}"]
         err = abs(rec["last"]["theta"] - theta_ref) if rec["ok"] else None
-        cells += [_fmt_t(rec["time"]), _fmt_e(err)]
+        cells += [_fmt_t(rec["time"]), _fmt_t(rec["loaded_time"]), _fmt_e(err)]
         if rec["ok"]:
             curves["mechdsl"].append((k, rec["time"]))
+            curves["mechdsl simulate()"].append((k, rec["loaded_time"]))
         for method in ("Radau", "BDF"):
-            sp = scipy_stiff(k, method, repeat=1 if quick else 3)
+            sp = scipy_stiff(k, method, repeat=1)  # (its error; Radau's time interleaved)
+            if method == "Radau" and rec.get("radau_time") is not None:
+                sp["time"] = rec["radau_time"]
             cells += [_fmt_t(sp["time"]), _fmt_e(abs(sp["theta"] - theta_ref))]
             curves[f"scipy {method}"].append((k, sp["time"]))
+            if method == "Radau":
+                cells.append(_fmt_t(rec.get("radau_201_time")))
+                if rec.get("radau_201_time") is not None:
+                    curves["scipy Radau, 201 outputs"].append((k, rec["radau_201_time"]))
         for h in (1e-3, 2e-4):
             if not have_exu:
                 cells += ["-", "-"]
@@ -491,11 +531,15 @@ def bench_stiff(rep, quick: bool, out: Path) -> None:
         cells += [_integrator(rec), _status(rec)]
         rows.append(cells)
     rep.table("Stiff pendulum, 2 s: time and error of theta(2) [rad] (mechdsl rtol 1e-6 atol "
-              "1e-8: loads + simulate, median, the integrator the automatic choice took; "
-              "scipy Radau/BDF rtol 1e-6 atol 1e-8 on the minimal ODE, exact Jacobian; "
-              "Exudyn gen.-alpha at fixed steps: build + solve)",
-              ["k", "mechdsl", "error", "Radau", "error", "BDF", "error", "Exudyn 1e-3",
-               "error", "Exudyn 2e-4", "error", "mechdsl integrator", "mechdsl status"], rows)
+              "1e-8, medians: loads + simulate (parse, compile, solve, 201 outputs with "
+              "accelerations and reactions), and simulate() of the loaded mechanism "
+              "interleaved, in the same process, with scipy's Radau (rtol 1e-6 atol 1e-8 on "
+              "the minimal ODE written by hand, exact Jacobian) at its own steps and at the "
+              "model's 201 output instants; the integrator the automatic choice took; "
+              "scipy BDF alike, once; Exudyn gen.-alpha at fixed steps: build + solve)",
+              ["k", "mechdsl", "simulate()", "error", "Radau", "error", "Radau 201 out",
+               "BDF", "error", "Exudyn 1e-3", "error", "Exudyn 2e-4", "error",
+               "mechdsl integrator", "mechdsl status"], rows)
     if first_process:
         rep.text(f"mechdsl run (whole process), stiff pendulum k = {ks[0]:g}: "
                  f"{_fmt_t(first_process['time'])}, exit {first_process['exit']} "

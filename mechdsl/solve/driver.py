@@ -447,7 +447,8 @@ class _Watch:
             first = in_row == 1 and s.naccepted == 1
             held = (f"{s.name}'s step held by stability: h rho = "
                     f"{getattr(s, 'h_rho', float('nan')):.3g} " +
-                    ("at its first step" if first else f"at {in_row} steps in a row"))
+                    ("for the first step it tried" if first else
+                     f"at {in_row} steps in a row"))
             # (after the first step alone, against that step and the plain ratio: the
             # first step is Hairer's guess, not a step that stability is seen to hold)
             why, spent, kept = _trial(self.stiff, t, y, self.t_end,

@@ -78,11 +78,13 @@ class Pair:
 #: make a model stiff, and steps below it that reset the count
 STIFF_STEPS, CALM_STEPS = 15, 6
 
-#: A first accepted step whose h rho is this many times the stability boundary proves the
-#: model stiff at once: its first step, Hairer's guess from the accuracy the motion asks
-#: for, is far beyond what stability allows (the stiff pendulum at k = 1e8: h rho = 22 at
-#: the first step, 8.3 times vern9's boundary, and 15 more steps to the report in a row;
-#: at k = 1e4 5e-4). The driver's trial still decides (module driver)
+#: A first step whose h rho is this many times the stability boundary proves the model
+#: stiff at once: Hairer's first step, chosen for the accuracy the motion asks for, is far
+#: beyond what stability allows (h the step first tried, before any rejection; rho
+#: estimated on the first accepted one). The stiff pendulum (h = 5.2e-4 s first tried):
+#: h rho = 22 at k = 1e8 (8.3 times vern9's boundary; 15 more steps to the report in a
+#: row), 32 at 1e9, 17 at 1e10 (after rejections that cut the step to the boundary), 4.3
+#: at 1e7, 5e-4 at 1e4. The driver's trial still decides (module driver)
 EARLY_STIFF = 4.0
 
 
@@ -150,6 +152,7 @@ class RungeKutta(Stepper):
         self.h = (first_step if first_step is not None else
                   _first_step(self._eval, self.t, self.y, self.f, rtol, self.atol_v,
                               self.t_bound - self.t, -pair.exponent))
+        self._h_first = self.h  # the first step tried (EARLY_STIFF)
         self._sc: np.ndarray | None = None  # the last step's error scale
         self._h_step = 0.0
         self._y_end = self.y  # the last step's end as stepped (the interpolant's)
@@ -241,7 +244,8 @@ class RungeKutta(Stepper):
         boundary (:func:`stiffness_probe`) at ``STIFF_STEPS`` accepted steps in a row, not
         broken by ``CALM_STEPS`` below it, means the step size is held by stability, not by
         accuracy: an implicit method takes far fewer steps. So does h rho above
-        ``EARLY_STIFF`` times the boundary at the first accepted step."""
+        ``EARLY_STIFF`` times the boundary for the first step tried, rho from the first
+        accepted one."""
         unit, bound, weights = stiffness_probe(self.name)
         if unit is None:
             return False
@@ -250,7 +254,8 @@ class RungeKutta(Stepper):
         df = f_new - K[unit]
         den = float(dy @ dy)
         self.h_rho = h * math.sqrt(float(df @ df) / den) if den > 0 else 0.0
-        if self.naccepted == 1 and self.h_rho > EARLY_STIFF * bound:
+        if self.naccepted == 1 and self.h_rho * self._h_first > EARLY_STIFF * bound * h:
+            self.h_rho *= self._h_first / h  # (reported for the step first tried)
             self._stiff_steps = 1
             return True
         if self.h_rho > bound:

@@ -514,7 +514,7 @@ class RadauStepper(Stepper):
         error of equations in coordinates of their own is measured in the model's.)"""
         n = sc.size // 2
         s = np.concatenate((x[:n] / sc[:n], h * x[n:2 * n] / sc[n:]))
-        return float(np.sqrt(np.mean(np.abs(s) ** 2)))
+        return math.sqrt(float(np.vdot(s, s).real) / s.size)
 
     def _error_norm(self, y: np.ndarray, y_new: np.ndarray, err: np.ndarray, h: float
                     ) -> float:
@@ -735,7 +735,10 @@ class RadauStepper(Stepper):
             else:  # extrapolate the last step's collocation polynomial (Hairer)
                 x = _ONE4.copy()  # (the last: the previous step's end, this one's start)
                 x[:3] = (t + h * _K["c"] - self.t_old) / self._h_prev
-                at = np.column_stack((x, x * x, x * x * x)) @ (_K["P"].T @ self._Z)
+                powers = np.empty((4, 3))
+                powers[:, 0], powers[:, 1] = x, x * x
+                powers[:, 2] = powers[:, 1] * x  # (as x * x * x: the same rounding)
+                at = powers @ (_K["P"].T @ self._Z)
                 Z0 = at[:3] - at[3]
             at_guess = None
             try:
@@ -814,11 +817,12 @@ class RadauStepper(Stepper):
         # Phi and Phi_q at the step's end, once: the multipliers' range parts (the stages'
         # and the step's start's, in one solve) and F there
         phi_jac = self.equations.phi_jac(t + h, y_new[:n]) if self.m else None
-        ranged = self._range_part(t + h, y_new, np.column_stack((Z[:, 2 * n:].T, self.lam)),
-                                  phi_jac)
-        Z[:, 2 * n:] = ranged[:, :3].T
+        if self.m:  # (an ODE has no multiplier)
+            ranged = self._range_part(t + h, y_new,
+                                      np.column_stack((Z[:, 2 * n:].T, self.lam)), phi_jac)
+            Z[:, 2 * n:] = ranged[:, :3].T
+            self.lam = ranged[:, 3] + Z[2, 2 * n:]
         self.t, self.y = t + h, y_new
-        self.lam = ranged[:, 3] + Z[2, 2 * n:]
         self._Z, self._h_prev, self._err_prev = Z, h, err_norm
         self.h_abs = h * factor
         self.naccepted += 1
