@@ -292,7 +292,7 @@ def test_the_generated_terms_equal_the_map(model):
         ts = [t, t + 0.1, t + 0.2]
         want = np.array([traced.terms(ts[j], W[j], Wd[j])[0] @ A[j]
                          - traced.terms(ts[j], W[j], Wd[j])[1] for j in range(3)])
-        got = red.stage_residuals(ts, W, Wd, A)
+        got = np.reshape(red.stage_residuals(ts, np.hstack((W, Wd)), A), (3, n))
         assert np.abs(got - want).max() < 1e-10 * (1 + np.abs(want).max())
         state, G = traced.absolute(w, wd)
         assert np.abs(state - red.rel.absolute(red._full(np.concatenate((w, wd))))).max() \

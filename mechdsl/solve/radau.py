@@ -355,8 +355,8 @@ class RadauStepper(Stepper):
             # M at the step's start, not the Jacobian's (kept over many steps): where M
             # varies with q (a body's frame off its centre of mass, relative coordinates)
             # the error estimate with an older M rejected a step in four (module relative)
-            self._M0, load = self._mass_loads(t, q, v)
-            self._M0 = _mat(self._M0)
+            M0, load = self._mass_loads(t, q, v)
+            self._M0 = M0 if type(M0) is np.ndarray and M0.ndim == 2 else _mat(M0)
         else:
             load = eq.loads(t, q, v)
         if not self.m:  # an ODE (module reduced): no constraint force, no Phi
@@ -512,9 +512,10 @@ class RadauStepper(Stepper):
         """The rms norm of the (q, v) parts of x scaled by sc, v's multiplied by h (the
         index-3 scaling); lambda excluded. (Of the coordinates sc is given for: the
         error of equations in coordinates of their own is measured in the model's.)"""
-        n = sc.size // 2
-        s = np.concatenate((x[:n] / sc[:n], h * x[n:2 * n] / sc[n:]))
-        return math.sqrt(float(np.vdot(s, s).real) / s.size)
+        size = sc.size
+        s = x[:size] / sc
+        s[size // 2:] *= h
+        return math.sqrt(float(np.vdot(s, s).real) / size)
 
     def _error_norm(self, y: np.ndarray, y_new: np.ndarray, err: np.ndarray, h: float
                     ) -> float:
@@ -693,7 +694,7 @@ class RadauStepper(Stepper):
             Y = y0 + Z
             r[:, :n] = D[:, :n] - Y[:, n:]
             if stages is not None:  # the three stages in one call (module reduced_terms)
-                r[:, n:] = stages(tj, Y[:, :n], Y[:, n:], D[:, n:])
+                r[:, n:].flat = stages(tj, Y, D[:, n:])
             else:
                 for j in range(3):
                     M, Q = mass_loads(tj[j], Y[j, :n], Y[j, n:])

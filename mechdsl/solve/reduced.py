@@ -138,10 +138,22 @@ def pin_points(rel: Relative, t: float, z: np.ndarray) -> np.ndarray | None:
     child's point u reads Phi = A(phi_p) (v - s_i - A(rho_i) u) (to a sign), so that
     Phi_s^-1 Phi_rho = A(rho_i) perp(u) and u = perp^-1(A(rho_i)^T Phi_s^-1 Phi_rho). Any
     point is a valid reference (the map stays one to one); :func:`reduce` checks what the
-    joint fixes. None where no body gets a point off its origin."""
-    system = getattr(getattr(rel.base, "kernels", None), "system", None)
+    joint fixes. None where no body gets a point off its origin. Kept with the compiled
+    model for the same forest and state (as :func:`reduce`'s choice)."""
+    kernels = getattr(rel.base, "kernels", None)
+    system = getattr(kernels, "system", None)
     if system is None:
         return None
+    key = ("pin_points", tuple(rel.parent), tuple(rel.points), float(t),
+           np.asarray(z, dtype=float).tobytes())
+    dynamics = getattr(kernels, "dynamics", None)
+    if dynamics is None:
+        return _pin_points(rel, t, z, system)
+    return dynamics.memo(key, lambda: _pin_points(rel, t, z, system))
+
+
+def _pin_points(rel: Relative, t: float, z: np.ndarray, system) -> np.ndarray | None:
+    """:func:`pin_points`, made."""
     phi, jac = rel.phi_jac(t, z)
     phi, jac = np.asarray(phi, dtype=float), np.asarray(jac, dtype=float)
     scale = _coordinate_scale(rel)
@@ -169,7 +181,10 @@ def pin_points(rel: Relative, t: float, z: np.ndarray) -> np.ndarray | None:
         cr, sr = np.cos(rho), np.sin(rho)
         px, py = cr * x[0] + sr * x[1], -sr * x[0] + cr * x[1]  # perp(u)
         points[child] = (py, -px)
-    return points if np.abs(points).max() > 0 else None
+    if not np.abs(points).max() > 0:
+        return None
+    points.flags.writeable = False  # (kept with the model: shared by the runs)
+    return points
 
 
 def _touched(block: np.ndarray, phi: np.ndarray, scale: np.ndarray) -> np.ndarray:
@@ -186,11 +201,26 @@ def _touched(block: np.ndarray, phi: np.ndarray, scale: np.ndarray) -> np.ndarra
 def reduce(rel: Relative, t: float, z: np.ndarray, span: float) -> "Reduced | None":
     """The equations of ``rel`` with the coordinates that its joints fix eliminated (module
     docstring), checked at state z, time t and over ``span`` after it; None where no joint
-    fixes a coordinate (or a probe cannot be evaluated)."""
+    fixes a coordinate (or a probe cannot be evaluated). The choice is kept with the
+    compiled model for the same forest, points, state and span (the next ``simulate()``
+    of a mechanism starts where this one did: its probes are not made again)."""
     z = np.asarray(z, dtype=float)
-    n, m = rel.n, rel.m
-    if m == 0:
+    if rel.m == 0:
         return None
+    d = getattr(getattr(rel.base, "kernels", None), "dynamics", None)
+    if d is None:
+        made = _eliminated(rel, t, z, span)
+    else:
+        key = ("reduce", tuple(rel.parent), tuple(rel.points), float(t), z.tobytes(),
+               float(span))
+        made = d.memo(key, lambda: _eliminated(rel, t, z, span))
+    return None if made is None else Reduced(rel, *made)
+
+
+def _eliminated(rel: Relative, t: float, z: np.ndarray, span: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """:func:`reduce`'s choice: (free, keep, value), or None."""
+    n, m = rel.n, rel.m
     phi0, jac0 = rel.phi_jac(t, z)
     phi0, jac0 = np.asarray(phi0, dtype=float), np.asarray(jac0, dtype=float)
     nu0 = np.asarray(rel.nu(t), dtype=float)
@@ -237,7 +267,9 @@ def reduce(rel: Relative, t: float, z: np.ndarray, span: float) -> "Reduced | No
     eliminated = {r for R, _, _ in candidates for r in R}
     free = np.array([k for k in range(n) if k not in fixed], dtype=np.intp)
     keep = np.array([r for r in range(m) if r not in eliminated], dtype=np.intp)
-    return Reduced(rel, free, keep, value)
+    for a in (free, keep, value):
+        a.flags.writeable = False  # (kept with the model: shared by the runs)
+    return free, keep, value
 
 
 def _failing(rel: Relative, candidates: list, value: np.ndarray, t: float, span: float,
@@ -361,9 +393,11 @@ class Reduced:
         n = self.n
         start, end = self._pose(y), self._pose(y_new)
         if start is not None and end is not None:
-            G = end[1]
-            return start[0], end[0], np.concatenate((G @ err[:n], G @ err[n:2 * n],
-                                                     err[2 * n:]))
+            # (dq, dqd) = (G dw, G dwd): one product of G with both parts
+            mapped = (end[1] @ err[:2 * n].reshape(2, n).T).T.ravel()
+            if self.m:
+                mapped = np.concatenate((mapped, err[2 * n:]))
+            return start[0], end[0], mapped
         full = np.concatenate((self._zd(err[:n]), self._zd(err[n:2 * n]),
                                err[2 * n:]))
         return self.rel.error_map(self._full(y), self._full(y_new), full)
@@ -401,20 +435,21 @@ class Reduced:
         M, Q = self.rel.mass_loads(t, self._z(w), self._zd(wd))
         return M[self._ww], Q[self.free]
 
-    def stage_residuals(self, ts: list, W: np.ndarray, Wd: np.ndarray, A: np.ndarray
-                        ) -> np.ndarray:
-        """M_w(W_j) A_j - f_w(t_j, W_j, Wd_j) for the rows j (an implicit stepper's stages),
-        by the generated terms where traced (:mod:`.reduced_terms`), else stage by stage."""
+    def stage_residuals(self, ts: list, Y: np.ndarray, A: np.ndarray) -> list | np.ndarray:
+        """M_w(w_j) A_j - f_w(t_j, w_j, wd_j) for the rows j, Y_j = (w_j, wd_j) (an implicit
+        stepper's stages), flat, stage by stage: by the generated terms where traced
+        (:mod:`.reduced_terms`), else stage by stage through the map."""
         if self.traced is not None:
             try:
-                return self.traced.stage_residuals(ts, W, Wd, A)
+                return self.traced.stage_residuals(ts, Y, A)
             except _OUTSIDE:
                 pass
+        n = self.n
         out = np.empty(A.shape)
         for j, t in enumerate(ts):
-            M, f = self.mass_loads(t, W[j], Wd[j])
+            M, f = self.mass_loads(t, Y[j, :n], Y[j, n:2 * n])
             out[j] = M @ A[j] - f
-        return out
+        return out.ravel()
 
     def loads(self, t: float, w: np.ndarray, wd: np.ndarray) -> np.ndarray:
         """f_w = (G^T (Q - M c))_w."""

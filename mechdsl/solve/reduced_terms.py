@@ -45,7 +45,7 @@ class TracedReduced:
     """M_w, f_w and f_w's derivatives of one reduction as generated functions of floats
     (module docstring). ``terms(t, w, wd)`` -> (M_w (n, n), f_w (n,)) and
     ``derivatives(t, w, wd)`` -> (df_w/dw, df_w/dwd), ``absolute(w, wd)`` -> ((q, qd), G)
-    ``state(w, wd)`` -> (q, qd) and ``stage_residuals(ts, W, Wd, A)``; each raises ValueError,
+    ``state(w, wd)`` -> (q, qd) and ``stage_residuals(ts, Y, A)``; each raises ValueError,
     ZeroDivisionError or OverflowError outside a function's domain (the caller then
     evaluates through the map)."""
 
@@ -56,7 +56,6 @@ class TracedReduced:
         self.n, self.N = n, len(pose) // (2 + n)
         self._pose = pose
         self._pose_fn: Callable | None = None
-        self._state_fn: Callable | None = None
         self._graph, self._force, self._w, self._wd = graph, force, w, wd
         self._floats, self._p, self._F = floats, p, F
         # M_w's entries both triangles (the upper's nodes: one name each in the code),
@@ -82,33 +81,30 @@ class TracedReduced:
         return vals[:2 * N], vals[2 * N:].reshape(N, self.n)
 
     def state(self, w: np.ndarray, wd: np.ndarray) -> np.ndarray:
-        """(q, qd) = (g(w), G wd) (2N,) alone (an output's state: no G)."""
-        if self._state_fn is None:
-            self._state_fn = self._floats(self._pose[:2 * self.N], "reduced_state")
-        return np.array(self._state_fn(w.tolist(), wd.tolist(), 0.0, self._p, self._F))
+        """(q, qd) = (g(w), G wd) (2N,) alone (an output's state; by the same generated
+        function: one more for the outputs alone cost more to generate than it saved)."""
+        return self.absolute(w, wd)[0]
 
-    def stage_residuals(self, ts: list, W: np.ndarray, Wd: np.ndarray, A: np.ndarray
-                        ) -> np.ndarray:
-        """M_w(W_j) A_j - f_w(t_j, W_j, Wd_j) for the stages j (rows of W, Wd, A; ``ts``
-        their instants): the implicit stepper's residuals of the equations of motion, all
-        stages in one generated function (generated on first use)."""
+    def stage_residuals(self, ts: list, Y: np.ndarray, A: np.ndarray) -> list:
+        """M_w(w_j) A_j - f_w(t_j, w_j, wd_j) for the stages j (rows Y_j = (w_j, wd_j) and
+        A_j; ``ts`` their instants), flat, stage by stage: the implicit stepper's residuals
+        of the equations of motion, all stages in one generated function (generated on
+        first use)."""
         if self._stages_fn is None:
             self._stages_fn = self._floats(self._stage_nodes(len(ts)), "reduced_stages")
-        k = len(ts)
-        vals = self._stages_fn(W.ravel().tolist(), Wd.ravel().tolist(), 0.0,
+        return self._stages_fn(Y.ravel().tolist(), (), 0.0,
                                self._p + list(ts) + A.ravel().tolist(), self._F)
-        return np.array(vals).reshape(k, self.n)
 
     def _stage_nodes(self, k: int) -> list[Node]:
         """The nodes of :meth:`stage_residuals` for k stages: stage j's coordinates are the
-        variables q[j n + a], qd[j n + a], its instant p[P + j] and its accelerations
-        p[P + k + j n + b] (P the model's parameters)."""
+        variables q[2 j n + a] and its rates q[2 j n + n + a], its instant p[P + j] and its
+        accelerations p[P + k + j n + b] (P the model's parameters)."""
         g, n, P = self._graph, self.n, len(self._p)
         roots = [x for row in self._mass for x in row] + list(self._force)
         out = []
         for j in range(k):
-            values = {("q", a): g.var("q", j * n + a) for a in range(n)}
-            values.update({("qd", a): g.var("qd", j * n + a) for a in range(n)})
+            values = {("q", a): g.var("q", 2 * j * n + a) for a in range(n)}
+            values.update({("qd", a): g.var("q", 2 * j * n + n + a) for a in range(n)})
             values[("t",)] = g.var("p", P + j)
             new = g.substitute(roots, values)
             M, f = new[:n * n], new[n * n:]
