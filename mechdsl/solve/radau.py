@@ -54,6 +54,13 @@ go on to ``max_newton_singular`` (60) iterations. With both, radau passes A02's 
 collinear positions at rtol 1e-8, where it stopped at the first (the step size underflowed
 at t = 0.7201); with a limit of 0.6 and 20 iterations it stopped at the eighth, t = 7.141.
 
+**An ODE.** Where no constraint is left (the joints' own coordinates, module reduced) the
+system is B(w) z' = F(t, z) with B = diag(I, M_w) and no multiplier: Phi, Phi_q and the
+range part are not evaluated, and for a few coordinates (2n <= ``OPERATOR_MAX``) the
+simplified Newton's correction of the three stages is one matrix made per factorisation
+(:func:`_ode_operators`), the stages' residuals one call of the equations'
+``stage_residuals`` where they have it (the generated code of module reduced_terms).
+
 **Redundant constraints.** Where Phi_q is rank-deficient (consistent redundant constraints, a
 parallelogram's extra link, a passage through a singular position), [[S, Phi_q^T], [Phi_q, 0]]
 is singular. The lambda block carries -delta I, delta = ``regularization`` |Phi_q|^2 / |S|
