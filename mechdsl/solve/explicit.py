@@ -79,13 +79,15 @@ class Pair:
 STIFF_STEPS, CALM_STEPS = 15, 6
 
 #: A first step whose h rho is this many times the stability boundary proves the model
-#: stiff at once: Hairer's first step, chosen for the accuracy the motion asks for, is far
+#: stiff at once: Hairer's first step, chosen for the accuracy the motion asks for, is
 #: beyond what stability allows (h the step first tried, before any rejection; rho
 #: estimated on the first accepted one). The stiff pendulum (h = 5.2e-4 s first tried):
 #: h rho = 22 at k = 1e8 (8.3 times vern9's boundary; 15 more steps to the report in a
 #: row), 32 at 1e9, 17 at 1e10 (after rejections that cut the step to the boundary), 4.3
-#: at 1e7, 5e-4 at 1e4. The driver's trial still decides (module driver)
-EARLY_STIFF = 4.0
+#: at 1e7 (1.6 times: there 50 steps to the periodic trial, twice scipy's Radau's time),
+#: 5e-4 at 1e4; models that are not stiff 1e-6 (Andrews) to 0.08 (a chain of 30 links).
+#: The driver's trial still decides (module driver)
+EARLY_STIFF = 1.5
 
 
 @functools.cache
