@@ -18,9 +18,10 @@ with c = (d/dt G) wd the absolute accelerations at wdd = 0. G is the exact gradi
 nodes, qd and c their time derivatives along (wd, wdd = 0) (:meth:`Graph.time_derivative`);
 M's and Q's nodes of the compiled model are composed with q(w) and qd(w, wd)
 (:meth:`Graph.substitute`) and the products written out on them, zeros folded away. One
-generated function of floats then gives M_w's upper triangle and f_w; the exact derivatives
-df_w/dw and df_w/dwd (reverse accumulation over f_w's graph, the same traced arithmetic)
-give the implicit stepper's Jacobian. Traced where the model is small
+generated function of floats then gives M_w and f_w, another the three Radau stages'
+residuals M_w a - f_w at once, a third q, qd and G (the outputs and the error's map); the
+exact derivatives df_w/dw and df_w/dwd (reverse accumulation over f_w's graph, the same
+traced arithmetic) give the implicit stepper's Jacobian. Traced where the model is small
 (:data:`TRACE_MAX` absolute coordinates: the products grow like the cube of the bodies'
 number, the code with them) and its terms analytic enough to be traced (no member-layout
 group values); elsewhere :class:`Reduced` evaluates through the map as before.
@@ -44,7 +45,7 @@ TRACE_MAX = 30
 class TracedReduced:
     """M_w, f_w and f_w's derivatives of one reduction as generated functions of floats
     (module docstring). ``terms(t, w, wd)`` -> (M_w (n, n), f_w (n,)) and
-    ``derivatives(t, w, wd)`` -> (df_w/dw, df_w/dwd), ``absolute(w, wd)`` -> ((q, qd), G)
+    ``derivatives(t, w, wd)`` -> (df_w/dw, df_w/dwd), ``absolute(w, wd)`` -> ((q, qd), G),
     ``state(w, wd)`` -> (q, qd) and ``stage_residuals(ts, Y, A)``; each raises ValueError,
     ZeroDivisionError or OverflowError outside a function's domain (the caller then
     evaluates through the map)."""
