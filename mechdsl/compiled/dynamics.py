@@ -159,6 +159,19 @@ class Dynamics:
             self._floats[key] = make()
         return self._floats[key]
 
+    def latest(self, kind: str, key: tuple, make: Callable[[], Any]) -> Any:
+        """:meth:`memo` that keeps one entry of each ``kind``, the latest: for what depends
+        on a run's state (a solver's choice at the start of a run), which the next
+        ``simulate()`` from the same start reuses, and which must not pile up over the
+        runs of a study."""
+        slot = ("latest", kind)
+        kept = self._floats.get(slot)
+        if kept is not None and kept[0] == key:
+            return kept[1]
+        value = make()
+        self._floats[slot] = (key, value)
+        return value
+
     def floats(self, nodes, name: str):
         """The function of floats ``fn(q, qd, t, p, F)`` that gives ``nodes`` of this
         model's graph (:func:`mechdsl.symbolic.codegen.scalar_kernel`), generated once

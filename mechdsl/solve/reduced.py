@@ -138,8 +138,8 @@ def pin_points(rel: Relative, t: float, z: np.ndarray) -> np.ndarray | None:
     child's point u reads Phi = A(phi_p) (v - s_i - A(rho_i) u) (to a sign), so that
     Phi_s^-1 Phi_rho = A(rho_i) perp(u) and u = perp^-1(A(rho_i)^T Phi_s^-1 Phi_rho). Any
     point is a valid reference (the map stays one to one); :func:`reduce` checks what the
-    joint fixes. None where no body gets a point off its origin. Kept with the compiled
-    model for the same forest and state (as :func:`reduce`'s choice)."""
+    joint fixes. None where no body gets a point off its origin. The latest is kept with
+    the compiled model for the same forest and state (as :func:`reduce`'s choice)."""
     kernels = getattr(rel.base, "kernels", None)
     system = getattr(kernels, "system", None)
     if system is None:
@@ -149,7 +149,7 @@ def pin_points(rel: Relative, t: float, z: np.ndarray) -> np.ndarray | None:
     dynamics = getattr(kernels, "dynamics", None)
     if dynamics is None:
         return _pin_points(rel, t, z, system)
-    return dynamics.memo(key, lambda: _pin_points(rel, t, z, system))
+    return dynamics.latest("pin_points", key, lambda: _pin_points(rel, t, z, system))
 
 
 def _pin_points(rel: Relative, t: float, z: np.ndarray, system) -> np.ndarray | None:
@@ -201,9 +201,10 @@ def _touched(block: np.ndarray, phi: np.ndarray, scale: np.ndarray) -> np.ndarra
 def reduce(rel: Relative, t: float, z: np.ndarray, span: float) -> "Reduced | None":
     """The equations of ``rel`` with the coordinates that its joints fix eliminated (module
     docstring), checked at state z, time t and over ``span`` after it; None where no joint
-    fixes a coordinate (or a probe cannot be evaluated). The choice is kept with the
-    compiled model for the same forest, points, state and span (the next ``simulate()``
-    of a mechanism starts where this one did: its probes are not made again)."""
+    fixes a coordinate (or a probe cannot be evaluated). The latest choice is kept with
+    the compiled model for the same forest, points, state and span (the next
+    ``simulate()`` of a mechanism starts where this one did: its probes are not made
+    again)."""
     z = np.asarray(z, dtype=float)
     if rel.m == 0:
         return None
@@ -213,7 +214,7 @@ def reduce(rel: Relative, t: float, z: np.ndarray, span: float) -> "Reduced | No
     else:
         key = ("reduce", tuple(rel.parent), tuple(rel.points), float(t), z.tobytes(),
                float(span))
-        made = d.memo(key, lambda: _eliminated(rel, t, z, span))
+        made = d.latest("reduce", key, lambda: _eliminated(rel, t, z, span))
     return None if made is None else Reduced(rel, *made)
 
 

@@ -35,72 +35,61 @@ import numpy as np
 
 from ..symbolic.graph import Graph, GraphError, Node
 
-__all__ = ["TRACE_MAX", "TracedReduced", "traced"]
+__all__ = ["TRACE_MAX", "ReducedCode", "TracedReduced", "traced"]
 
 #: the most absolute coordinates (three a moving body) whose reduced equations are traced:
 #: M_w's products grow like the cube of the bodies' number, the generated code with them
 TRACE_MAX = 30
+#: an eliminated coordinate's value or a point's coordinate below this fraction of the
+#: largest of them (and of 1) is zero to round-off (a pin at a frame's origin), folded
+#: into the code rather than read
+ZERO_RTOL = 1e-14
 
 
-class TracedReduced:
-    """M_w, f_w and f_w's derivatives of one reduction as generated functions of floats
-    (module docstring). ``terms(t, w, wd)`` -> (M_w (n, n), f_w (n,)) and
-    ``derivatives(t, w, wd)`` -> (df_w/dw, df_w/dwd), ``absolute(w, wd)`` -> ((q, qd), G),
-    ``state(w, wd)`` -> (q, qd) and ``stage_residuals(ts, Y, A)``; each raises ValueError,
-    ZeroDivisionError or OverflowError outside a function's domain (the caller then
-    evaluates through the map)."""
+class ReducedCode:
+    """The traced and generated terms of one reduction's structure (module docstring):
+    the forest, the bodies with a reference point and the coordinates left; the
+    eliminated coordinates' values and the points are inputs (``p`` after the model's
+    parameters), so that one code serves every state a run starts from (keyed on them,
+    round-off made every trial trace and generate anew, and the graph grow). Its
+    functions are generated on first use; :class:`TracedReduced` binds the inputs."""
 
     def __init__(self, graph: Graph, mass: list[list[Node]], force: list[Node],
-                 w: list[Node], wd: list[Node], pose: list[Node], floats: Callable, p: list,
-                 F: tuple) -> None:
+                 w: list[Node], wd: list[Node], pose: list[Node], floats: Callable,
+                 inputs: int) -> None:
         n = len(force)
-        self.n, self.N = n, len(pose) // (2 + n)
-        self._pose = pose
-        self._pose_fn: Callable | None = None
-        self._graph, self._force, self._w, self._wd = graph, force, w, wd
-        self._floats, self._p, self._F = floats, p, F
+        self.n, self.N, self.inputs = n, len(pose) // (2 + n), inputs
+        self._graph, self._force, self._w, self._wd, self._pose = graph, force, w, wd, pose
+        self._floats = floats
         # M_w's entries both triangles (the upper's nodes: one name each in the code),
         # then f_w: one array of the kernel's list, two views
         nodes = [mass[min(a, b)][max(a, b)] for a in range(n) for b in range(n)]
-        self._fn = floats(nodes + list(force), "reduced_terms")
         self._mass = [nodes[a * n:(a + 1) * n] for a in range(n)]
-        self._stages_fn: Callable | None = None
-        self._dfn: Callable | None = None
+        self.terms = floats(nodes + list(force), "reduced_terms")
+        self._fns: dict[str, Callable] = {}
 
-    def terms(self, t: float, w: np.ndarray, wd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """M_w (n, n) and f_w (n,) at (t, w, wd)."""
-        n = self.n
-        vals = np.array(self._fn(w.tolist(), wd.tolist(), t, self._p, self._F))
-        return vals[:n * n].reshape(n, n), vals[n * n:]
+    def pose(self) -> Callable:
+        """The function of (q, qd) = (g(w), G wd) and G's entries."""
+        if "pose" not in self._fns:
+            self._fns["pose"] = self._floats(self._pose, "reduced_pose")
+        return self._fns["pose"]
 
-    def absolute(self, w: np.ndarray, wd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(q, qd) = (g(w), G wd) (2N,) and G = dq/dw (N, n)."""
-        if self._pose_fn is None:
-            self._pose_fn = self._floats(self._pose, "reduced_pose")
-        N = self.N
-        vals = np.array(self._pose_fn(w.tolist(), wd.tolist(), 0.0, self._p, self._F))
-        return vals[:2 * N], vals[2 * N:].reshape(N, self.n)
+    def derivatives(self) -> Callable:
+        """The function of df_w/dw's and df_w/dwd's entries, row by row."""
+        if "derivatives" not in self._fns:
+            g, wrt = self._graph, self._w + self._wd
+            nodes = [d for root in self._force for d in g.gradient(root, wrt)]
+            self._fns["derivatives"] = self._floats(nodes, "reduced_derivatives")
+        return self._fns["derivatives"]
 
-    def state(self, w: np.ndarray, wd: np.ndarray) -> np.ndarray:
-        """(q, qd) = (g(w), G wd) (2N,) alone (an output's state; by the same generated
-        function: one more for the outputs alone cost more to generate than it saved)."""
-        return self.absolute(w, wd)[0]
-
-    def stage_residuals(self, ts: list, Y: np.ndarray, A: np.ndarray) -> list:
-        """M_w(w_j) A_j - f_w(t_j, w_j, wd_j) for the stages j (rows Y_j = (w_j, wd_j) and
-        A_j; ``ts`` their instants), flat, stage by stage: the implicit stepper's residuals
-        of the equations of motion, all stages in one generated function (generated on
-        first use)."""
-        if self._stages_fn is None:
-            self._stages_fn = self._floats(self._stage_nodes(len(ts)), "reduced_stages")
-        return self._stages_fn(Y.ravel().tolist(), (), 0.0,
-                               self._p + list(ts) + A.ravel().tolist(), self._F)
-
-    def _stage_nodes(self, k: int) -> list[Node]:
-        """The nodes of :meth:`stage_residuals` for k stages: stage j's coordinates are the
+    def stages(self, k: int) -> Callable:
+        """The function of the k stages' residuals: stage j's coordinates are the
         variables q[2 j n + a] and its rates q[2 j n + n + a], its instant p[P + j] and its
-        accelerations p[P + k + j n + b] (P the model's parameters)."""
-        g, n, P = self._graph, self.n, len(self._p)
+        accelerations p[P + k + j n + b] (P the inputs before: the model's parameters,
+        the eliminated coordinates' values and the points)."""
+        if ("stages", k) in self._fns:
+            return self._fns[("stages", k)]
+        g, n, P = self._graph, self.n, self.inputs
         roots = [x for row in self._mass for x in row] + list(self._force)
         out = []
         for j in range(k):
@@ -115,17 +104,54 @@ class TracedReduced:
                     acc = g.op("add", acc, g.op("mul", M[a * n + b],
                                                 g.var("p", P + k + j * n + b)))
                 out.append(g.op("sub", acc, f[a]))
-        return out
+        self._fns[("stages", k)] = fn = self._floats(out, "reduced_stages")
+        return fn
+
+
+class TracedReduced:
+    """:class:`ReducedCode` bound to one reduction's inputs ``p`` (the model's
+    parameters, the eliminated coordinates' values, the points) and functions ``F``.
+    ``terms(t, w, wd)`` -> (M_w (n, n), f_w (n,)), ``derivatives(t, w, wd)`` -> (df_w/dw,
+    df_w/dwd), ``absolute(w, wd)`` -> ((q, qd), G), ``state(w, wd)`` -> (q, qd) and
+    ``stage_residuals(ts, Y, A)``; each raises ValueError, ZeroDivisionError or
+    OverflowError outside a function's domain (the caller then evaluates through the
+    map)."""
+
+    def __init__(self, code: ReducedCode, p: list, F: tuple) -> None:
+        self.code, self.n, self.N = code, code.n, code.N
+        self._p, self._F = p, F
+        self._terms = code.terms
+
+    def terms(self, t: float, w: np.ndarray, wd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """M_w (n, n) and f_w (n,) at (t, w, wd)."""
+        n = self.n
+        vals = np.array(self._terms(w.tolist(), wd.tolist(), t, self._p, self._F))
+        return vals[:n * n].reshape(n, n), vals[n * n:]
+
+    def absolute(self, w: np.ndarray, wd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(q, qd) = (g(w), G wd) (2N,) and G = dq/dw (N, n)."""
+        N = self.N
+        vals = np.array(self.code.pose()(w.tolist(), wd.tolist(), 0.0, self._p, self._F))
+        return vals[:2 * N], vals[2 * N:].reshape(N, self.n)
+
+    def state(self, w: np.ndarray, wd: np.ndarray) -> np.ndarray:
+        """(q, qd) = (g(w), G wd) (2N,) alone (an output's state; by the same generated
+        function: one more for the outputs alone cost more to generate than it saved)."""
+        return self.absolute(w, wd)[0]
+
+    def stage_residuals(self, ts: list, Y: np.ndarray, A: np.ndarray) -> list:
+        """M_w(w_j) A_j - f_w(t_j, w_j, wd_j) for the stages j (rows Y_j = (w_j, wd_j) and
+        A_j; ``ts`` their instants), flat, stage by stage: the implicit stepper's residuals
+        of the equations of motion, all stages in one generated function."""
+        return self.code.stages(len(ts))(Y.ravel().tolist(), (), 0.0,
+                                         self._p + list(ts) + A.ravel().tolist(), self._F)
 
     def derivatives(self, t: float, w: np.ndarray, wd: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
-        """df_w/dw and df_w/dwd (n, n) at (t, w, wd), exact; generated on first use."""
-        if self._dfn is None:
-            g, wrt = self._graph, self._w + self._wd
-            nodes = [d for root in self._force for d in g.gradient(root, wrt)]
-            self._dfn = self._floats(nodes, "reduced_derivatives")
+        """df_w/dw and df_w/dwd (n, n) at (t, w, wd), exact."""
         n = self.n
-        vals = np.array(self._dfn(w.tolist(), wd.tolist(), t, self._p, self._F))
+        vals = np.array(self.code.derivatives()(w.tolist(), wd.tolist(), t, self._p,
+                                                 self._F))
         vals = vals.reshape(n, 2 * n)
         return vals[:, :n], vals[:, n:]
 
@@ -134,11 +160,11 @@ def _positions(g: Graph, parent: list[int], order: list[int], points: list,
                z: list[Node]) -> list[Node]:
     """q = g(z) as nodes (module relative's map), body by body, parents first: r_i = r_p +
     A(phi_p) s_i - A(phi_i) u_i, phi_i = phi_p + rho_i (a root body's s_i and rho_i are
-    its reference point's position and its angle)."""
+    its reference point's position and its angle); ``points[i]`` u_i as two nodes, or None
+    for the frame's origin."""
     q: list[Node] = list(z)
     for i in order:
         p, k = parent[i], 3 * i
-        ux, uy = points[i]
         if p < 0:
             psi = z[k + 2]
             dx, dy = z[k], z[k + 1]
@@ -149,7 +175,8 @@ def _positions(g: Graph, parent: list[int], order: list[int], points: list,
             sx, sy = z[k], z[k + 1]
             psi = phi + z[k + 2]
             dx, dy = q[j] + (c * sx - s * sy), q[j + 1] + (s * sx + c * sy)
-        if ux or uy:
+        if points[i] is not None:
+            ux, uy = points[i]
             cp, sp = g.op("cos", psi), g.op("sin", psi)
             dx, dy = dx - (cp * ux - sp * uy), dy - (sp * ux + cp * uy)
         q[k], q[k + 1], q[k + 2] = g.lift(dx), g.lift(dy), g.lift(psi)
@@ -158,35 +185,55 @@ def _positions(g: Graph, parent: list[int], order: list[int], points: list,
 
 def traced(reduced, limit: int = TRACE_MAX) -> TracedReduced | None:
     """The generated terms of ``reduced`` (a :class:`~mechdsl.solve.reduced.Reduced` on
-    the base equations of a compiled model), kept with the model's dynamics for the next
-    run of the same reduction; None where the model has more than ``limit`` absolute
-    coordinates or its terms cannot be traced."""
+    the base equations of a compiled model): the code of its structure, kept with the
+    model's dynamics (:class:`ReducedCode`), bound to its values; None where the model has
+    more than ``limit`` absolute coordinates or its terms cannot be traced."""
     rel, base = reduced.rel, reduced.base
     d = getattr(getattr(base, "kernels", None), "dynamics", None)
     p, F = getattr(base, "_mq_p", None), getattr(base, "_mq_F", None)
     if d is None or d.graph is None or p is None or rel.n > limit:
         return None
-    key = ("reduced", tuple(rel.parent), tuple(rel.points), tuple(reduced.free.tolist()),
-           reduced._value.tobytes())
+    free = reduced.free.tolist()
+    left = set(free)
+    # the inputs: the eliminated coordinates' values and the points' coordinates, those
+    # that are zero (to round-off: a pin at a frame's origin) folded into the code
+    values = [(k, float(reduced._value[k])) for k in range(rel.n) if k not in left]
+    values += [(("u", i, c), float(u[c])) for i, u in enumerate(rel.points)
+               for c in (0, 1) if u[0] or u[1]]
+    tiny = ZERO_RTOL * max([1.0] + [abs(v) for _, v in values])
+    inputs = [(name, v) for name, v in values if abs(v) > tiny]
+    key = ("reduced", tuple(rel.parent), tuple(free),
+           tuple(name for name, v in values if abs(v) <= tiny),
+           tuple(name for name, _ in inputs))
 
-    def make() -> TracedReduced | None:
+    def make() -> ReducedCode | None:
         try:
-            return _trace(d, rel, reduced.free, reduced._value, p, F)
+            return _trace(d, rel, free, [name for name, _ in inputs], len(p))
         except GraphError:
             return None
-    return d.memo(key, make)
+    code = d.memo(key, make)
+    if code is None:
+        return None
+    return TracedReduced(code, list(p) + [v for _, v in inputs], F)
 
 
-def _trace(d, rel, free: np.ndarray, value: np.ndarray, p: list, F: tuple) -> TracedReduced:
-    """Trace M_w and f_w (module docstring) into the dynamics' graph."""
+def _trace(d, rel, free: list[int], inputs: list, P: int) -> ReducedCode:
+    """Trace M_w and f_w (module docstring) into the dynamics' graph; ``inputs`` name the
+    eliminated coordinates (k) and the points' coordinates (("u", body, 0 or 1)) read as
+    p[P], p[P + 1], ... in that order, the others of them zero."""
     g: Graph = d.graph
     N, n = rel.n, len(free)
     w = [g.var("q", a) for a in range(n)]
     wd = [g.var("qd", a) for a in range(n)]
-    z: list[Node] = [g.const(float(v)) for v in value]
-    for a, k in enumerate(free.tolist()):
+    read = {name: g.var("p", P + i) for i, name in enumerate(inputs)}
+    z: list[Node] = [read.get(k, g.zero) for k in range(N)]
+    for a, k in enumerate(free):
         z[k] = w[a]
-    q = _positions(g, rel.parent, rel.order, rel.points, z)
+    points: list = [None] * len(rel.parent)
+    for i, u in enumerate(rel.points):
+        if u[0] or u[1]:
+            points[i] = (read.get(("u", i, 0), g.zero), read.get(("u", i, 1), g.zero))
+    q = _positions(g, rel.parent, rel.order, points, z)
     on_w = {x.id: a for a, x in enumerate(w)}
 
     def rate(v: Node) -> Node | None:  # D w = wd, D wd = wdd = 0
@@ -219,5 +266,5 @@ def _trace(d, rel, free: np.ndarray, value: np.ndarray, p: list, F: tuple) -> Tr
             for b in range(a, n):
                 Mw[a][b] = g.op("add", Mw[a][b], g.op("mul", G[r][a], MG[r][b]))
     pose = [*q, *qd, *(x for row in G for x in row)]
-    return TracedReduced(g, Mw, fw, w, wd, pose, d.floats, p, F)
+    return ReducedCode(g, Mw, fw, w, wd, pose, d.floats, P + len(inputs))
 
