@@ -119,10 +119,14 @@ class Dynamics:
     def variant(self, v: int) -> "Dynamics":
         """The same for sweep variant ``v`` alone."""
         fns = tuple((g, g.d1, g.d2) for g in (f[0].variant(v) for f in self.functions))
-        return replace(self, params=tuple(p[v : v + 1] for p in self.params), functions=fns,
-                       mass=self.mass[v : v + 1], inertia=self.inertia[v : v + 1],
-                       centroid=self.centroid[v : v + 1], gravity=self.gravity[v : v + 1],
-                       v0=self.v0[v : v + 1])
+        out = replace(self, params=tuple(p[v : v + 1] for p in self.params), functions=fns,
+                      mass=self.mass[v : v + 1], inertia=self.inertia[v : v + 1],
+                      centroid=self.centroid[v : v + 1], gravity=self.gravity[v : v + 1],
+                      v0=self.v0[v : v + 1])
+        # the code generated on the graph takes the values as inputs: every variant's
+        # (and every run's of a sweep) is the model's, made once
+        out.__dict__["_floats"] = self._floats
+        return out
 
     @functools.cached_property
     def load_jacobian(self) -> LoadJacobian:
