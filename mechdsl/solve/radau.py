@@ -578,9 +578,6 @@ class RadauStepper(Stepper):
         """dZ from the stage residuals r by the transformed pair (T^-1 r: one real and one
         complex system with the common Jacobian)."""
         mur, muc = _K["mu_real"] / h, _K["mu_complex"] / h
-        if self._ops is not None and self._ops[1] is not None:
-            L = self._ops[1]
-            return lambda r: (L @ r.ravel()).reshape(r.shape)
 
         def solve(r: np.ndarray) -> np.ndarray:
             dWr = self._solve(0, mur, -(_K["TI_real"] @ r))
@@ -748,7 +745,7 @@ class RadauStepper(Stepper):
                 powers[:, 2] = powers[:, 1] * x  # (as x * x * x: the same rounding)
                 at = powers @ (_K["P"].T @ self._Z)
                 Z0 = at[:3] - at[3]
-            at_guess = None
+            at_guess, L = None, None
             try:
                 if self._stagewise:
                     solve, at_guess = self._stagewise_solve(t, h, Z0)
@@ -758,12 +755,15 @@ class RadauStepper(Stepper):
                         self._jac_current = True
                     if self._lu is None or self._lu_h != h:
                         self._factor(h)
-                    solve = self._transformed_solve(h)
+                    # a small ODE's correction is one matrix (_ode_operators), else the
+                    # transformed pair's solves
+                    L = None if self._ops is None else self._ops[1]
+                    solve = None if L is not None else self._transformed_solve(h)
             except RuntimeError:  # SuperLU: the matrix is exactly singular
                 return f"the equations are singular at t = {t:.9g}"
             sc = self._atol + self.rtol * np.abs(y)
-            if self._ops is not None and at_guess is None and self._ops[1] is not None:
-                ok, k, Z, rate = self._newton_ode(t, h, Z0, sc, self._ops[1])
+            if L is not None:
+                ok, k, Z, rate = self._newton_ode(t, h, Z0, sc, L)
             else:
                 ok, k, Z, rate = self._newton(t, h, Z0, sc, solve, at_guess)
             if not ok:

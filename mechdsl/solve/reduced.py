@@ -320,7 +320,6 @@ class Reduced:
         self._ww = np.ix_(free, free)
         self._kw = np.ix_(keep, free)
         self._terms: TracedReduced | None | bool = False  # traced on first use
-        self._fast = None  # its terms(t, w, wd), once traced
         self._pose_key: bytes | None = None
         self._pose_at: tuple | None = None
 
@@ -330,9 +329,18 @@ class Reduced:
         where the model is not traced."""
         if self._terms is False:
             self._terms = traced(self)
-            if self._terms is not None:
-                self._fast = self._terms.terms
         return self._terms
+
+    def _by_code(self, name: str, *args):
+        """The generated terms' ``name(*args)``; None where the model is not traced or
+        the state is outside a function's domain (there they raise: the caller then
+        evaluates through the map, which gives NaN or inf)."""
+        if self.traced is None:
+            return None
+        try:
+            return getattr(self._terms, name)(*args)
+        except _OUTSIDE:
+            return None
 
     # -- the coordinates --------------------------------------------------------------------
     def _z(self, w: np.ndarray) -> np.ndarray:
@@ -358,29 +366,22 @@ class Reduced:
     def _pose(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """(q, qd) and G = dq/dw at the state y = (w, wd) by the generated terms (the last
         state's kept: a step's end is the next one's start), None where not traced."""
-        if self.traced is None:
-            return None
         key = y.tobytes()
         if key != self._pose_key:
             n = self.n
-            try:
-                self._pose_at = self.traced.absolute(y[:n], y[n:2 * n])
-            except _OUTSIDE:
+            pose = self._by_code("absolute", y[:n], y[n:2 * n])
+            if pose is None:
                 return None
-            self._pose_key = key
+            self._pose_at, self._pose_key = pose, key
         return self._pose_at
 
     def absolute(self, y: np.ndarray) -> np.ndarray:
         """(q, qd) of the state (w, wd)."""
-        if self.traced is not None:
-            if self._pose_key is not None and y.tobytes() == self._pose_key:
-                return self._pose_at[0].copy()  # (a step's end, mapped for its error)
-            n = self.n
-            try:
-                return self.traced.state(y[:n], y[n:2 * n])
-            except _OUTSIDE:
-                pass
-        return self.rel.absolute(self._full(y))
+        if self._pose_key is not None and y.tobytes() == self._pose_key:
+            return self._pose_at[0].copy()  # (a step's end, mapped for its error)
+        n = self.n
+        state = self._by_code("state", y[:n], y[n:2 * n])
+        return self.rel.absolute(self._full(y)) if state is None else state
 
     def relative(self, y: np.ndarray) -> np.ndarray:
         """(w, wd) of the state (q, qd) (the eliminated coordinates are the joints')."""
@@ -428,11 +429,9 @@ class Reduced:
         """M_w = (G^T M G)_ww and f_w = (G^T (Q - M c))_w, from one evaluation: the
         generated terms where traced (outside a function's domain, where they raise, and
         elsewhere through the map)."""
-        if self._fast is not None or self.traced is not None:
-            try:
-                return self._fast(t, w, wd)
-            except _OUTSIDE:
-                pass
+        terms = self._by_code("terms", t, w, wd)
+        if terms is not None:
+            return terms
         M, Q = self.rel.mass_loads(t, self._z(w), self._zd(wd))
         return M[self._ww], Q[self.free]
 
@@ -440,11 +439,9 @@ class Reduced:
         """M_w(w_j) A_j - f_w(t_j, w_j, wd_j) for the rows j, Y_j = (w_j, wd_j) (an implicit
         stepper's stages), flat, stage by stage: by the generated terms where traced
         (:mod:`.reduced_terms`), else stage by stage through the map."""
-        if self.traced is not None:
-            try:
-                return self.traced.stage_residuals(ts, Y, A)
-            except _OUTSIDE:
-                pass
+        out = self._by_code("stage_residuals", ts, Y, A)
+        if out is not None:
+            return out
         n = self.n
         out = np.empty(A.shape)
         for j, t in enumerate(ts):
@@ -461,11 +458,9 @@ class Reduced:
         """df_w/dw and df_w/dwd: exact where traced (:mod:`.reduced_terms`), else the (w, w)
         blocks of the relative coordinates' load derivatives (which leave out the
         derivatives of G^T and of M c but for their velocity terms)."""
-        if self.traced is not None:
-            try:
-                return self.traced.derivatives(t, w, wd)
-            except _OUTSIDE:
-                pass
+        derivatives = self._by_code("derivatives", t, w, wd)
+        if derivatives is not None:
+            return derivatives
         dz, dzd = self.rel.load_derivatives(t, self._z(w), self._zd(wd))
         return dz[self._ww], dzd[self._ww]
 
