@@ -404,19 +404,23 @@ def test_restart_after_projection_continues():
 
 
 def test_car_axis_against_the_test_set():
-    """The Test Set's reference at t = 3: at rtol = atol = 1e-10 the positions and velocities
-    reach scd 6.98 (the multipliers 4.5); the issue asks scd >= 7 (not yet: see the
-    assertion's margin)."""
+    """The Test Set's reference at t = 3, at rtol = atol near radau's floor 1e-10: there the
+    velocities' last digits are rounding, and the scd of the positions and velocities moves
+    by up to 0.8 with a tenth more or less tolerance (6.34 to 7.94 over the five below; 6.09
+    to 7.06 before the Newton iteration counted the velocities in full). Their median
+    reaches the issue's scd 7 (7.10; the multipliers about 5)."""
     eq = CarAxis()
     y0 = np.array([0, 0.5, 1, 0.5, -0.5, 0, -0.5, 0.0])
-    st, _, seconds = run(eq, y0, 3.0, rtol=1e-10, atol=1e-10)
-    got = np.concatenate((st.y, -st.lam))
-    rel = np.abs(got - CAR_REF) / np.abs(CAR_REF)
-    scd_qv = -math.log10(rel[:8].max())
-    scd_all = -math.log10(rel.max())
-    print(f"car axis: scd (q, v) {scd_qv:.2f}, with lambda {scd_all:.2f}, steps "
-          f"{st.naccepted}+{st.nrejected}, nfev {st.nfev}, nlu {st.nlu}, {seconds:.3f} s")
-    assert scd_qv >= 6.9
+    scds = []
+    for tol in (0.9e-10, 1e-10, 1.1e-10, 1.25e-10, 1.5e-10):
+        st, _, seconds = run(eq, y0, 3.0, rtol=tol, atol=tol)
+        got = np.concatenate((st.y, -st.lam))
+        rel = np.abs(got - CAR_REF) / np.abs(CAR_REF)
+        scds.append(-math.log10(rel[:8].max()))
+        print(f"car axis at {tol:g}: scd (q, v) {scds[-1]:.2f}, with lambda "
+              f"{-math.log10(rel.max()):.2f}, steps {st.naccepted}+{st.nrejected}, nfev "
+              f"{st.nfev}, nlu {st.nlu}, {seconds:.3f} s")
+    assert float(np.median(scds)) >= 7.0, scds
 
 
 def test_radau_keeps_the_driver_s_budget_and_longest_step():
@@ -493,6 +497,78 @@ def test_tolerances_below_the_floor_are_raised_to_it_and_said():
                                                    atol=ATOL_MIN))
     np.testing.assert_array_equal(at_floor["th1"], tight["th1"])  # the same run
     assert "asked" not in at_floor.method
+
+
+#: A rod spinning about a pivot (its frame at its centre, turned by beta from its axis) with a
+#: bob on a slider along the axis, held by a spring and a damper, and a rotary spring to the
+#: ground: the angle of trial 46's model m08, whose radau runs ended 130 to 210 times rtol
+#: off the oracle before the Newton iteration counted the velocities in full
+SPINNING_SLIDER = """param k = {k!r}
+param beta = 0.9
+param L0 = 0.8
+gravity = (0, -9.81)
+body rod {{ guess = (0.5*cos(7.0), 0.5*sin(7.0), 7.0 - beta)
+    point P = (-0.5*cos(beta), -0.5*sin(beta))  mass = 1.5  inertia = 1.5/12 }}
+body bob {{ guess = (0.8*cos(7.0), 0.8*sin(7.0), 7.0 - beta)  mass = 0.7  inertia = 0.01 }}
+joint pivot: revolute(ground.origin, rod.P)
+joint slide: prismatic(rod.P, bob.origin, axis = (cos(beta), sin(beta)))
+force sp: spring(rod.P, bob.origin, k = k, length = L0, c = 20.0)
+force rs: rotary_spring(ground, rod, k = 30.0, angle = -beta)
+initial a: angle(rod) = 7.0 - beta, rate = 3.0
+initial b: distance(rod.P, bob.origin) = L0, rate = 0
+simulate t = 0 .. {t1!r} step 0.01
+output phi = rod.phi
+"""
+
+
+def _spinning_slider(k: float, t: np.ndarray) -> np.ndarray:
+    """The rod's angle phi = theta - beta by Lagrange's equations in theta (the axis's
+    angle) and s (the bob's distance along it), DOP853 at rtol 1e-12: I(s) theta'' =
+    -2 m_b s s' theta' - g (m_r / 2 + m_b s) cos theta - k_r theta with I(s) = m_r / 4 + J_r +
+    J_b + m_b s^2 (the bob turns with the rod), m_b s'' = m_b s theta'^2 - m_b g sin theta -
+    k (s - L0) - c s'."""
+    mr, jr, mb, jb, g, L0, c, kr = 1.5, 1.5 / 12, 0.7, 0.01, G_ACC, 0.8, 20.0, 30.0
+
+    def f(_, y):
+        th, s, w, v = y
+        inertia = mr / 4 + jr + jb + mb * s * s
+        return [w, v, -(2 * mb * s * v * w + g * (mr / 2 + mb * s) * math.cos(th)
+                        + kr * th) / inertia,
+                s * w * w - g * math.sin(th) - (k * (s - L0) + c * v) / mb]
+    sol = solve_ivp(f, (0, t[-1]), [7.0, L0, 3.0, 0.0], method="DOP853", rtol=1e-12,
+                    atol=1e-12, t_eval=t)
+    return sol.y[0] - 0.9
+
+
+def test_radau_keeps_its_tolerance_over_the_run():
+    """The global error of radau on the index-3 form stays near rtol, checked at every
+    output against Lagrange's equations: the spinning slider (absolute coordinates, k =
+    1e4, 1.5 s at rtol 1e-6: 2.1e-7 rad; 5.1e-5 before the Newton iteration counted the
+    velocities in full, whose shortfall, of the same sign at every step, added up) and the
+    double pendulum released horizontal (2 s at rtol 1e-8: 9e-10 rad, 3.4e-8 before)."""
+    import mechdsl
+    from mechdsl.solve import SolverOptions
+
+    res = mechdsl.loads(SPINNING_SLIDER.format(k=1e4, t1=1.5), "spin.mech").simulate(
+        options=SolverOptions(method="radau", rtol=1e-6, relative_max=0))
+    assert res.ok, res.messages
+    assert np.abs(res["phi"] - _spinning_slider(1e4, res.times)).max() < 2e-6
+
+    res = mechdsl.loads(DOUBLE_PENDULUM, "dp.mech").simulate(
+        options=SolverOptions(method="radau", rtol=1e-8, atol=1e-11))
+    assert res.ok, res.messages
+    g = G_ACC
+
+    def f(t, y):
+        a, b, wa, wb = y
+        c, s = math.cos(a - b), math.sin(a - b)
+        M = np.array([[4 / 3, c / 2], [c / 2, 1 / 3]])
+        rhs = -np.array([s / 2 * wb * wb + 1.5 * g * math.cos(a),
+                         -s / 2 * wa * wa + 0.5 * g * math.cos(b)])
+        return np.concatenate(((wa, wb), np.linalg.solve(M, rhs)))
+    exact = solve_ivp(f, (0, 2), [0.0] * 4, method="DOP853", rtol=1e-13, atol=1e-15,
+                      t_eval=res.times).y[:2]
+    assert np.abs(np.vstack((res["th1"], res["th2"])) - exact).max() < 1e-8
 
 
 def test_andrews_at_an_atol_below_the_floor_runs_instead_of_underflowing():

@@ -42,9 +42,13 @@ factorisation is reused across Newton iterations and across steps while the step
 within ``keep_ratio`` and Newton converges fast; the Jacobian is evaluated anew after a step
 whose Newton iteration converged slowly (rate > ``jac_rate``) or when it fails to converge;
 a non-converging iteration with a fresh Jacobian halves the step. The iteration stops when
-rate / (1 - rate) |dW| < ``newton_tol`` (Hairer's test, at most ``max_newton`` iterations),
-or where the stage residuals themselves imply an error of at most ``residual_tol`` times
-``newton_tol`` in the error norm (:meth:`RadauStepper._residual_norm`). Near a singular
+rate / (1 - rate) |dW| < ``newton_tol`` (Hairer's test, at most ``max_newton`` iterations)
+with the rate measured in the error norm (velocities weighted by h) and |dW| with the
+velocities counted in full, down to their rounding (:meth:`RadauStepper._stage_weights`:
+the h-weighted test alone left velocities off by the same sign at every step, 190 times rtol
+over a run), or where the stage residuals themselves imply an error of at most
+``residual_tol`` times ``newton_tol`` in the error norm (:meth:`RadauStepper._residual_norm`).
+Near a singular
 position both matter: the iteration matrix is ill conditioned along the near-null directions
 of Phi_q (on A02 at t = 0.7201 its smallest singular value is 2.8e-4 of the largest), so
 the residuals' rounding comes back as corrections that never shrink, while the equations
@@ -193,6 +197,17 @@ def _stage_maps(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         a.flags.writeable = False
     return out
 
+
+#: The rounding of the stages' velocities A^-1 Z / h, in units of eps |q|_max / h: over
+#: newton_tol, the floor of their scale in the Newton iteration's norms
+#: (:meth:`RadauStepper._stage_weights`). Measured at rtol 1e-10, where it decides: without
+#: a floor the iteration never converged on a double pendulum's whip (t = 0.883, steps of
+#: 1e-5 s: the step size underflowed); 1 left the slower velocities less converged (the
+#: spinning rod on a slider, k = 1e4 N/m, 9.5 times rtol off its oracle over 3 s, against
+#: 1.7 with 0.3 or 0.1; the double pendulum 9.3e-11 rad, against 5.3e-11 and 2.3e-11, 0.1
+#: taking 5 % more evaluations)
+ROUNDING = 0.3
+_EPS = float(np.finfo(float).eps)
 
 #: up to this many equations the multipliers' range part is solved dense
 _DENSE_RANGE = 60
@@ -538,18 +553,39 @@ class RadauStepper(Stepper):
     def _stage_weights(self, sc: np.ndarray, h: float) -> tuple:
         """The weights of :meth:`_norm_stages` and :meth:`_residual_norm` for one Newton
         iteration's scale sc and step h (made once per iteration, not per norm: on the stiff
-        pendulum the norms' arithmetic is less than numpy's cost per call)."""
+        pendulum the norms' arithmetic is less than numpy's cost per call).
+
+        Two norms of a correction: w[0] weighs the velocities by h / sc_v, as the error
+        estimate's index-3 scaling does; the contraction rate is measured in it (a
+        correction of the positions by dq moves the stages' velocities by about dq / h at the
+        next iteration, which a norm without h reads as divergence: a four-bar's stiff slider
+        at t = 0, rate 2.3 at every step size). The iteration stops where the correction
+        left is below newton_tol with the velocities counted in full, w[5] = 1 / sc_v: a
+        stage's velocity left off by newton_tol sc_v / h (the index-3 scaling's allowance)
+        is an error of the same sign at every step, which adds up over the run (a spinning
+        rod on a slider, 3 s at rtol 1e-8: 1.9e-6 rad off the Lagrange oracle, 4.1e-9
+        counted in full). Only down to their rounding, though: the stages' velocities are
+        differences of positions over h, A^-1 Z / h, and carry ``ROUNDING`` eps |q|_max / h
+        that no iteration removes, so sc_v is at least that over newton_tol (near rtol 1e-10
+        on a double pendulum's whip, steps of 1e-5 s, a smaller scale never converged and
+        the step size underflowed)."""
         n = self.n
         G = self._norms[3] if self._norms[3] > 0 else 1.0
+        rounding = ROUNDING * _EPS * float(np.abs(self.y[:n]).max(initial=0.0)) / h
+        full = 1.0 / np.maximum(sc[n:], rounding / self.newton_tol)
         dz = np.concatenate((1.0 / sc[:n], h / sc[n:]))
         return dz, h / sc[:n], h / self._mass_diag, self._hv(h) / sc[n:], \
-            1.0 / (G * sc[:n].min())
+            1.0 / (G * sc[:n].min()), full
 
-    def _norm_stages(self, dZ: np.ndarray, w: tuple) -> float:
-        """sqrt(mean_j |dZ_j|^2) over the three stages, each by :meth:`_norm` (``w`` from
-        :meth:`_stage_weights`)."""
-        x = dZ[:, :2 * self.n] * w[0]
-        return math.sqrt(float(np.vdot(x, x).real) / (6 * self.n))
+    def _norm_stages(self, dZ: np.ndarray, w: tuple) -> tuple[float, float]:
+        """sqrt(mean_j |dZ_j|^2) over the three stages, each by :meth:`_norm`, and the same
+        with the velocities counted in full (``w`` from :meth:`_stage_weights`)."""
+        n = self.n
+        x = dZ[:, :2 * n] * w[0]
+        xv = dZ[:, n:2 * n] * w[5]
+        q2 = float(np.vdot(x[:, :n], x[:, :n]).real)
+        return (math.sqrt((q2 + float(np.vdot(x[:, n:], x[:, n:]).real)) / (6 * n)),
+                math.sqrt((q2 + float(np.vdot(xv, xv).real)) / (6 * n)))
 
     def _residual_norm(self, r: np.ndarray, w: tuple) -> float:
         """The stage residuals r (3, 2n + m) as errors of the state they would cause, in the
@@ -629,6 +665,12 @@ class RadauStepper(Stepper):
         c = _K["c"]
         dZ_norm_old, rate, r = None, None, np.empty_like(Z)
         w = self._stage_weights(sc, h)
+        # the iterations after which the h-weighted test first passed (what the step size
+        # control reads, as before the velocities counted in full: more iterations for
+        # their precision are no sign of a harder step), and that iterate, (first, Z, rate),
+        # the answer where the iteration then stalls with a current Jacobian
+        first = held = None
+        current = self._jac_current or self._stagewise
         for k in range(max(self.max_newton, self.max_newton_singular)):
             D = _K["Ainv"] @ Z[:, :2 * n] / h  # the stages' derivatives of q and v
             Y = y0 + Z[:, :2 * n]  # the stages' states
@@ -658,7 +700,7 @@ class RadauStepper(Stepper):
                 # that never shrink; A02 at 0.72 s, rtol 1e-8)
                 return True, k + 1, Z, (rate if rate is not None else 0.0)
             dZ = solve(r)
-            dZ_norm = self._norm_stages(dZ, w)
+            dZ_norm, full = self._norm_stages(dZ, w)
             if dZ_norm_old is not None:
                 rate = dZ_norm / dZ_norm_old
                 # at a singular position (a root where Phi_q loses rank) Newton converges
@@ -670,12 +712,19 @@ class RadauStepper(Stepper):
                     self._jac_current or self._stagewise) else self.max_newton
                 if rate >= 1 or k >= limit or rate ** (limit - k) / (1 - rate) * dZ_norm \
                         > self.newton_tol:
-                    return False, k + 1, Z, rate
+                    return (True, *held) if held else (False, k + 1, Z, rate)
             Z = Z + dZ
-            if dZ_norm == 0 or (rate is not None and rate / (1 - rate) * dZ_norm
-                                < self.newton_tol):
-                return True, k + 1, Z, (rate if rate is not None else 0.0)
+            passed = rate is not None and rate / (1 - rate) * dZ_norm < self.newton_tol
+            first = first or (k + 1 if passed else None)
+            if full == 0 or (rate is not None and rate / (1 - rate) * full < self.newton_tol):
+                return True, first or k + 1, Z, (rate if rate is not None else 0.0)
+            if current and passed:
+                held = (first, Z, rate)
+                if k + 1 >= self.max_newton:  # (not on to the singular position's limit)
+                    return (True, *held)
             dZ_norm_old = dZ_norm
+        if held:
+            return (True, *held)
         return False, self.max_newton, Z, (rate if rate is not None else np.inf)
 
     def _newton_ode(self, t: float, h: float, Z: np.ndarray, sc: np.ndarray, L: np.ndarray
@@ -689,10 +738,11 @@ class RadauStepper(Stepper):
         Dh = _K["Ainv"] / h
         tj = (t + _K["c"] * h).tolist()
         w = self._stage_weights(sc, h)
-        scaled, limit = w[0], self.max_newton
+        scaled, full_v, limit = w[0], w[5], self.max_newton
         tol = self.newton_tol
         r = np.empty_like(Z)
-        old = rate = None
+        old = rate = held = first = None
+        current = self._jac_current
         for k in range(limit):
             D = Dh @ Z
             Y = y0 + Z
@@ -710,15 +760,24 @@ class RadauStepper(Stepper):
                 return True, k + 1, Z, (rate if rate is not None else 0.0)
             dZ = (L @ r.ravel()).reshape(r.shape)
             x = dZ * scaled
-            norm = math.sqrt(float(np.vdot(x, x)) / (6 * n))
+            q2 = float(np.vdot(x[:, :n], x[:, :n]))
+            norm = math.sqrt((q2 + float(np.vdot(x[:, n:], x[:, n:]))) / (6 * n))
+            xv = dZ[:, n:] * full_v
+            full = math.sqrt((q2 + float(np.vdot(xv, xv))) / (6 * n))
             if old is not None:
                 rate = norm / old
                 if rate >= 1 or rate ** (limit - k) / (1 - rate) * norm > tol:
-                    return False, k + 1, Z, rate
+                    return (True, *held) if held else (False, k + 1, Z, rate)
             Z = Z + dZ
-            if norm == 0 or (rate is not None and rate / (1 - rate) * norm < tol):
-                return True, k + 1, Z, (rate if rate is not None else 0.0)
+            passed = rate is not None and rate / (1 - rate) * norm < tol
+            first = first or (k + 1 if passed else None)
+            if full == 0 or (rate is not None and rate / (1 - rate) * full < tol):
+                return True, first or k + 1, Z, (rate if rate is not None else 0.0)
+            if current and passed:
+                held = (first, Z, rate)
             old = norm
+        if held:
+            return (True, *held)
         return False, limit, Z, (rate if rate is not None else np.inf)
 
     def step(self) -> str | None:
