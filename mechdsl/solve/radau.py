@@ -563,17 +563,20 @@ class RadauStepper(Stepper):
         left is below newton_tol with the velocities counted in full, w[5] = 1 / sc_v: a
         stage's velocity left off by newton_tol sc_v / h (the index-3 scaling's allowance)
         is an error of the same sign at every step, which adds up over the run (a spinning
-        rod on a slider, 3 s at rtol 1e-8: 1.9e-6 rad off the Lagrange oracle, 4.1e-9
+        rod on a slider, 3 s at rtol 1e-8: 1.9e-6 rad off the Lagrange oracle, 2.7e-9
         counted in full). Only down to their rounding, though: the stages' velocities are
         differences of positions over h, A^-1 Z / h, and carry ``ROUNDING`` eps |q|_max / h
         that no iteration removes, so sc_v is at least that over newton_tol (near rtol 1e-10
         on a double pendulum's whip, steps of 1e-5 s, a smaller scale never converged and
-        the step size underflowed)."""
+        the step size underflowed); and w[5] is never below w[0]'s velocity weights, so the
+        test is never looser than the h-weighted one (where h > 1, or at the floor)."""
         n = self.n
         G = self._norms[3] if self._norms[3] > 0 else 1.0
         rounding = ROUNDING * _EPS * float(np.abs(self.y[:n]).max(initial=0.0)) / h
-        full = 1.0 / np.maximum(sc[n:], rounding / self.newton_tol)
         dz = np.concatenate((1.0 / sc[:n], h / sc[n:]))
+        # (never looser than the h-weighted test: where h > 1, or the floor is above h sc_v)
+        full = np.maximum(1.0 / np.maximum(sc[n:], rounding / max(self.newton_tol, _EPS)),
+                          dz[n:])
         return dz, h / sc[:n], h / self._mass_diag, self._hv(h) / sc[n:], \
             1.0 / (G * sc[:n].min()), full
 
@@ -692,13 +695,13 @@ class RadauStepper(Stepper):
                     r[j, n:] = M @ D[j, n:] - Q
             self.nfev += 3
             if not math.isfinite(r.sum()):  # (one sum: a NaN or an inf anywhere)
-                return False, k + 1, Z, np.inf
+                return (True, *held) if held else (False, k + 1, Z, np.inf)
             if k and self._residual_norm(r, w) <= self.residual_tol * self.newton_tol:
                 # the equations hold to far below the tolerance: what a further correction
                 # would change is noise (near a singular position the iteration matrix is
                 # ill conditioned and amplifies the residual's rounding into corrections
                 # that never shrink; A02 at 0.72 s, rtol 1e-8)
-                return True, k + 1, Z, (rate if rate is not None else 0.0)
+                return True, first or k + 1, Z, (rate if rate is not None else 0.0)
             dZ = solve(r)
             dZ_norm, full = self._norm_stages(dZ, w)
             if dZ_norm_old is not None:
@@ -755,9 +758,9 @@ class RadauStepper(Stepper):
                     r[j, n:] = M @ D[j, n:] - Q
             self.nfev += 3
             if not math.isfinite(r.sum()):
-                return False, k + 1, Z, np.inf
+                return (True, *held) if held else (False, k + 1, Z, np.inf)
             if k and self._residual_norm(r, w) <= self.residual_tol * tol:
-                return True, k + 1, Z, (rate if rate is not None else 0.0)
+                return True, first or k + 1, Z, (rate if rate is not None else 0.0)
             dZ = (L @ r.ravel()).reshape(r.shape)
             x = dZ * scaled
             q2 = float(np.vdot(x[:, :n], x[:, :n]))
