@@ -407,8 +407,9 @@ def test_car_axis_against_the_test_set():
     """The Test Set's reference at t = 3, radau on the index-3 form at rtol = atol near its
     floor 1e-10, where rounding decides the velocities' last digits: the scd of the
     positions and velocities moves by up to 0.8 with a tenth more or less tolerance (6.2
-    to 7.6 over the five below, median 6.9; 6.1 to 7.1, median 6.4, before the Newton
-    iteration counted the velocities in full; one run at exactly 1e-10 gave 6.98 then).
+    to 7.6 over the five below, median 6.9; 6.1 to 7.1, median 7.0, before the Newton
+    iteration counted the velocities in full: the same within the rounding's spread; one run
+    at exactly 1e-10 gave 6.98 then).
     The issue's scd 7 on this problem is held by the default method
     (tests/test_dynamics_references.py: 7.1 for all ten at rtol 1e-10)."""
     eq = CarAxis()
