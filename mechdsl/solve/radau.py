@@ -261,6 +261,46 @@ def _amax(a: object) -> float:
     return float(np.max(np.abs(v))) if v.size else 0.0
 
 
+class _Stopping:
+    """The simplified Newton iteration's exits (:meth:`RadauStepper._stage_weights`), one
+    record per iteration: ``first``, the iterations after which the h-weighted test first
+    passed (what the step size control reads, as before the velocities counted in full:
+    more iterations for their precision are no sign of a harder step), and ``held``, that
+    test's latest passing iterate (first, Z, rate), the answer where the iteration then
+    stalls with a current Jacobian. Each exit returns (converged, iterations, Z, rate)."""
+
+    __slots__ = ("tol", "current", "max_newton", "first", "held")
+
+    def __init__(self, tol: float, current: bool, max_newton: int) -> None:
+        self.tol, self.current, self.max_newton = tol, current, max_newton
+        self.first = self.held = None
+
+    def converged(self, k: int, Z: np.ndarray, rate: float | None) -> tuple:
+        return True, self.first or k + 1, Z, (rate if rate is not None else 0.0)
+
+    def failed(self, k: int, Z: np.ndarray, rate: float) -> tuple:
+        return (True, *self.held) if self.held else (False, k + 1, Z, rate)
+
+    def after(self, k: int, Z: np.ndarray, rate: float | None, norm: float, full: float
+              ) -> tuple | None:
+        """After correction k (Z corrected; ``norm`` and ``full`` the correction's norms
+        with the velocities weighted by h and counted in full): the exit, or None."""
+        passed = rate is not None and rate / (1 - rate) * norm < self.tol
+        self.first = self.first or (k + 1 if passed else None)
+        if full == 0 or (rate is not None and rate / (1 - rate) * full < self.tol):
+            return self.converged(k, Z, rate)
+        if self.current and passed:
+            self.held = (self.first, Z, rate)
+            if k + 1 >= self.max_newton:  # (not on to the singular position's limit)
+                return (True, *self.held)
+        return None
+
+    def exhausted(self, iterations: int, Z: np.ndarray, rate: float | None) -> tuple:
+        if self.held:
+            return (True, *self.held)
+        return False, iterations, Z, (rate if rate is not None else np.inf)
+
+
 class RadauStepper(Stepper):
     """Radau IIA (order 5, 3 stages) on the index-3 equations of motion; the module's
     docstring has the formulation. Options (keywords, defaults):
@@ -662,18 +702,14 @@ class RadauStepper(Stepper):
                 ) -> tuple[bool, int, np.ndarray, float]:
         """Simplified Newton on the stage system from the guess Z (3, 2n + m), dZ =
         solve(residual); ``at_guess``: each stage's (Phi, Phi_q, M, Q) at Z where the caller
-        has them. Returns (converged, iterations, Z, contraction rate)."""
+        has them. Returns (converged, iterations, Z, contraction rate): :class:`_Stopping`."""
         n, m = self.n, self.m
         y0, lam0 = self.y, self.lam
         c = _K["c"]
         dZ_norm_old, rate, r = None, None, np.empty_like(Z)
         w = self._stage_weights(sc, h)
-        # the iterations after which the h-weighted test first passed (what the step size
-        # control reads, as before the velocities counted in full: more iterations for
-        # their precision are no sign of a harder step), and that iterate, (first, Z, rate),
-        # the answer where the iteration then stalls with a current Jacobian
-        first = held = None
         current = self._jac_current or self._stagewise
+        stop = _Stopping(self.newton_tol, current, self.max_newton)
         for k in range(max(self.max_newton, self.max_newton_singular)):
             D = _K["Ainv"] @ Z[:, :2 * n] / h  # the stages' derivatives of q and v
             Y = y0 + Z[:, :2 * n]  # the stages' states
@@ -695,13 +731,13 @@ class RadauStepper(Stepper):
                     r[j, n:] = M @ D[j, n:] - Q
             self.nfev += 3
             if not math.isfinite(r.sum()):  # (one sum: a NaN or an inf anywhere)
-                return (True, *held) if held else (False, k + 1, Z, np.inf)
+                return stop.failed(k, Z, np.inf)
             if k and self._residual_norm(r, w) <= self.residual_tol * self.newton_tol:
                 # the equations hold to far below the tolerance: what a further correction
                 # would change is noise (near a singular position the iteration matrix is
                 # ill conditioned and amplifies the residual's rounding into corrections
                 # that never shrink; A02 at 0.72 s, rtol 1e-8)
-                return True, first or k + 1, Z, (rate if rate is not None else 0.0)
+                return stop.converged(k, Z, rate)
             dZ = solve(r)
             dZ_norm, full = self._norm_stages(dZ, w)
             if dZ_norm_old is not None:
@@ -711,24 +747,17 @@ class RadauStepper(Stepper):
                 # ``max_newton_singular`` iterations (A02's collinear passages at rtol 1e-8)
                 # (with a Jacobian of the step's start or the stages' own: a slow rate with
                 # an older one asks for a new Jacobian, after max_newton)
-                limit = self.max_newton_singular if rate <= self.singular_rate and (
-                    self._jac_current or self._stagewise) else self.max_newton
+                limit = self.max_newton_singular if rate <= self.singular_rate and current \
+                    else self.max_newton
                 if rate >= 1 or k >= limit or rate ** (limit - k) / (1 - rate) * dZ_norm \
                         > self.newton_tol:
-                    return (True, *held) if held else (False, k + 1, Z, rate)
+                    return stop.failed(k, Z, rate)
             Z = Z + dZ
-            passed = rate is not None and rate / (1 - rate) * dZ_norm < self.newton_tol
-            first = first or (k + 1 if passed else None)
-            if full == 0 or (rate is not None and rate / (1 - rate) * full < self.newton_tol):
-                return True, first or k + 1, Z, (rate if rate is not None else 0.0)
-            if current and passed:
-                held = (first, Z, rate)
-                if k + 1 >= self.max_newton:  # (not on to the singular position's limit)
-                    return (True, *held)
+            done = stop.after(k, Z, rate, dZ_norm, full)
+            if done:
+                return done
             dZ_norm_old = dZ_norm
-        if held:
-            return (True, *held)
-        return False, self.max_newton, Z, (rate if rate is not None else np.inf)
+        return stop.exhausted(self.max_newton, Z, rate)
 
     def _newton_ode(self, t: float, h: float, Z: np.ndarray, sc: np.ndarray, L: np.ndarray
                     ) -> tuple[bool, int, np.ndarray, float]:
@@ -741,11 +770,10 @@ class RadauStepper(Stepper):
         Dh = _K["Ainv"] / h
         tj = (t + _K["c"] * h).tolist()
         w = self._stage_weights(sc, h)
-        scaled, full_v, limit = w[0], w[5], self.max_newton
-        tol = self.newton_tol
+        limit, tol = self.max_newton, self.newton_tol
         r = np.empty_like(Z)
-        old = rate = held = first = None
-        current = self._jac_current
+        old = rate = None
+        stop = _Stopping(tol, self._jac_current, limit)
         for k in range(limit):
             D = Dh @ Z
             Y = y0 + Z
@@ -758,30 +786,21 @@ class RadauStepper(Stepper):
                     r[j, n:] = M @ D[j, n:] - Q
             self.nfev += 3
             if not math.isfinite(r.sum()):
-                return (True, *held) if held else (False, k + 1, Z, np.inf)
+                return stop.failed(k, Z, np.inf)
             if k and self._residual_norm(r, w) <= self.residual_tol * tol:
-                return True, first or k + 1, Z, (rate if rate is not None else 0.0)
+                return stop.converged(k, Z, rate)
             dZ = (L @ r.ravel()).reshape(r.shape)
-            x = dZ * scaled
-            q2 = float(np.vdot(x[:, :n], x[:, :n]))
-            norm = math.sqrt((q2 + float(np.vdot(x[:, n:], x[:, n:]))) / (6 * n))
-            xv = dZ[:, n:] * full_v
-            full = math.sqrt((q2 + float(np.vdot(xv, xv))) / (6 * n))
+            norm, full = self._norm_stages(dZ, w)
             if old is not None:
                 rate = norm / old
                 if rate >= 1 or rate ** (limit - k) / (1 - rate) * norm > tol:
-                    return (True, *held) if held else (False, k + 1, Z, rate)
+                    return stop.failed(k, Z, rate)
             Z = Z + dZ
-            passed = rate is not None and rate / (1 - rate) * norm < tol
-            first = first or (k + 1 if passed else None)
-            if full == 0 or (rate is not None and rate / (1 - rate) * full < tol):
-                return True, first or k + 1, Z, (rate if rate is not None else 0.0)
-            if current and passed:
-                held = (first, Z, rate)
+            done = stop.after(k, Z, rate, norm, full)
+            if done:
+                return done
             old = norm
-        if held:
-            return (True, *held)
-        return False, limit, Z, (rate if rate is not None else np.inf)
+        return stop.exhausted(limit, Z, rate)
 
     def step(self) -> str | None:
         """Rule 2: one accepted step (module docstring), or the reason there is none."""
