@@ -176,3 +176,66 @@ def test_outputs_inside_a_step_over_a_singular_position_are_integrated_again():
     ref = _about_circling_pivot(res["t"], res["pend.omega"][0])
     assert np.abs(res["pend.phi"] - ref[0]).max() < 2e-7
     assert np.abs(res["pend.omega"] - ref[1]).max() < 1e-6
+
+
+#: A parallelogram four-bar (crank and rocker 1 m and 1 kg, coupler 2 m and 2 kg, all
+#: uniform; pivots 2 m apart) under gravity, the crank at 0.5 rad turning at -2 rad/s: it
+#: reaches its collinear position (theta = 0) at t = 0.1730954
+PARALLELOGRAM = """gravity = (0, -9.81)
+ground { point A = (0, 0)  point D = (2, 0) }
+body crank { guess = (0.4388, 0.2397, 0.5)  point A = (-0.5, 0)  point B = (0.5, 0)  mass = 1  inertia = 1/12 }
+body coupler { guess = (1.8776, 0.4794, 0)  point B = (-1, 0)  point C = (1, 0)  mass = 2  inertia = 2*4/12 }
+body rocker { guess = (2.4388, 0.2397, 0.5)  point D = (-0.5, 0)  point C = (0.5, 0)  mass = 1  inertia = 1/12 }
+joint A: revolute(ground.A, crank.A)
+joint B: revolute(crank.B, coupler.B)
+joint C: revolute(coupler.C, rocker.C)
+joint D: revolute(rocker.D, ground.D)
+initial a: angle(crank) = 0.5, rate = -2
+simulate t = 0 .. 0.5 step 0.01
+output th = crank.phi, ph = coupler.phi
+"""
+
+
+def test_the_dense_solve_hands_a_collinear_position_to_the_augmented_lagrangian_at_once():
+    """The dense index-1 solve cannot pass the parallelogram's collinear position. It used
+    to take 14,689 ever shorter steps around it until a projection failed 7 ms past it
+    (6.5 s of a 6.8 s run); the stall is now recognised where it starts (mechdsl.solve.driver, "stalls": Phi_q singular there), and the augmented
+    Lagrangian integrates the variant, on the parallelogram branch: the one-degree-of-
+    freedom pendulum (8/3) theta'' = -3 g cos theta (T = (1/3 + 1/3 + 2) theta'^2 / 2, V =
+    (0.5 + 0.5 + 2) g sin theta), the coupler parallel to the ground."""
+    import re
+
+    res = mechdsl.loads(PARALLELOGRAM, "parallelogram.mech").simulate()
+    assert res.ok, res.messages
+    stall = [w for w in res.warnings if "stalled" in w]
+    assert stall and "singular position" in stall[0], res.warnings
+    crossing = solve_ivp(lambda t, y: [y[1], -9 / 8 * 9.81 * math.cos(y[0])], (0, 0.5),
+                         [0.5, -2.0], rtol=1e-12, atol=1e-14,
+                         events=lambda t, y: y[0]).t_events[0][0]
+    at = float(re.search(r"stalled at t = ([0-9.e+-]+)", stall[0])[1])
+    assert abs(at - crossing) < 1e-4, (at, crossing)
+    ref = solve_ivp(lambda t, y: [y[1], -9 / 8 * 9.81 * math.cos(y[0])], (0, 0.5),
+                    [0.5, -2.0], rtol=1e-12, atol=1e-14, t_eval=res.times).y[0]
+    assert np.max(np.abs(res["th"] - ref)) < 1e-7
+    assert np.max(np.abs(res["ph"])) < 1e-9
+    assert res["th"][-1] < -1.7  # (well past the collinear position)
+
+
+def test_a_stall_is_a_run_of_steps_far_shorter_than_those_before():
+    """mechdsl.solve.driver._Stall: STALL_STEPS accepted steps in a row, each below
+    STALL_RATIO times the fading longest step before them; a run whose steps shrink
+    gradually (by 1 % a step, as a step-size control may over a long approach) is none."""
+    from mechdsl.solve.driver import STALL_RATIO, STALL_STEPS, _Stall
+
+    stall = _Stall()
+    assert not any(stall.after(1e-3) for _ in range(20))
+    tiny = 0.1 * STALL_RATIO * 1e-3
+    assert not any(stall.after(tiny) for _ in range(STALL_STEPS - 1))
+    assert stall.after(tiny)
+    stall = _Stall()
+    assert not any(stall.after(1e-3 * 0.99 ** k) for k in range(5000))
+    stall = _Stall()  # one longer step in between starts the count afresh
+    stall.after(1e-3)
+    assert not any(stall.after(tiny) for _ in range(STALL_STEPS - 1))
+    stall.after(1e-3)
+    assert not any(stall.after(tiny) for _ in range(STALL_STEPS - 1))

@@ -58,6 +58,15 @@ and owns
   constraints' impulsive motion, the velocities' mass-orthogonal projection; ``project``
   where they have none), with a fresh stepper (rule 1), and the solution lists the jumps
   met (``jumps``);
+* **stalls**: where the equations can tell why their steps stall (``stalled(t, y)``: the
+  dense index-1 equations, near a singular position of the constraints, which they cannot
+  pass), :data:`STALL_STEPS` accepted steps in a row each shorter than :data:`STALL_RATIO`
+  times the steps before them ask them; a reason ends the run "failed" there, at once,
+  instead of after thousands of ever shorter steps (a parallelogram falling through its
+  collinear position: 14,689 steps and 6.5 s before a projection failed; one driven
+  through it by a stiff spring: 4263 steps and 2.2 s before its step size underflowed, t
+  advancing by 1e-8 s; its caller then goes on by the augmented Lagrangian). No reason:
+  the steps go on as before (a kink of a force, a drive's corner);
 * **progress**: ``on_output(k, t, y)`` with each output as soon as it is known, and
   ``on_step(t, attempts)`` after every accepted step (one output interval may take
   millions of steps: a display fed by the outputs alone would stand still). It costs a
@@ -96,6 +105,33 @@ TRIAL_RATIO_FACTORISED = 1.5
 #: more than this many steps of its typical size (the trial's own steps cost 24 to 80 of
 #: the pair's: with fewer left, it cannot pay)
 STIFF_MIN_STEPS = 100
+
+
+#: A stall (module docstring): STALL_STEPS accepted steps in a row, each shorter than
+#: STALL_RATIO times the run's recent step (the longest of the steps before it, fading by
+#: STALL_FADE a step, so that a run whose steps shrink for good is not held to its start)
+STALL_STEPS, STALL_RATIO, STALL_FADE = 100, 1e-3, 0.99
+
+
+class _Stall:
+    """The count of a stall (module docstring) over the accepted steps of a run."""
+
+    def __init__(self) -> None:
+        self.recent = 0.0  # the fading longest step
+        self.small = 0
+
+    def after(self, h: float) -> bool:
+        """After an accepted step of size h: whether it completes a stall."""
+        if h < STALL_RATIO * self.recent:
+            self.small += 1
+            self.recent *= STALL_FADE
+            if self.small >= STALL_STEPS:
+                self.small = 0
+                return True
+            return False
+        self.small = 0
+        self.recent = max(h, self.recent * STALL_FADE)
+        return False
 
 
 #: A projection after a step that moves the state by more than this many times the step's
@@ -311,6 +347,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         if max_step < np.inf:
             s.max_step = max_step
         watch = None
+        stall = _Stall()
         if stiff is not None and not stepper.implicit:
             s.detect_stiffness = True
             watch = _Watch(stiff, equations, t, t_end, rtol, atol, scale)
@@ -371,6 +408,11 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                 emit(k_next, t_new, y_new.copy(), raw)
                 k_next += 1
             t_old, t = t, t_new
+            stalled = getattr(equations, "stalled", None)
+            if stalled is not None and stall.after(t - t_old):
+                reason = stalled(t, y_new)
+                if reason is not None:
+                    return done("failed", reason)
             why, spent, kept = (None, None, None) if watch is None else \
                 watch.after(s, message, t_old, t, y_new)
             if spent is not None and why is None:  # a trial that said no: its work counts

@@ -54,6 +54,10 @@ RTOL, ATOL = 1e-8, 1e-10
 #: means (a pendulum at rtol 0.5 gained 100 times its energy in 20 s; scipy's default is
 #: 1e-3)
 LOOSE_RTOL = 1e-2
+#: Where the dense equations' steps stall (mechdsl.solve.driver), the constraints' Jacobian
+#: whose smallest singular value is below this times its largest is a singular position
+#: they cannot pass: the variant goes on by the augmented Lagrangian at once
+SINGULAR_STALL = 1e-4
 #: The tightest tolerances any integrator is given: scipy's floor of rtol, 100 eps (its
 #: solvers raise a smaller one to it), and an atol (relative to the model's size) at double
 #: precision's resolution; tighter ones are raised to them, with a warning. Asked for less,
@@ -828,6 +832,22 @@ class _Equations:
         out = f.copy()
         out[:n] = y[n:]
         return out
+
+    def stalled(self, t: float, y: np.ndarray) -> str | None:
+        """Why the steps stall at (t, y) (mechdsl.solve.driver, "stalls"), where the reason
+        is a singular position: Phi_q's smallest singular value below
+        :data:`SINGULAR_STALL` times its largest, which these equations, needing Phi_q of
+        full rank, cannot pass; None otherwise."""
+        if not self.m:
+            return None
+        G = self.phi_jac(t, y[:self.n])[1]
+        G = G.toarray() if hasattr(G, "toarray") else np.atleast_2d(np.asarray(G, float))
+        sigma = np.linalg.svd(G, compute_uv=False)
+        if not sigma[-1] < SINGULAR_STALL * sigma[0]:
+            return None
+        return (f"the steps stalled at t = {t:.10g} at a singular position: the constraints' "
+                f"Jacobian's smallest singular value is {sigma[-1] / sigma[0]:.1e} of its "
+                "largest")
 
 
 def _augmented() -> type:
