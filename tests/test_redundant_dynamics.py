@@ -214,6 +214,8 @@ def test_the_dense_solve_hands_a_collinear_position_to_the_augmented_lagrangian_
                          events=lambda t, y: y[0]).t_events[0][0]
     at = float(re.search(r"stalled at t = ([0-9.e+-]+)", stall[0])[1])
     assert abs(at - crossing) < 1e-4, (at, crossing)
+    # the automatic choice's pair for the augmented Lagrangian through singular positions
+    assert "dop853 on the augmented Lagrangian, where a singular position" in res.method
     ref = solve_ivp(lambda t, y: [y[1], -9 / 8 * 9.81 * math.cos(y[0])], (0, 0.5),
                     [0.5, -2.0], rtol=1e-12, atol=1e-14, t_eval=res.times).y[0]
     assert np.max(np.abs(res["th"] - ref)) < 1e-7
@@ -239,3 +241,39 @@ def test_a_stall_is_a_run_of_steps_far_shorter_than_those_before():
     assert not any(stall.after(tiny) for _ in range(STALL_STEPS - 1))
     stall.after(1e-3)
     assert not any(stall.after(tiny) for _ in range(STALL_STEPS - 1))
+
+
+def test_an_implicit_run_stopped_at_a_singular_position_says_what_passes_it():
+    """Where radau's step underflows, the failure says whether the state it stopped at is a
+    singular position (Phi_q D's smallest singular value below SINGULAR_NEAR of its
+    largest), and what integrates through one. Checked on the parallelogram's own
+    configurations: at its collinear position (every link on the ground line) Phi_q has
+    rank 7 of 8, a ratio at round-off; at theta = 0.5 it is far from singular, and no
+    advice is given."""
+    from mechdsl.solve.driver import Solution
+    from mechdsl.solve.dynamic import DynamicRun, _singular_ratio
+    from mechdsl.solve.motion import Motion
+
+    mech = mechdsl.loads(PARALLELOGRAM)
+    kernels = mech.compile()
+    run = DynamicRun(kernels, SolverOptions(method="radau"))
+    motion = Motion(kernels, run.opts)
+    D = run.D[0, 0]
+    collinear = np.array([0.5, 0, 0, 2, 0, 0, 2.5, 0, 0] + [0.0] * 9)
+    c, s = math.cos(0.5), math.sin(0.5)
+    regular = np.array([0.5 * c, 0.5 * s, 0.5, 1 + c, s, 0, 2 + 0.5 * c, 0.5 * s, 0.5]
+                       + [0.0] * 9)
+    assert np.abs(motion.phi_jac(0.0, collinear[:9])[0]).max() < 1e-12  # (on the constraints)
+    assert np.abs(motion.phi_jac(0.0, regular[:9])[0]).max() < 1e-12
+    assert _singular_ratio(motion, 0.0, collinear, D) < 1e-12
+    assert _singular_ratio(motion, 0.0, regular, D) > 1e-2
+
+    def note(y):
+        failed = Solution(np.zeros(1), np.zeros((1, 18)), "failed",
+                          "the step size underflowed at t = 0.17", 10, 5, 100, 0.17,
+                          y_reached=y)
+        return run._implicit_note(failed, motion, 0)
+
+    assert "did not pass the singular position there" in note(collinear)
+    assert "--method dop853" in note(collinear)
+    assert note(regular) == ""

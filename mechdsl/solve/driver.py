@@ -173,6 +173,8 @@ class Solution:
     #: be integrated again (no step ends there: a singular position), as the interpolant
     #: gave them, projected
     rough: tuple = ()
+    #: the stepper's state where the integration ended (at t_reached), None before a step
+    y_reached: np.ndarray | None = None
 
 
 def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
@@ -290,7 +292,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         return Solution(np.array(outs_t), np.array(outs_y).reshape(len(outs_t), n), status,
                         message, *counts[:3], t, reason, *counts[3:], switched,
                         None if s is None else getattr(s, "note", None), tuple(met),
-                        tuple(rough))
+                        tuple(rough), None if s is None else np.array(s.y, dtype=float))
 
     def over_jump(found: list[Jump]) -> Solution | None:
         """The step that went over the jumps ``found`` (those of its earliest instant)

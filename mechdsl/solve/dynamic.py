@@ -72,6 +72,16 @@ _IMPLICIT_REDUNDANT = ("this model's constraints are redundant, and the implicit
                        "iteration may not pass a position where they turn singular: the "
                        "augmented Lagrangian with an explicit pair (the automatic choice, or "
                        "--method dop853) integrates through singular positions")
+#: Where radau's step underflows at a singular position of a model without redundant
+#: constraints (Phi_q's smallest singular value below SINGULAR_NEAR of its largest where it
+#: stopped): a parallelogram driven through its collinear position by a spring of 1e6
+#: N m/rad, at 100 rad/s, stopped at the third passage (t = 0.0139)
+SINGULAR_NEAR = 1e-3
+_IMPLICIT_SINGULAR = ("the implicit method's iteration did not pass the singular position "
+                      "there (the constraints' Jacobian's smallest singular value {ratio:.1e} "
+                      "of its largest): the augmented Lagrangian with an explicit pair (the "
+                      "automatic choice, or --method dop853) integrates through singular "
+                      "positions")
 #: What a jump of a constraint in time means, by its level (:mod:`mechdsl.solve.jumps`)
 _JUMP_POSITION = ("no motion under finite forces follows a jump in a constraint's position; "
                   "write it as a continuous function of t (a ramp, a smoothstep), or run "
@@ -393,7 +403,7 @@ class DynamicRun(Run):
 
     def _variant(self, v: int, q0: np.ndarray) -> str:
         from .driver import integrate
-        from .integrators import INTEGRATORS, stiff_method
+        from .integrators import INTEGRATORS, choose, stiff_method
 
         #: the system as variant v sees it: its params, its functions
         self.one, self.variant = _one(self.kernels, v), v
@@ -470,15 +480,29 @@ class DynamicRun(Run):
                 self.ev = _augmented()(self.one, self.opts)
                 self.singular_met = True
                 self.n_solved[v] = 0
-                again = integrate(INTEGRATORS[self.method], self.ev, y0, times,
+                method = self.method
+                if self.opts.method == "auto":
+                    # the pair the automatic choice takes on the augmented Lagrangian
+                    # through singular positions, as for redundant constraints (a
+                    # parallelogram driven through its collinear position 540 times in
+                    # 3 s by a spring of 1e6 N m/rad, rtol 1e-8: dop853 20.8 s, its energy
+                    # kept to 5.9e-7; vern9 31.1 s, 8.5e-7)
+                    method = choose("auto", self.rtol, dopri5_from=self.opts.dopri5_from,
+                                    large=self.large, redundant=True)[0]
+                again = integrate(INTEGRATORS[method], self.ev, y0, times,
                                   rtol=self.rtol, atol=self.atol, scale=scale,
                                   on_output=record, on_step=on_step, max_steps=budget,
                                   on_interval=self._dissipation_integral())
                 self.warnings.append(
                     f"the dense equations of motion stopped near t = {at:.6g}"
                     f"{variant_label(sysm, v)} ({sol.message}); the variant was integrated "
-                    "again from t0 by the augmented Lagrangian, which passes singular "
-                    "positions")
+                    "again from t0 by the augmented Lagrangian"
+                    + (f" with {method}" if method != self.method else "")
+                    + ", which passes singular positions")
+                if method != self.method:
+                    self.switches.append(
+                        f"{method} on the augmented Lagrangian{variant_label(sysm, v)}, where "
+                        f"a singular position stopped the dense equations at t = {at:.6g}")
                 sol = again  # its outputs replaced the first attempt's, instant by instant
         finally:  # an interrupt too: the instants solved are written, complete
             self._write(v)
@@ -520,9 +544,22 @@ class DynamicRun(Run):
                 + (f"; {jumps_text(sysm, jumps)}: {_JUMP_POSITION}"
                    if any(j.level == "position" for j in jumps) else
                    f"; {jumps_text(sysm, jumps)}: {_JUMP_VELOCITY}" if jumps else
-                   f"; {_IMPLICIT_REDUNDANT}" if (self.redundant or sysm.m >= sysm.n) and
-                   INTEGRATORS[self.method].implicit and "underflow" in sol.message else ""))
+                   self._implicit_note(sol, equations, v)))
         return sol.status
+
+    def _implicit_note(self, sol, equations, v: int) -> str:
+        """What to do where the implicit method's step underflowed (``sol``: the driver's
+        Solution, of variant ``v``): at redundant constraints or a singular position, the explicit pairs on
+        the augmented Lagrangian (the automatic choice); "" elsewhere."""
+        from .integrators import INTEGRATORS
+
+        sysm = self.kernels.system
+        if not (INTEGRATORS[self.method].implicit and "underflow" in sol.message):
+            return ""
+        if self.redundant or sysm.m >= sysm.n:
+            return f"; {_IMPLICIT_REDUNDANT}"
+        ratio = _singular_ratio(equations, sol.t_reached, sol.y_reached, self.D[v, 0])
+        return f"; {_IMPLICIT_SINGULAR.format(ratio=ratio)}" if ratio < SINGULAR_NEAR else ""
 
     def _rate_jumps(self, equations, floor: float) -> list:
         """The jumps of the drives' rates f'(t) between the output instants
@@ -824,6 +861,7 @@ class _Equations:
         self.project, self.settle = project, settle
         self.phi_jac, self.nu, self.accelerations = ev.phi_jac, ev.nu, ev.accelerations
         self.impulse = impulse
+        self.scale = ev.D  # the coordinates' scale (the model's lengths, radians)
 
     def carry(self, y: np.ndarray, f: np.ndarray) -> np.ndarray:
         """y' = (qd, qdd): after a correction of y, its first half is the corrected qd
@@ -838,16 +876,24 @@ class _Equations:
         is a singular position: Phi_q's smallest singular value below
         :data:`SINGULAR_STALL` times its largest, which these equations, needing Phi_q of
         full rank, cannot pass; None otherwise."""
-        if not self.m:
-            return None
-        G = self.phi_jac(t, y[:self.n])[1]
-        G = G.toarray() if hasattr(G, "toarray") else np.atleast_2d(np.asarray(G, float))
-        sigma = np.linalg.svd(G, compute_uv=False)
-        if not sigma[-1] < SINGULAR_STALL * sigma[0]:
+        ratio = _singular_ratio(self, t, y, self.scale)
+        if not ratio < SINGULAR_STALL:
             return None
         return (f"the steps stalled at t = {t:.10g} at a singular position: the constraints' "
-                f"Jacobian's smallest singular value is {sigma[-1] / sigma[0]:.1e} of its "
-                "largest")
+                f"Jacobian's smallest singular value is {ratio:.1e} of its largest")
+
+
+def _singular_ratio(equations, t: float, y: np.ndarray | None, scale: np.ndarray) -> float:
+    """sigma_min / sigma_max of Phi_q D at the positions of y (1 without constraints or
+    state), D the coordinates' ``scale`` (as the rank at the assembly is judged: a model
+    in millimetres is not near-singular for its units): how near (t, y) is to a singular
+    position."""
+    if y is None or not equations.m:
+        return 1.0
+    G = equations.phi_jac(t, y[:equations.n])[1]
+    G = G.toarray() if hasattr(G, "toarray") else np.atleast_2d(np.asarray(G, float))
+    sigma = np.linalg.svd(G * scale, compute_uv=False)
+    return float(sigma[-1] / sigma[0]) if sigma[0] > 0 else 0.0
 
 
 def _augmented() -> type:
