@@ -188,6 +188,49 @@ def mechdsl_process(text: str, timeout: float = 300.0) -> dict[str, Any]:
             "message": lines[0][:200] if lines and proc.returncode else ""}
 
 
+#: What a user of scipy writes for the stiff pendulum: the minimal ODE and its exact
+#: Jacobian (benchmarks/dynamics_models.py, imported as the user's own two functions), its
+#: 201 output instants, a CSV like mechdsl's
+SCIPY_SCRIPT = """import sys
+import numpy as np
+from scipy.integrate import solve_ivp
+sys.path.insert(0, {here!r})
+from dynamics_models import PENDULUM, stiff_pendulum_jac, stiff_pendulum_rhs
+k = {k!r}
+t = np.linspace(0.0, 2.0, 201)
+sol = solve_ivp(lambda t, y: stiff_pendulum_rhs(t, y, k), (0.0, 2.0),
+                [0.0, PENDULUM["l0"], 0.0, 0.0], method="Radau", rtol=1e-6, atol=1e-8,
+                jac=lambda t, y: stiff_pendulum_jac(t, y, k), t_eval=t)
+np.savetxt({out!r}, np.column_stack((sol.t, sol.y.T)), delimiter=",",
+           header="t,theta,s,theta.vel,s.vel", comments="")
+sys.exit(0 if sol.success else 2)
+"""
+
+
+def whole_processes(text: str, k: float, repeat: int = 5, timeout: float = 300.0
+                    ) -> dict[str, Any]:
+    """The whole process of each, interleaved ``repeat`` times (medians): ``mechdsl run``
+    on the stiff pendulum's text (:func:`mechdsl_process`) and ``python`` on
+    :data:`SCIPY_SCRIPT` (start-up, imports, scipy's Radau, the CSV)."""
+    mech, scipy_times, exits = [], [], set()
+    with tempfile.TemporaryDirectory() as tmp:
+        script = Path(tmp) / "stiff_scipy.py"
+        script.write_text(SCIPY_SCRIPT.format(here=str(Path(__file__).resolve().parent),
+                                              k=k, out=str(Path(tmp) / "scipy.csv")))
+        for _ in range(repeat):
+            rec = mechdsl_process(text, timeout=timeout)
+            exits.add(rec["exit"])
+            if rec["time"] is not None:
+                mech.append(rec["time"])
+            start = time.perf_counter()
+            proc = subprocess.run([sys.executable, str(script)], capture_output=True,
+                                  timeout=timeout, cwd=tmp)
+            scipy_times.append(time.perf_counter() - start)
+            exits.add(f"scipy {proc.returncode}")
+    med = lambda xs: statistics.median(xs) if xs else None  # noqa: E731
+    return {"mechdsl": med(mech), "scipy": med(scipy_times), "exits": sorted(map(str, exits))}
+
+
 def _integrator(rec: dict[str, Any]) -> str:
     """The integrator a run took, and where it went on with another ("vern9, radau from t
     = 0.0058"), from its summary's line."""
@@ -544,6 +587,17 @@ def bench_stiff(rep, quick: bool, out: Path) -> None:
         rep.text(f"mechdsl run (whole process), stiff pendulum k = {ks[0]:g}: "
                  f"{_fmt_t(first_process['time'])}, exit {first_process['exit']} "
                  f"{first_process['message']}")
+    k = 1e8
+    both = whole_processes(dm.stiff_pendulum_text(k, rtol=1e-6, atol=1e-8), k,
+                           repeat=3 if quick else 7)
+    if both["mechdsl"] and both["scipy"]:
+        rep.text(f"Whole process, stiff pendulum k = {k:g}, interleaved, medians of "
+                 f"{3 if quick else 7}: `mechdsl run` (start-up, parse, compile, solve, the "
+                 f"CSV with accelerations) {_fmt_t(both['mechdsl'])}; `python` on a script "
+                 f"with scipy's Radau (start-up, imports, the hand-written ODE and Jacobian, "
+                 f"201 outputs, the CSV) {_fmt_t(both['scipy'])}: "
+                 f"{both['mechdsl'] / both['scipy']:.2f} times; exits "
+                 f"{', '.join(both['exits'])}")
     _plot(out / "dynamics_stiff.png", "Stiff pendulum, 2 s", "spring stiffness k (N/m)",
           "time (s)", curves)
 

@@ -174,6 +174,28 @@ def test_a_run_imports_only_the_plugins_and_libraries_it_needs():
         "['mechdsl_drives', 'mechdsl_prismatic', 'mechdsl_revolute']"
 
 
+def test_a_small_forward_dynamics_does_not_import_scipy_sparse(tmp_path):
+    """The stiff pendulum (two bodies, stiff enough that the run goes on with radau in its
+    joints' coordinates) runs with no sparse matrix: scipy.sparse, 25 to 35 ms of the
+    process's start-up, is not imported (it was, by the augmented Lagrangian's plan and
+    product kernels and radau's type tests, none of which a small model needs)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "dynamics_models", ROOT / "benchmarks" / "dynamics_models.py")
+    dm = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(dm)
+    model = tmp_path / "stiff.mech"
+    model.write_text(dm.stiff_pendulum_text(1e8, rtol=1e-6, atol=1e-8))
+    code = ("import sys, mechdsl.cli as c; c.main(['run', %r, '-o', %r, '-q']);"
+            "print(sorted(m for m in sys.modules if m.startswith('scipy.sparse')) or 'none',"
+            " file=sys.stderr)") % (str(model), str(tmp_path / "o.csv"))
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert r.stderr.strip().splitlines()[-1] == "none", r.stderr[-500:]
+    text = (tmp_path / "o.csv").read_text()
+    assert text.count("\n") > 200  # (the run was made: 201 instants)
+
+
 def test_a_model_with_forces_imports_only_the_force_plugin_beside_its_joints():
     # the force types have one entry point each, as the joints do: naming `spring` must not
     # make the registry load every installed plugin to find it

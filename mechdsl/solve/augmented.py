@@ -35,6 +35,7 @@ saddle-point matrix takes 23 ms with one thread and 51 ms with two. No thread li
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -54,28 +55,38 @@ class Rows:
     order: np.ndarray
     #: the row of each entry, in the rows' order (the bincount's)
     rows: np.ndarray
-    matvec: object = None
+    #: the product by scipy's compiled kernel where scipy has it (else the bincount)
+    compiled: bool = True
 
     @classmethod
     def of(cls, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]) -> "Rows":
-        try:  # (scipy's compiled kernel behind csr_matrix @ x, without its checks)
-            from scipy.sparse._sparsetools import csr_matvec
-        except ImportError:  # pragma: no cover - a scipy without it: the bincount
-            csr_matvec = None
         order = np.argsort(rows, kind="stable").astype(np.intp)
         counts = np.bincount(rows, minlength=shape[0])
         indptr = np.concatenate(([0], np.cumsum(counts))).astype(np.intc)
         return cls(shape, indptr, np.asarray(cols, dtype=np.intc)[order], order,
-                   np.asarray(rows, dtype=np.intp)[order], csr_matvec)
+                   np.asarray(rows, dtype=np.intp)[order])
 
     def times(self, data: np.ndarray, x: np.ndarray) -> np.ndarray:
         """The matrix with ``data`` (in the rows' order) times ``x``."""
-        if self.matvec is None:
+        matvec = _csr_matvec() if self.compiled else None
+        if matvec is None:
             return np.bincount(self.rows, data * x[self.indices], minlength=self.shape[0])
         y = np.zeros(self.shape[0])
-        self.matvec(self.shape[0], self.shape[1], self.indptr, self.indices, data,
-                    np.ascontiguousarray(x, dtype=float), y)
+        matvec(self.shape[0], self.shape[1], self.indptr, self.indices, data,
+               np.ascontiguousarray(x, dtype=float), y)
         return y
+
+
+@functools.cache
+def _csr_matvec():
+    """scipy's compiled kernel behind csr_matrix @ x, without its checks, looked up at the
+    first product (a run that forms none, the stiff pendulum's in its joint coordinates,
+    never imports scipy.sparse: 25 ms of the process); None where scipy has none."""
+    try:
+        from scipy.sparse._sparsetools import csr_matvec
+    except ImportError:  # pragma: no cover - a scipy without it: the bincount
+        return None
+    return csr_matvec
 
 
 @dataclass(frozen=True)
@@ -139,9 +150,6 @@ def plan(n: int, m: int, mass_rows: np.ndarray, mass_cols: np.ndarray,
     below ``band_from`` coordinates or where the band would not be narrow (half-width
     above n / 4: a band that wide does no less work than the dense factorisation), else
     the band of the reverse Cuthill-McKee order."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import reverse_cuthill_mckee
-
     k1, k2 = _pairs(jac_rows, m)
     pr, pc = jac_cols[k1], jac_cols[k2]
     rows = np.concatenate((mass_rows, pr, np.arange(n)))
@@ -149,6 +157,10 @@ def plan(n: int, m: int, mass_rows: np.ndarray, mass_cols: np.ndarray,
     perm = np.arange(n)
     kd = -1
     if n >= band_from:
+        # (imported here: a small model's run never needs scipy.sparse, 35 ms of a process)
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import reverse_cuthill_mckee
+
         pattern = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)).tocsr()
         order = np.asarray(reverse_cuthill_mckee(pattern, symmetric_mode=True), np.intp)
         rank = np.empty(n, np.intp)
