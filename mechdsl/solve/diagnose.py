@@ -52,6 +52,28 @@ def jumps_text(system: System, jumps) -> str:
                      f"{j.level} by {j.size:.3g})" for j in jumps)
 
 
+#: A projection whose Gauss-Newton steps do not fall to newton_tol (module motion, dynamic)
+#: is closed all the same where every constraint holds to this many units of round-off of
+#: the configuration's size (:func:`closed_to_roundoff`)
+RESIDUAL_ROUNDOFF = 1000.0
+
+
+def closed_to_roundoff(phi: np.ndarray, q: np.ndarray, D: np.ndarray) -> bool:
+    """Whether the constraints hold at q to round-off: max |Phi| <= RESIDUAL_ROUNDOFF eps
+    max(|q|, D), D the coordinates' scale (Phi sums body positions and rotated points,
+    each rounded at eps times the configuration's size).
+
+    Near a singular position the Gauss-Newton steps of a projection are the residual's
+    rounding divided by Phi_q's smallest singular value: they stop shrinking while Phi
+    itself holds to round-off (a parallelogram driven through its collinear position at
+    t = 1.4708: |Phi| 3e-14 m, the scaled steps 2.3e-10 falling by 1.5 % an iteration,
+    against newton_tol 1e-10), and the state is on both branches that cross there as
+    nearly as double precision tells. Away from one, a residual this small means a step
+    far below newton_tol, which the step test has already seen."""
+    size = max(float(np.abs(q).max(initial=0.0)), float(np.max(D)))
+    return bool(np.abs(phi).max(initial=0.0) <= RESIDUAL_ROUNDOFF * np.finfo(float).eps * size)
+
+
 def col_scale(system: System) -> np.ndarray:
     """(V, 1, n): the model's length scale L for x and y, 1 for phi."""
     d = np.ones((system.n_variants, 1, system.n))

@@ -42,7 +42,7 @@ from ..results import Results
 from . import extrema, instants
 from .assembly import gauss_newton
 from .base import Progress, Run
-from .diagnose import constraint_names, jumps_text, variant_label
+from .diagnose import closed_to_roundoff, constraint_names, jumps_text, variant_label
 from .options import SolverOptions, raised_to
 from ..symbolic.codegen import first_floats
 
@@ -167,7 +167,9 @@ class DynamicRun(Run):
     def _project(self, t: float, y: np.ndarray) -> np.ndarray:
         """(q, qd) moved onto Phi(q, t) = 0 and Phi_q qd = nu: Gauss-Newton with the
         minimum-norm correction in coordinates scaled by D, dz = -(J D)^+ Phi, then
-        qd -= D (J D)^+ (J qd - nu)."""
+        qd -= D (J D)^+ (J qd - nu); positions whose steps do not fall to newton_tol are
+        closed where Phi holds to round-off (a singular position:
+        diagnose.closed_to_roundoff), else LinAlgError."""
         ev = self.ev
         n, m = ev.n, ev.m
         if m == 0:
@@ -181,9 +183,11 @@ class DynamicRun(Run):
             q -= D * dz
             if not np.abs(dz).max() > self.opts.newton_tol:
                 break
-        else:  # the integrator reports it, with the instant
-            raise np.linalg.LinAlgError("the position constraints cannot be closed there "
-                                        "(a lock-up)")
+        else:  # (a singular position, where the steps are noise: closed to round-off)
+            if not closed_to_roundoff(ev.phi_jac(t, q)[0], q, D):
+                # the integrator reports it, with the instant
+                raise np.linalg.LinAlgError("the position constraints cannot be closed "
+                                            "there (a lock-up, or a singular position)")
         _, jac = ev.phi_jac(t, q)
         qd -= D * _min_norm(ev.dgesv, jac * D, jac @ qd - ev.nu(t))
         return np.concatenate((q, qd))

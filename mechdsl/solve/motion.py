@@ -101,7 +101,7 @@ from ..compiled.kernels import Kernels
 from ..errors import MechError
 from .augmented import Factor, plan
 from .body_terms import BodyTerms
-from .diagnose import col_scale
+from .diagnose import closed_to_roundoff, col_scale
 from ..symbolic.codegen import first_floats
 from .options import SolverOptions
 from .triplets import Triplets
@@ -446,8 +446,11 @@ class Motion:
         """y = (q, qd) moved onto Phi(q, t) = 0 and Phi_q qd = nu mass-orthogonally (the
         module): q by Gauss-Newton steps dq of least M-norm with Phi_q dq = -Phi until
         max|dq / D| <= newton_tol; qd to the M-orthogonal projection of the given qd onto
-        Phi_q qd = nu at the final q. LinAlgError where the positions do not converge in
-        ``max_iterations`` (a lock-up, inconsistent constraints)."""
+        Phi_q qd = nu at the final q. Where the steps do not fall to newton_tol in
+        ``max_iterations`` but Phi holds to round-off (a singular position, where they are
+        its rounding over Phi_q's smallest singular value: diagnose.closed_to_roundoff), the
+        positions are closed; elsewhere LinAlgError (a lock-up, inconsistent
+        constraints)."""
         n, m, o = self.n, self.m, self.opts
         if m == 0:
             return np.array(y, dtype=float)
@@ -469,8 +472,14 @@ class Motion:
                     fac = self.factor(self._entries(q, jv))
                 qd, _, _ = self.saddle(fac, fac.m_times(qd), self.nu(t))
                 return np.concatenate((q, qd))
+        phi, jv = self._phi_jac_values(t, q)
+        if closed_to_roundoff(phi, q, self.D):  # (a singular position: the steps are noise)
+            fac = self.factor(self._entries(q, jv))
+            qd, _, _ = self.saddle(fac, fac.m_times(qd), self.nu(t))
+            return np.concatenate((q, qd))
         raise np.linalg.LinAlgError("the position constraints cannot be closed there (a "
-                                    "lock-up, or inconsistent constraints)")
+                                    "lock-up, inconsistent constraints, or a singular "
+                                    "position)")
 
     def phi_jac(self, t: float, q: np.ndarray) -> tuple[np.ndarray, object]:
         """Phi(q, t) (m,) and Phi_q (m, n)."""
