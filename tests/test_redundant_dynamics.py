@@ -209,6 +209,8 @@ def test_the_dense_solve_hands_a_collinear_position_to_the_augmented_lagrangian_
     assert res.ok, res.messages
     stall = [w for w in res.warnings if "stalled" in w]
     assert stall and "singular position" in stall[0], res.warnings
+    # on from the last output instant reached, not again from t0
+    assert "the variant went on from t = 0.17 by the augmented Lagrangian" in stall[0]
     crossing = solve_ivp(lambda t, y: [y[1], -9 / 8 * 9.81 * math.cos(y[0])], (0, 0.5),
                          [0.5, -2.0], rtol=1e-12, atol=1e-14,
                          events=lambda t, y: y[0]).t_events[0][0]
@@ -329,3 +331,29 @@ def test_a_driven_parallelogram_passes_its_collinear_positions():
     ref = solve_ivp(bead, (0, t1), [0.75, 0.0], method="DOP853", rtol=1e-12, atol=1e-14,
                     t_eval=res.times).y[0]
     assert np.max(np.abs(res["s"] - ref)) < 2e-5
+
+
+def test_the_augmented_lagrangian_goes_on_with_the_dissipated_energy_so_far():
+    """The parallelogram above carrying a bead on a damped spring along its coupler: the
+    dense solve stalls at the collinear position (t = 0.1738), the augmented Lagrangian goes
+    on from the output at t = 0.17 (mechdsl.solve.dynamic, _go_on), and the dissipated
+    energy's integral goes on from its value there: kinetic + potential + dissipated energy
+    stays what it was at t0 (the model is otherwise conservative) to 1e-7 of it, and the
+    dissipated energy never decreases."""
+    text = PARALLELOGRAM.replace(
+        "joint D: revolute(rocker.D, ground.D)",
+        "joint D: revolute(rocker.D, ground.D)\n"
+        "body bead { guess = (1.8776, 0.4794, 0)  mass = 0.3  inertia = 1e-3 }\n"
+        "joint S: prismatic(coupler.origin, bead.origin, axis = (1, 0))\n"
+        "force sp: spring(coupler.origin, bead.origin, k = 100, length = 0, c = 1)\n"
+        "initial b: distance(coupler.origin, bead.origin) = 0, rate = 0").replace(
+        "output th = crank.phi, ph = coupler.phi",
+        "output E = kinetic_energy + potential_energy + dissipated_energy, "
+        "W = dissipated_energy")
+    res = mechdsl.loads(text, "parallelogram.mech").simulate()
+    assert res.ok, res.messages
+    assert any("went on from t = 0.17 by the augmented Lagrangian" in w
+               for w in res.warnings), res.warnings
+    E, W = res["E"], res["W"]
+    assert np.max(np.abs(E - E[0])) < 1e-7 * abs(E[0])
+    assert np.all(np.diff(W) >= 0) and W[-1] > 0.1

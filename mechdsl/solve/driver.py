@@ -232,9 +232,15 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
 
     def emit_inside(k: int, tt: float, yy: np.ndarray) -> None:
         """An output inside a step, from its dense output (integrated again from the
-        step's start where its projection moves it far: :func:`_moved_far`)."""
+        step's start where its projection moves it far, :func:`_moved_far`, or where the
+        step was taken beyond the pair's stability boundary, whose interpolant may amplify
+        a stiff component: the stepper's ``beyond_stability``)."""
         if s.exact_outputs:  # (on the constraints by construction: rule 6)
             emit(k, tt, yy)
+        elif redo_outputs and getattr(s, "beyond_stability", False):
+            projecting[0] = tt  # (where a failure of the projection is)
+            emit(k, tt, again(tt, yy if project is None else project(tt, yy)))
+            projecting[0] = None
         elif raw_outputs or project is None:
             emit(k, tt, yy, project is not None)
         else:

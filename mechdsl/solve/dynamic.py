@@ -478,12 +478,13 @@ class DynamicRun(Run):
             if sol.status == "failed" and sol.reason not in ("budget", "jump") and \
                     equations is not self.ev:
                 # the dense index-1 solve needs Phi_q of full rank: a singular position
-                # met on the way (a parallelogram's collinear one) stops it. The variant is
-                # integrated again from t0 by the augmented Lagrangian, which passes it
+                # met on the way (a parallelogram's collinear one) stops it. The variant
+                # goes on by the augmented Lagrangian, which passes it, from the last
+                # output instant reached (from t0 it did the same work twice: a
+                # Scott-Russell mechanism whose first stall came at t = 117 s of 200)
                 at = float(sol.t_reached)
                 self.ev = _augmented()(self.one, self.opts)
                 self.singular_met = True
-                self.n_solved[v] = 0
                 method = self.method
                 if self.opts.method == "auto":
                     # the pair the automatic choice takes on the augmented Lagrangian
@@ -493,21 +494,19 @@ class DynamicRun(Run):
                     # kept to 5.9e-7; vern9 31.1 s, 8.5e-7)
                     method = choose("auto", self.rtol, dopri5_from=self.opts.dopri5_from,
                                     large=self.large, redundant=True)[0]
-                again = integrate(INTEGRATORS[method], self.ev, y0, times,
-                                  rtol=self.rtol, atol=self.atol, scale=scale,
-                                  on_output=record, on_step=on_step, max_steps=budget,
-                                  on_interval=self._dissipation_integral())
+                stopped = sol.message
+                sol, t_from = self._go_on(v, sol, method, scale, record, on_step, budget)
                 self.warnings.append(
                     f"the dense equations of motion stopped near t = {at:.6g}"
-                    f"{variant_label(sysm, v)} ({sol.message}); the variant was integrated "
-                    "again from t0 by the augmented Lagrangian"
+                    f"{variant_label(sysm, v)} ({stopped}); the variant went on from t = "
+                    f"{t_from:.6g} by the augmented Lagrangian"
                     + (f" with {method}" if method != self.method else "")
                     + ", which passes singular positions")
                 if method != self.method:
                     self.switches.append(
                         f"{method} on the augmented Lagrangian{variant_label(sysm, v)}, where "
                         f"a singular position stopped the dense equations at t = {at:.6g}")
-                sol = again  # its outputs replaced the first attempt's, instant by instant
+                equations = self.ev
         finally:  # an interrupt too: the instants solved are written, complete
             self._write(v)
         if sol.rough:
@@ -613,20 +612,60 @@ class DynamicRun(Run):
             rows.setdefault(j.row, j)
         return sorted(rows.values(), key=lambda j: j.t)
 
-    def _dissipation_integral(self):
+    def _go_on(self, v: int, sol, method: str, scale: np.ndarray, record: Callable,
+               on_step: Callable | None, budget: int):
+        """Variant v integrated on by the augmented Lagrangian (``self.ev``) with
+        ``method``, from the last output instant the dense attempt ``sol`` reached (its
+        state projected onto the constraints anew), to the end: (the two attempts' solution
+        as one, that instant)."""
+        from dataclasses import replace
+
+        from .driver import integrate
+        from .integrators import INTEGRATORS
+
+        times, n = self.times, self.one.system.n
+        k = max(len(sol.t), 1) - 1  # the output instant the run goes on from
+        t_k = float(times[k])
+        y_k = self._projector()(t_k, np.asarray(sol.y[k], dtype=float)) if len(sol.t) else \
+            None
+        if y_k is None:  # (no output reached: from t0, where the run's start was made)
+            y_k = np.concatenate((self.states["q"][0], self.states["qd"][0]))
+        self.n_solved[v] = k
+
+        def shifted(j: int, t: float, y: np.ndarray, raw: bool = False) -> None:
+            record(k + j, t, y, raw)
+
+        spent = sol.steps + sol.rejected
+        again = integrate(INTEGRATORS[method], self.ev, y_k, times[k:], rtol=self.rtol,
+                          atol=self.atol, scale=scale, on_output=shifted, on_step=on_step,
+                          max_steps=max(budget - spent, 1),
+                          on_interval=self._dissipation_integral(start=k))
+        y_before = np.asarray(sol.y[:k]).reshape(k, 2 * n)
+        return replace(
+            again, t=np.concatenate((np.asarray(sol.t[:k]), again.t)),
+            y=np.concatenate((y_before, again.y.reshape(len(again.t), 2 * n))),
+            steps=sol.steps + again.steps, rejected=sol.rejected + again.rejected,
+            evaluations=sol.evaluations + again.evaluations, njev=sol.njev + again.njev,
+            nlu=sol.nlu + again.nlu,
+            jumps=tuple(j for j in sol.jumps if j.t <= t_k) + again.jumps,
+            rough=tuple(r for r in sol.rough if r < t_k) + again.rough), t_k
+
+    def _dissipation_integral(self, start: int = 0):
         """Where an output asks for ``dissipated_energy``: the callback of each accepted step
         (t_a, t_b, dense) that integrates the dissipated power P(q, qd, t) over it by
         Gauss-Legendre's 5 points on the step's dense output (exact for polynomials of degree
         9, beyond the order of every method's interpolant), adding W(t_b) = W(t_a) +
-        int P, and W at each output instant inside the step; W(t0) = 0. None otherwise."""
+        int P, and W at each output instant inside the step; W(t0) = 0, or from output
+        ``start`` on, W there as integrated before. None otherwise."""
         if not self.system.reads("dissipated_energy"):
             return None
         times, n, d = self.times, self.one.system.n, self.one.dynamics
         W = self.states["W"]
-        W[:] = np.nan
-        W[0] = 0.0
+        W[start + 1:] = np.nan  # (``start``: an integration going on from output start)
+        if start == 0:
+            W[0] = 0.0
         nodes, weights = np.polynomial.legendre.leggauss(GAUSS_POINTS)
-        state = {"total": 0.0, "next": 1}
+        state = {"total": float(W[start]), "next": start + 1}
 
         def integral(a: float, b: float, dense) -> float:
             if b <= a:
