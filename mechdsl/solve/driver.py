@@ -185,7 +185,8 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
               on_step: Callable[[float, int], None] | None = None,
               stiff: tuple[type[Stepper], Callable[[], Equations]] | None = None,
               on_interval: Callable[[float, float, Callable], None] | None = None,
-              raw_outputs: bool = False, redo_outputs: bool = True) -> Solution:
+              raw_outputs: bool = False, redo_outputs: bool = True,
+              jumps_ahead: tuple = ()) -> Solution:
     """Integrate y' = equations.rhs(t, y) from ``y0`` at ``t_eval[0]`` to ``t_eval[-1]``
     by steps of ``stepper``, returning the state at every instant of ``t_eval``
     (increasing). ``atol`` (times ``scale``, per component, if given) and ``rtol`` bound
@@ -204,6 +205,10 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
     gives them, ``raw`` True, for the caller to project (all at once:
     :mod:`mechdsl.solve.instants`); the others are projected here, ``raw`` False, and with
     ``redo_outputs`` one that its projection moves far is integrated again (:func:`_moved_far`).
+    ``jumps_ahead``: jumps of the constraints in time known before the run
+    (:class:`~mechdsl.solve.jumps.Jump`: a drive whose rate jumps), each met as one a
+    projection finds, where a step first goes over it; a constrained stepper, which no
+    projection follows, passes them so too.
     A singular
     system (the equations raising
     numpy's LinAlgError where the stepper does not take it for a rejected step: the
@@ -356,6 +361,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             s.max_step = max_step
         watch = None
         stall = _Stall()
+        ahead = sorted((j for j in jumps_ahead if t < j.t <= t_end), key=lambda j: j.t)
         if stiff is not None and not stepper.implicit:
             s.detect_stiffness = True
             watch = _Watch(stiff, equations, t, t_end, rtol, atol, scale)
@@ -373,6 +379,20 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             elif message is not None:
                 return done("failed", message)
             t_new, y_new = s.t, s.y
+            due = [j for j in ahead if t < j.t <= t_new]
+            if due:  # a jump known ahead, gone over by this step (see the docstring)
+                ahead = [j for j in ahead if j.t > t_new]
+                # (with whatever else jumps in the step: a drive whose rate jumps may jump
+                # in position at that instant too, which ends the run)
+                found = _first_jumps(equations, t, t_new, y_new[:n // 2], tol_abs)
+                first = min(j.t for j in due)
+                # (the same instant, located apart: within a few units of round-off)
+                if not found or min(j.t for j in found) > first + 8 * np.spacing(first):
+                    found = [j for j in due if j.t == first]
+                ended = over_jump(found)
+                if ended is not None:
+                    return ended
+                continue
             # the end state projected first (explicit steppers), so that a projection that
             # moves it far, over a constraint that jumps, is seen before any output of the
             # step is given
