@@ -74,12 +74,12 @@ class Pair:
     P: np.ndarray | None = None
 
 
-#: An output inside a step whose h rho is above this fraction of the interpolant's bound
-#: (:func:`interpolant_bound`) is integrated again to it (``beyond_stability``): Hairer's
-#: rho is measured along the step's error and can miss the stiffest mode (a slider-crank's
-#: rod on a spring of 1e8 N/m under DOP853: an output 1.1e-3 m/s off in a step at 0.99 of
-#: the bound). Non-stiff runs stay below it (Andrews at most 0.55 of it, a chain of 24
-#: links 0.45, A02's steps 1 % above it, at its passages)
+#: An output inside a step whose h |lambda| is above this fraction of the interpolant's
+#: bound (:func:`interpolant_bound`) is integrated again to it (``beyond_stability``; the
+#: estimate of RungeKutta._measure_stiffness for a mechanism's state): a slider-crank's
+#: rod on a spring of 1e8 N/m under DOP853 had outputs 1.1e-3 m/s off in steps at 0.90
+#: and 1.4 of it. Non-stiff runs stay below it: the stiff pendulum at k = 1e2 to 1e4
+#: under vern9 at most 0.57 to 0.73, Andrews 0.42, a chain of 24 links 0.39
 INTERPOLANT_MARGIN = 0.8
 
 
@@ -210,6 +210,8 @@ class RungeKutta(Stepper):
         self._stiff_steps = self._calm_steps = 0
         #: the last stiffness estimate h rho (Hairer's), where it was made
         self.h_rho = 0.0
+        #: the same for a mechanism's state y = (q, qd), which beyond_stability reads
+        self._h_rho_interp = 0.0
 
     def _eval(self, t: float, y: np.ndarray) -> np.ndarray:
         self.nfev += 1
@@ -285,29 +287,40 @@ class RungeKutta(Stepper):
 
     @property
     def beyond_stability(self) -> bool:
-        """Whether the last step's h rho was beyond what the pair's interpolant holds
-        (:func:`interpolant_bound`, less INTERPOLANT_MARGIN): its error estimate held, but
+        """Whether the last step's h |lambda| (for a mechanism's state y = (q, qd),
+        :meth:`_measure_stiffness`) was beyond what the pair's interpolant holds
+        (:func:`interpolant_bound`, times INTERPOLANT_MARGIN): its error estimate held, but
         the interpolant may amplify the stiff component inside the step (a four-bar whose
-        rocker bends on a rotary spring of 1e6 N m/rad under DOP853, rtol 1e-6: an output
-        inside a step of h rho 9.8 was 2.8e-3 rad/s off, one inside a step of 4.1 8.4e-5,
-        the steps' ends within 2.5e-7). Hairer's rho is an estimate, high or low by a few
-        times (a damped oscillator at h omega = 0.40 read up to 2.07): the driver only
-        integrates such an output again, which costs a step and changes no accuracy."""
-        return self.h_rho > INTERPOLANT_MARGIN * interpolant_bound(self.name)
+        rocker bends on a rotary spring of 1e6 N m/rad under DOP853, rtol 1e-6: outputs
+        inside steps of h |lambda| 5.9 and 5.5 were 2.8e-3 and 8.4e-5 rad/s off, the steps'
+        ends within 2.5e-7). The driver integrates such an output again, which costs a step
+        and changes no other result."""
+        return self._h_rho_interp > INTERPOLANT_MARGIN * interpolant_bound(self.name)
 
     def _measure_stiffness(self, h: float, f_new: np.ndarray) -> None:
         """h rho of the accepted step, Hairer's estimate (:meth:`_stiff`): with the stage s
         at c_s = 1, rho = |f(y_new) - K_s| / |y_new - Y_s|, the dominant eigenvalue of the
-        Jacobian along the step's error."""
+        Jacobian along the step's error; and for y = (q, qd) the same eigenvalue's modulus
+        from the two parts apart (``beyond_stability``)."""
         unit, _, weights = stiffness_probe(self.name)
         if unit is None:
-            self.h_rho = 0.0
+            self.h_rho = self._h_rho_interp = 0.0
             return
         K = self.K
         dy = h * (weights @ K[:len(weights)])  # y_new - Y_unit
         df = f_new - K[unit]
         den = float(dy @ dy)
         self.h_rho = h * math.sqrt(float(df @ df) / den) if den > 0 else 0.0
+        self._h_rho_interp = self.h_rho
+        n = dy.size // 2
+        if 2 * n == dy.size and n:
+            # y = (q, qd), J = [[0, I], [A, B]]: along an eigenvector dy = (e, lambda e),
+            # df's velocity part is (A + B lambda) e = lambda^2 e, so |lambda| =
+            # sqrt(|df_v| / |dy_q|). Hairer's |J dy| / |dy| mixes the parts' units and read
+            # up to four times h omega on a spring (|J| is k / m there, |lambda| its root)
+            dq = float(dy[:n] @ dy[:n])
+            if dq > 0:
+                self._h_rho_interp = h * (float(df[n:] @ df[n:]) / dq) ** 0.25
 
     @property
     def stiff_steps(self) -> int:
