@@ -175,3 +175,16 @@ simulate t = 0 .. 1 step 0.1
     assert parent[index["c"]] == -1 and parent[index["d"]] == index["c"]
     # without the spring, breadth first: both from the ground
     assert list(forest(kernels.system, ())[[index["a"], index["b"]]]) == [-1, -1]
+
+
+def test_a_trial_that_met_a_singular_position_is_not_quoted_to_three_digits():
+    """The relative-coordinates note quotes the work per simulated second as a ratio; a
+    trial whose steps collapsed at a singular position (trial 49's driven parallelogram
+    under radau: "8.15e+07 times more work") measures that position, not the coordinates,
+    and is said as "over 1000 times"."""
+    from mechdsl.solve.relative import _ratio
+
+    assert _ratio(6.43) == "6.43 times less"
+    assert _ratio(1 / 3.38) == "3.38 times more"
+    assert _ratio(1 / 8.15e7) == "over 1000 times more"
+    assert _ratio(2e4) == "over 1000 times less"

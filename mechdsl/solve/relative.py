@@ -432,7 +432,11 @@ RELATIVE_GAIN = 2.0
 
 
 def _ratio(gain: float) -> str:
-    """'6.43 times less' (gain >= 1) or '3.38 times more' (below 1)."""
+    """'6.43 times less' (gain >= 1) or '3.38 times more' (below 1); beyond a thousand,
+    'over 1000 times': a trial whose steps collapsed at a singular position measures that
+    position, not the coordinates (a driven parallelogram: "8.15e+07 times more")."""
+    if gain > 1e3 or gain < 1e-3:
+        return f"over 1000 times {'less' if gain > 1 else 'more'}"
     return f"{gain:.3g} times less" if gain >= 1 else f"{1 / gain:.3g} times more"
 
 
