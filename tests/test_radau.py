@@ -614,35 +614,31 @@ def test_the_small_odes_newton_operators_invert_the_iteration_matrices():
 
 
 def test_radau_goes_over_a_drives_jump_in_speed_by_the_impulsive_motion():
-    """A rod of 1 m and 1 kg pinned to a slider whose drive starts at t = 0.5 with a jump
-    of its speed (0 -> 2 m/s). Radau keeps the constraints at its stages and passed such a
-    jump by steps that shrank to it, off by 17 times rtol after it here at rtol 1e-6
-    (1.7e-5 rad; trial 49's m09, a crank carrying a pendulum and a bead: 1.9e-4 rad, 200
-    times). The drives' jumps in rate are now
-    found before the run and met as the explicit pairs meet them: the step over one is
-    integrated again up to it and the run goes on from the impulsive motion.
+    """A bar of 1 m and 1 kg pinned to a cart whose drive starts at t = 0.5 with a jump of
+    its speed (0 -> 2 m/s), the bar swinging from -1.27 rad. Radau keeps the constraints
+    at its stages and passed such a jump by steps that shrank to it, off by 17 times rtol
+    after it here at rtol 1e-6 (1.7e-5 rad; trial 49's m09, a crank carrying a pendulum
+    and a bead: 1.9e-4 rad, 200 times). The drives' jumps in rate are now found before the
+    run and met as the explicit pairs meet them: the step over one is integrated again up
+    to it and the run goes on from the impulsive motion.
 
-    Truth: before 0.5 s the rod swings as a pendulum about a fixed pin, I_P theta'' = -m g
+    Truth: before 0.5 s the bar swings as a pendulum about a fixed pin, I_P theta'' = -m g
     (l/2) cos theta (I_P = m l^2 / 3); at the jump the pin's impulse leaves the angular
     momentum about the pin's point unchanged, so theta' gains (3 v / (2 l)) sin theta (from
     I_c w + m d x (v_P + w x d) = const, d the centre from the pin); after it the pin
     moves at constant speed, a Galilean frame: the same pendulum equation."""
-    from scipy.integrate import solve_ivp
+    import sys
+    from pathlib import Path
 
     import mechdsl
     from mechdsl.solve.options import SolverOptions
 
-    text = """gravity = (0, -9.81)
-ground { }
-body slider { guess = (0, 0, 0)  mass = 2  inertia = 0.1 }
-body rod { guess = (0, 0, -1.27)  mass = 1  inertia = 1/12  centroid = (0.5, 0) }
-joint guide: prismatic(ground.origin, slider.origin, axis = (1, 0))
-joint pin: revolute(slider.origin, rod.origin)
-drive push: x(slider.origin) = if t < 0.5 then 0 else 2*(t - 0.5)
-initial swing: angle(rod) = -1.27, rate = 0
-simulate t = 0 .. 1.5 step 0.01
-output theta = rod.phi
-"""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from test_options_and_jumps import CART  # (the bar on its cart, the drive DRIVE)
+
+    text = CART.replace("DRIVE", "if t < 0.5 then 0 else 2*(t - 0.5)").replace(
+        "simulate t = 0 .. 2 step 0.01",
+        "initial swing: angle(bar) = -1.27, rate = 0\nsimulate t = 0 .. 1.5 step 0.01")
     g, l, v = 9.81, 1.0, 2.0
 
     def pendulum(t, y):
