@@ -97,9 +97,12 @@ TRIAL_AFTER, TRIAL_MIN_STEPS, TRIAL_STEPS, TRIAL_RATIO = 50, 1000, 8, 10.0
 #: of the model's size (``equations.factorises``: the augmented Lagrangian of large and
 #: redundant models, :class:`~mechdsl.solve.motion.Motion`): there an implicit step, which
 #: keeps its factorisations, costs less than an explicit one (measured: A02 4.2 ms against
-#: DOP853's 6.0, a chain of 20 links on stiff rotary springs 0.7 against 1.5), and steps
-#: half again as long are a clear gain
-TRIAL_RATIO_FACTORISED = 1.5
+#: DOP853's 6.0, a chain of 20 links on stiff rotary springs 0.7 against 1.5): steps a
+#: tenth longer are a clear gain. (At 1.5, a ladder of 8 cells on hinges of 1e7 N m/rad
+#: whose radau steps were 1.1 to 1.4 times DOP853's refused ten trials and kept DOP853 to
+#: t = 0.83 of 1 s, 7.9 s where radau from the start takes 4.4; at 1.1 it switches at the
+#: first trial, 4.7 s)
+TRIAL_RATIO_FACTORISED = 1.1
 
 #: After a report of :data:`STIFF`, a trial is made where the rest would take the pair
 #: more than this many steps of its typical size (the trial's own steps cost 24 to 80 of
