@@ -3,6 +3,7 @@ closed forms: their steps, their interpolants, their orders, the projection, and
 integration stops."""
 
 import numpy as np
+import pytest
 
 from mechdsl.solve.driver import integrate
 from mechdsl.solve.explicit import Dop853, Dopri5, Vern9, coefficients
@@ -364,3 +365,16 @@ def test_outputs_inside_steps_beyond_the_interpolants_stability_are_integrated_a
     for t, omega in reference.items():
         k = int(np.argmin(np.abs(res.times - t)))
         assert abs(res["crank.omega"][k] - omega) < 2e-5, (t, res["crank.omega"][k] - omega)
+
+
+def test_the_interpolant_bounds_are_the_pairs_own():
+    """explicit.INTERPOLANT_BOUNDS, written out so that no process pays the scan, are what
+    interpolant_extent computes from each pair's coefficients: the extent of |R_x(z)| <=
+    1 + 1e-3 for every x in [0, 1] along the negative real and imaginary axes, at most
+    the step's own (x = 1 is the step)."""
+    from mechdsl.solve.explicit import (INTERPOLANT_BOUNDS, interpolant_extent,
+                                        stiffness_probe)
+
+    for name, bound in INTERPOLANT_BOUNDS.items():
+        assert interpolant_extent(name) == pytest.approx(bound, abs=0.006), name
+        assert 0 < bound <= stiffness_probe(name)[1] / 0.9 + 0.01

@@ -60,8 +60,8 @@ RESIDUAL_ROUNDOFF = 1000.0
 
 def closed_to_roundoff(phi: np.ndarray, q: np.ndarray, D: np.ndarray) -> bool:
     """Whether the constraints hold at q to round-off: max |Phi| <= RESIDUAL_ROUNDOFF eps
-    max(|q|, D), D the coordinates' scale (Phi sums body positions and rotated points,
-    each rounded at eps times the configuration's size).
+    max(|x|, |y|, D), over the bodies' positions, D the coordinates' scale (Phi sums body
+    positions and rotated points, each rounded at eps times the configuration's size).
 
     Near a singular position the Gauss-Newton steps of a projection are the residual's
     rounding divided by Phi_q's smallest singular value: they stop shrinking while Phi
@@ -70,7 +70,9 @@ def closed_to_roundoff(phi: np.ndarray, q: np.ndarray, D: np.ndarray) -> bool:
     against newton_tol 1e-10), and the state is on both branches that cross there as
     nearly as double precision tells. Away from one, a residual this small means a step
     far below newton_tol, which the step test has already seen."""
-    size = max(float(np.abs(q).max(initial=0.0)), float(np.max(D)))
+    # (the lengths only: a crank's angle that has turned for long says nothing of a size)
+    lengths = np.concatenate((q[0::3], q[1::3]))
+    size = max(float(np.abs(lengths).max(initial=0.0)), float(np.max(D)))
     return bool(np.abs(phi).max(initial=0.0) <= RESIDUAL_ROUNDOFF * np.finfo(float).eps * size)
 
 

@@ -240,15 +240,9 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
 
     def emit_inside(k: int, tt: float, yy: np.ndarray) -> None:
         """An output inside a step, from its dense output (integrated again from the
-        step's start where its projection moves it far, :func:`_moved_far`, or where the
-        step was taken beyond the pair's stability boundary, whose interpolant may amplify
-        a stiff component: the stepper's ``beyond_stability``)."""
+        step's start where its projection moves it far: :func:`_moved_far`)."""
         if s.exact_outputs:  # (on the constraints by construction: rule 6)
             emit(k, tt, yy)
-        elif redo_outputs and getattr(s, "beyond_stability", False):
-            projecting[0] = tt  # (where a failure of the projection is)
-            emit(k, tt, again(tt, yy if project is None else project(tt, yy)))
-            projecting[0] = None
         elif raw_outputs or project is None:
             emit(k, tt, yy, project is not None)
         else:
@@ -290,6 +284,31 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         if out is None:
             rough.append(tt)
             return fallback
+        return out
+
+    def within(ts: np.ndarray) -> list[np.ndarray]:
+        """The states at the instants ``ts`` inside the current step, integrated again
+        from its start through them, in steps of at most the stepper's
+        ``interpolant_step`` (each output then read where the interpolant holds): a
+        step's outputs cost one integration together, however many they are (a pendulum
+        at rest, whose steps grow to the stability boundary, has 140 outputs a step). Those
+        it does not reach are read off the dense output, projected. Its work counts in
+        the run's budget."""
+        left = max_steps - int(before[:2].sum()) - s.attempts
+        out: list[np.ndarray] = []
+        if left > 0:
+            sub = integrate(stepper, equations, s.y_old, np.concatenate(([s.t_old], ts)),
+                            rtol=rtol, atol=atol, scale=scale, max_steps=left,
+                            max_step=min(max_step, s.interpolant_step), redo_outputs=False)
+            before[:] += (sub.steps, sub.rejected, sub.evaluations, sub.njev, sub.nlu)
+            s.max_attempts = max_steps - int(before[:2].sum())
+            if sub.status == "interrupted":
+                raise KeyboardInterrupt
+            out = [np.asarray(y) for y in sub.y[1:]]
+        dense = s.dense_output()
+        for tt in ts[len(out):]:
+            yy = dense(float(tt))
+            out.append(yy if project is None else project(float(tt), yy))
         return out
 
     before = np.zeros(5, dtype=int)  # the counters of a stepper switched from
@@ -384,7 +403,6 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             t_new, y_new = s.t, s.y
             due = [j for j in ahead if t < j.t <= t_new]
             if due:  # a jump known ahead, gone over by this step (see the docstring)
-                ahead = [j for j in ahead if j.t > t_new]
                 # (with whatever else jumps in the step: a drive whose rate jumps may jump
                 # in position at that instant too, which ends the run)
                 found = _first_jumps(equations, t, t_new, y_new[:n // 2], tol_abs)
@@ -392,6 +410,9 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                 # (the same instant, located apart: within a few units of round-off)
                 if not found or min(j.t for j in found) > first + 8 * np.spacing(first):
                     found = [j for j in due if j.t == first]
+                # those met now; later ones, in this step too, the steps after it meet
+                met_at = max(min(j.t for j in found), first) + 8 * np.spacing(first)
+                ahead = [j for j in ahead if j.t > met_at]
                 ended = over_jump(found)
                 if ended is not None:
                     return ended
@@ -418,6 +439,15 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                 on_interval(t, t_new, dense)
             # -- outputs inside the step, by its dense output (one at the step's end is
             # the projected end state, below) -----------------------------------------------
+            if k_next < n_out and t_eval[k_next] < t_new and redo_outputs and \
+                    getattr(s, "beyond_stability", False):
+                # a step beyond what its interpolant holds: its outputs integrated again
+                # through them all, in steps within that bound (the stepper's
+                # ``interpolant_step``), not read off the interpolant
+                inside = t_eval[k_next:][t_eval[k_next:] < t_new]
+                for te, ye in zip(inside, within(inside)):
+                    emit(k_next, float(te), ye)
+                    k_next += 1
             if k_next < n_out and t_eval[k_next] < t_new:
                 dense = dense or s.dense_output()
                 while k_next < n_out and t_eval[k_next] < t_new:

@@ -79,9 +79,9 @@ _IMPLICIT_REDUNDANT = ("this model's constraints are redundant, and the implicit
 SINGULAR_NEAR = 1e-3
 _IMPLICIT_SINGULAR = ("the implicit method's iteration did not pass the singular position "
                       "there (the constraints' Jacobian's smallest singular value {ratio:.1e} "
-                      "of its largest): the augmented Lagrangian with an explicit pair (the "
-                      "automatic choice, or --method dop853) integrates through singular "
-                      "positions")
+                      "of its largest): where the motion goes on through it (not a lock-up), "
+                      "the augmented Lagrangian with an explicit pair (the automatic choice, "
+                      "or --method dop853) integrates through singular positions")
 #: What a jump of a constraint in time means, by its level (:mod:`mechdsl.solve.jumps`)
 _JUMP_POSITION = ("no motion under finite forces follows a jump in a constraint's position; "
                   "write it as a continuous function of t (a ramp, a smoothstep), or run "
@@ -593,8 +593,10 @@ class DynamicRun(Run):
             limit = max(floor, 1e3 * float(np.median(column)))
             for k in np.flatnonzero(column > limit)[:MAX_ROWS]:
                 for j in time_jumps(None, nu, float(T[k]), float(T[k + 1]), floor):
-                    found.setdefault(j.row, j)
-        return list(found.values())
+                    found.setdefault((j.row, j.t), j)
+        # every jump of every row (a ramp that starts and stops has two: the run meets
+        # both, jumps_ahead); the report names each row once (_jumps)
+        return sorted(found.values(), key=lambda j: j.t)
 
     def _jumps(self, sol, equations, scale: np.ndarray) -> list:
         """The constraints that jump in time (:mod:`mechdsl.solve.jumps`): those the driver
@@ -633,9 +635,10 @@ class DynamicRun(Run):
         times, n = self.times, self.one.system.n
         k = max(len(sol.t), 1) - 1  # the output instant the run goes on from
         t_k = float(times[k])
-        y_k = self._projector()(t_k, np.asarray(sol.y[k], dtype=float)) if len(sol.t) else \
-            None
-        if y_k is None:  # (no output reached: from t0, where the run's start was made)
+        try:
+            y_k = self._projector()(t_k, np.asarray(sol.y[k], dtype=float))
+        except np.linalg.LinAlgError:  # (that state not closed: from t0, as assembled)
+            k, t_k = 0, float(times[0])
             y_k = np.concatenate((self.states["q"][0], self.states["qd"][0]))
         self.n_solved[v] = k
 

@@ -83,8 +83,19 @@ class Pair:
 INTERPOLANT_MARGIN = 0.8
 
 
-@functools.cache
+#: :func:`interpolant_extent` of the pairs, computed once here (their scan takes 0.04 to
+#: 0.25 s, which every process's first output would pay; tests/test_explicit.py checks it)
+INTERPOLANT_BOUNDS = {"dopri5": 1.14, "dop853": 2.43, "vern9": 2.30}
+
+
 def interpolant_bound(name: str) -> float:
+    """:data:`INTERPOLANT_BOUNDS`, or for another pair :func:`interpolant_extent`."""
+    bound = INTERPOLANT_BOUNDS.get(name)
+    return bound if bound is not None else interpolant_extent(name)
+
+
+@functools.cache
+def interpolant_extent(name: str) -> float:
     """h rho up to which the interpolant of pair ``name`` amplifies no component: the
     smaller of the extents along the negative real axis and the imaginary axis where
     max over x in [0, 1] of |R_x(z)| <= 1 + 1e-3, R_x(z) the interpolant's value at x h
@@ -296,6 +307,15 @@ class RungeKutta(Stepper):
         ends within 2.5e-7). The driver integrates such an output again, which costs a step
         and changes no other result."""
         return self._h_rho_interp > INTERPOLANT_MARGIN * interpolant_bound(self.name)
+
+    @property
+    def interpolant_step(self) -> float:
+        """The step at which the last step's h |lambda| would be INTERPOLANT_MARGIN times
+        the interpolant's bound (inf where none was measured)."""
+        if not self._h_rho_interp > 0:
+            return np.inf
+        return self._h_step * INTERPOLANT_MARGIN * interpolant_bound(self.name) \
+            / self._h_rho_interp
 
     def _measure_stiffness(self, h: float, f_new: np.ndarray) -> None:
         """h rho of the accepted step, Hairer's estimate (:meth:`_stiff`): with the stage s
