@@ -265,19 +265,12 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         out = None
         # (the first step tried straight to tt: the step's own error held over a longer
         # span, and a fresh stepper's first-step guess crept over A02's passages)
-        for points, options in (([s.t_old, tt], dict(first_step=tt - s.t_old,
-                                                     max_step=max_step)),
-                                ([s.t_old, tt, s.t], dict(max_step=min(
+        for points, options in (([tt], dict(first_step=tt - s.t_old, max_step=max_step)),
+                                ([tt, s.t], dict(max_step=min(
                                     max_step, (s.t - s.t_old) / 8), redo_outputs=False))):
-            left = max_steps - int(before[:2].sum()) - s.attempts
-            if left <= 0:
+            sub = redo(points, **options)
+            if sub is None:
                 break
-            sub = integrate(stepper, equations, s.y_old, np.array(points), rtol=rtol,
-                            atol=atol, scale=scale, max_steps=left, **options)
-            before[:] += (sub.steps, sub.rejected, sub.evaluations, sub.njev, sub.nlu)
-            s.max_attempts = max_steps - int(before[:2].sum())
-            if sub.status == "interrupted":
-                raise KeyboardInterrupt
             if len(sub.t) > 1 and sub.t[1] == tt:
                 out = sub.y[1]
                 break
@@ -285,6 +278,21 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             rough.append(tt)
             return fallback
         return out
+
+    def redo(points, **options) -> Solution | None:
+        """:func:`integrate` again from the current step's start through ``points`` (after
+        it, increasing), with ``options``, its work counted in the run's budget; None where
+        the budget is spent."""
+        left = max_steps - int(before[:2].sum()) - s.attempts
+        if left <= 0:
+            return None
+        sub = integrate(stepper, equations, s.y_old, np.concatenate(([s.t_old], points)),
+                        rtol=rtol, atol=atol, scale=scale, max_steps=left, **options)
+        before[:] += (sub.steps, sub.rejected, sub.evaluations, sub.njev, sub.nlu)
+        s.max_attempts = max_steps - int(before[:2].sum())
+        if sub.status == "interrupted":
+            raise KeyboardInterrupt
+        return sub
 
     def within(ts: np.ndarray) -> list[np.ndarray]:
         """The states at the instants ``ts`` inside the current step, integrated again
@@ -294,17 +302,8 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         at rest, whose steps grow to the stability boundary, has 140 outputs a step). Those
         it does not reach are read off the dense output, projected. Its work counts in
         the run's budget."""
-        left = max_steps - int(before[:2].sum()) - s.attempts
-        out: list[np.ndarray] = []
-        if left > 0:
-            sub = integrate(stepper, equations, s.y_old, np.concatenate(([s.t_old], ts)),
-                            rtol=rtol, atol=atol, scale=scale, max_steps=left,
-                            max_step=min(max_step, s.interpolant_step), redo_outputs=False)
-            before[:] += (sub.steps, sub.rejected, sub.evaluations, sub.njev, sub.nlu)
-            s.max_attempts = max_steps - int(before[:2].sum())
-            if sub.status == "interrupted":
-                raise KeyboardInterrupt
-            out = [np.asarray(y) for y in sub.y[1:]]
+        sub = redo(ts, max_step=min(max_step, s.interpolant_step), redo_outputs=False)
+        out = [] if sub is None else [np.asarray(y) for y in sub.y[1:]]
         dense = s.dense_output()
         for tt in ts[len(out):]:
             yy = dense(float(tt))

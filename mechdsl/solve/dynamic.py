@@ -317,11 +317,9 @@ class DynamicRun(Run):
             return _augmented()(self.one, self.opts)
         if not (redundant or self.large) and self.system.m:
             probe = _Evaluator(self.one, self.D[v, 0])
-            _, jac = probe.phi_jac(float(self.times[0]), q0)
-            scaled = jac * self.D[v, 0]
-            sv = np.linalg.svd(scaled, compute_uv=False)
             # the rank at the assembly, with a tolerance scaled to the matrix (numpy's)
-            redundant = bool(sv[-1] <= sv[0] * max(scaled.shape) * np.finfo(float).eps)
+            ratio = _singular_ratio(probe, float(self.times[0]), q0, self.D[v, 0])
+            redundant = ratio <= max(probe.m, probe.n) * np.finfo(float).eps
             if not redundant:
                 return _Evaluator(self.one, self.D[v, 0], self._compiled())
         if redundant and not self.redundant:
@@ -526,7 +524,7 @@ class DynamicRun(Run):
                 "constraints, and no step could end there to integrate it again: reported "
                 "as the interpolant gave it, projected (the velocities may be off by more "
                 "than the tolerance; move the output instant or tighten --rtol)")
-        jumps = self._jumps(sol, equations, scale)
+        jumps = self._jumps(sol, equations, scale, ahead)
         if jumps and sol.status != "failed":
             self.warnings.append(
                 f"{jumps_text(sysm, jumps)}{variant_label(sysm, v)}; the motion went on from "
@@ -598,11 +596,12 @@ class DynamicRun(Run):
         # both, jumps_ahead); the report names each row once (_jumps)
         return sorted(found.values(), key=lambda j: j.t)
 
-    def _jumps(self, sol, equations, scale: np.ndarray) -> list:
+    def _jumps(self, sol, equations, scale: np.ndarray, ahead: tuple = ()) -> list:
         """The constraints that jump in time (:mod:`mechdsl.solve.jumps`): those the driver
         met (``sol.jumps``), and where the integration failed (not for its budget) those
         around the instant it reached (radau's step underflows at a drive's step), and in a
-        run that ended well the drives' jumps in rate (:meth:`_rate_jumps`); one per row."""
+        run that ended well the drives' jumps in rate, found before it (``ahead``,
+        :meth:`_rate_jumps`); one per row."""
         from .jumps import constraint_jumps
 
         floor = self.atol * float(np.max(scale))
@@ -615,7 +614,7 @@ class DynamicRun(Run):
                                       max(t - width, float(self.times[0])),
                                       min(t + width, float(self.times[-1])), floor)
         elif sol.status == "ok":
-            found += self._rate_jumps(equations, floor)
+            found += ahead
         rows: dict[int, object] = {}
         for j in found:
             rows.setdefault(j.row, j)

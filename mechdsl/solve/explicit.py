@@ -304,8 +304,8 @@ class RungeKutta(Stepper):
         the interpolant may amplify the stiff component inside the step (a four-bar whose
         rocker bends on a rotary spring of 1e6 N m/rad under DOP853, rtol 1e-6: outputs
         inside steps of h |lambda| 5.9 and 5.5 were 2.8e-3 and 8.4e-5 rad/s off, the steps'
-        ends within 2.5e-7). The driver integrates such an output again, which costs a step
-        and changes no other result."""
+        ends within 2.5e-7). The driver integrates the step's outputs again, together, in
+        steps of at most :attr:`interpolant_step`; no other result changes."""
         return self._h_rho_interp > INTERPOLANT_MARGIN * interpolant_bound(self.name)
 
     @property

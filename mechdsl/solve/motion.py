@@ -456,6 +456,7 @@ class Motion:
             return np.array(y, dtype=float)
         q, qd = np.array(y[:n], dtype=float), np.array(y[n:], dtype=float)
         zero = np.zeros(n)
+        converged = False
         for _ in range(o.max_iterations):
             phi, jv = self._phi_jac_values(t, q)
             fac = self.factor(self._entries(q, jv))
@@ -465,21 +466,25 @@ class Motion:
             if not math.isfinite(step):
                 break
             if step <= o.newton_tol:
-                if step > ROUNDOFF_STEP * o.newton_tol:
-                    # Phi_q at the corrected q (a step of newton_tol leaves Phi of its
-                    # square); a last step at round-off moved Phi_q by round-off only
-                    _, jv = self._phi_jac_values(t, q)
-                    fac = self.factor(self._entries(q, jv))
-                qd, _, _ = self.saddle(fac, fac.m_times(qd), self.nu(t))
-                return np.concatenate((q, qd))
-        phi, jv = self._phi_jac_values(t, q)
-        if closed_to_roundoff(phi, q, self.D):  # (a singular position: the steps are noise)
+                converged = True
+                break
+        if not converged:
+            # (a singular position: the steps are the residual's rounding over Phi_q's
+            # smallest singular value and never fall to newton_tol, while Phi holds to
+            # round-off; a step that is not a number leaves Phi not one either)
+            phi, jv = self._phi_jac_values(t, q)
+            if not closed_to_roundoff(phi, q, self.D):
+                raise np.linalg.LinAlgError("the position constraints cannot be closed "
+                                            "there (a lock-up, inconsistent constraints, "
+                                            "or a singular position)")
             fac = self.factor(self._entries(q, jv))
-            qd, _, _ = self.saddle(fac, fac.m_times(qd), self.nu(t))
-            return np.concatenate((q, qd))
-        raise np.linalg.LinAlgError("the position constraints cannot be closed there (a "
-                                    "lock-up, inconsistent constraints, or a singular "
-                                    "position)")
+        elif step > ROUNDOFF_STEP * o.newton_tol:
+            # Phi_q at the corrected q (a step of newton_tol leaves Phi of its square); a
+            # last step at round-off moved Phi_q by round-off only
+            _, jv = self._phi_jac_values(t, q)
+            fac = self.factor(self._entries(q, jv))
+        qd, _, _ = self.saddle(fac, fac.m_times(qd), self.nu(t))
+        return np.concatenate((q, qd))
 
     def phi_jac(self, t: float, q: np.ndarray) -> tuple[np.ndarray, object]:
         """Phi(q, t) (m,) and Phi_q (m, n)."""
