@@ -586,8 +586,10 @@ def test_the_small_odes_newton_operators_invert_the_iteration_matrices():
     from explicit inverses (_ode_operators): E(c)^-1 times E(c) = [[c I, -I], [-K, c M -
     C]] is the identity for c = gamma / h and the complex (alpha + i beta) / h, and the
     whole correction L r equals the transformed iteration written out: dW = -E^-1 (T^-1
-    r), dZ = T (dW_real, Re dW_complex, Im dW_complex)."""
-    from mechdsl.solve.radau import _K, _ode_operators
+    r), dZ = T (dW_real, Re dW_complex, Im dW_complex), r taken in block order (every
+    stage's velocity residual, then every stage's equation of motion); the stages' linear
+    map S gives, in that order, D_q,j - Z_v,j and D_v,j with D = A^-1 Z / h."""
+    from mechdsl.solve.radau import _K, _block_order, _ode_operators
 
     rng = np.random.default_rng(2)
     n, h = 3, 0.013
@@ -595,7 +597,7 @@ def test_the_small_odes_newton_operators_invert_the_iteration_matrices():
     M = a @ a.T + n * np.eye(n)
     K = -1e6 * np.diag(rng.uniform(1, 2, n)) + rng.normal(size=(n, n))
     C = rng.normal(size=(n, n))
-    Er, L = _ode_operators(h, M, C, K, True)
+    Er, L, S = _ode_operators(h, M, C, K, True)
     assert np.array_equal(_ode_operators(h, M, C, K, False)[0], Er)
 
     def E(c):
@@ -609,8 +611,12 @@ def test_the_small_odes_newton_operators_invert_the_iteration_matrices():
     dWr = -np.linalg.solve(E(c_real), _K["TI_real"] @ r)
     dWc = -np.linalg.solve(E(c_complex), _K["TI_complex"] @ r)
     want = _K["T"] @ np.vstack((dWr.real, dWc.real, dWc.imag))
-    got = (L @ r.ravel()).reshape(3, 2 * n)
+    got = (L @ r.ravel()[_block_order(n)]).reshape(3, 2 * n)
     assert np.abs(got - want).max() < 1e-9 * np.abs(want).max()
+    Z = rng.normal(size=(3, 2 * n))
+    D = np.linalg.inv(_K["A"]) @ Z / h
+    want = np.concatenate(((D[:, :n] - Z[:, n:]).ravel(), D[:, n:].ravel()))
+    assert np.abs(S @ Z.ravel() - want).max() < 1e-12 * np.abs(want).max()
 
 
 def test_radau_goes_over_a_drives_jumps_in_speed_by_the_impulsive_motion():

@@ -254,6 +254,30 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             emit(k, tt, out)
             projecting[0] = None
 
+    def emit_dense(dense: Callable, k_from: int, k_to: int) -> int:
+        """The outputs k_from .. k_to - 1, inside the current step, from its dense output
+        ``dense``: all in one call where the stepper's dense output takes an array of
+        instants (rule 3) and they are given as it gives them (on the constraints by
+        construction, or raw: :func:`emit_inside`), else one by one. Returns k_to."""
+        if k_to > k_from and s.dense_arrays and (s.exact_outputs or raw_outputs
+                                                 or project is None):
+            ts = t_eval[k_from:k_to]
+            ys = dense(ts).T
+            raw = project is not None and not s.exact_outputs
+            outs_t.extend(ts.tolist())
+            outs_y.extend(ys)
+            if on_output is not None:
+                for i, tt in enumerate(outs_t[-len(ys):]):
+                    if raw_outputs:
+                        on_output(k_from + i, tt, ys[i], raw)
+                    else:
+                        on_output(k_from + i, tt, ys[i])
+            return k_to
+        for k in range(k_from, k_to):
+            te = float(t_eval[k])
+            emit_inside(k, te, dense(te))
+        return k_to
+
     def again(tt: float, fallback: np.ndarray) -> np.ndarray:
         """The state at tt inside the current step, integrated apart from the step's start
         to tt as a step's end (error-controlled there), not read off the dense output; where
@@ -388,7 +412,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             watch = _Watch(stiff, equations, t, t_end, rtol, atol, scale)
         while k_next < n_out:
             # checked here too for steppers that take no more than one attempt per call
-            if s.attempts + int(before[:2].sum()) >= max_steps:
+            if s.attempts >= s.max_attempts:  # (max_steps less the attempts before)
                 return budget()
             message = s.step()
             if message == OUT_OF_BUDGET:
@@ -447,12 +471,8 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                 for te, ye in zip(inside, within(inside)):
                     emit(k_next, float(te), ye)
                     k_next += 1
-            if k_next < n_out and t_eval[k_next] < t_new:
-                dense = dense or s.dense_output()
-                while k_next < n_out and t_eval[k_next] < t_new:
-                    te = float(t_eval[k_next])
-                    emit_inside(k_next, te, dense(te))
-                    k_next += 1
+            if k_next < k_end:  # (those before the step's end: t_eval[k_end] >= t_new)
+                k_next = emit_dense(dense or s.dense_output(), k_next, k_end)
             raw = False
             if project is not None and stepper.constrained and not s.exact_outputs:
                 # rule 6: the stepper keeps the constraints; only what is reported is
@@ -495,10 +515,8 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                     t = t_a  # (what a failure or an interrupt here reports)
                     if on_interval is not None:
                         on_interval(t_a, t_b, dense)
-                    while k_next < n_out and t_eval[k_next] <= t_b:
-                        te = float(t_eval[k_next])
-                        emit_inside(k_next, te, dense(te))
-                        k_next += 1
+                    k_next = emit_dense(dense, k_next, k_next + int(
+                        np.searchsorted(t_eval[k_next:], t_b, side="right")))
                 t = s.t
             if on_step is not None:
                 on_step(t, s.attempts + int(before[:2].sum()))

@@ -444,7 +444,9 @@ class DynamicRun(Run):
 
         K = len(times)
         #: the states at the output instants, written as outputs when the variant ends
-        self.states = {"q": np.full((K, n), np.nan), "qd": np.full((K, n), np.nan),
+        #: ("q" and "qd" views of "y", the integrated states (q, qd): one row an instant)
+        y_out = np.full((K, 2 * n), np.nan)
+        self.states = {"y": y_out, "q": y_out[:, :n], "qd": y_out[:, n:],
                        "qdd": np.full((K, n), np.nan), "lambda": np.full((K, sysm.m), np.nan),
                        "W": np.full(K, np.nan)}
         #: the instants kept as the dense output gave them, projected when the variant ends
@@ -788,8 +790,7 @@ class DynamicRun(Run):
     def _record(self, k: int, t: float, y: np.ndarray, raw: bool = False) -> None:
         """Keep the state at output instant k (``raw``: as the dense output gave it, for
         :meth:`_complete` to project)."""
-        n, st = self.ev.n, self.states
-        st["q"][k], st["qd"][k] = y[:n], y[n:]
+        self.states["y"][k] = y
         self.raw[k] = raw
         self.n_solved[self.variant] = k + 1
 

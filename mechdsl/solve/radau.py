@@ -138,7 +138,7 @@ def _radau_constants() -> dict[str, np.ndarray | float | complex]:
 
 
 _K = _radau_constants()
-_ONE4 = np.ones(4)
+_CUBIC = np.arange(1.0, 4.0)  # the powers of the collocation polynomial (dense output)
 
 
 @functools.cache
@@ -154,9 +154,10 @@ OPERATOR_MAX = 16
 
 
 def _ode_operators(h: float, M: np.ndarray, Cv: np.ndarray, Kq: np.ndarray, pair: bool
-                   ) -> tuple[np.ndarray, np.ndarray | None]:
-    """For an ODE (m = 0) of n coordinates and a step h: E(gamma/h)^-1 (2n, 2n) and the
+                   ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """For an ODE (m = 0) of n coordinates and a step h: E(gamma/h)^-1 (2n, 2n), the
     simplified Newton's whole correction as one matrix L (6n, 6n) on the stage residuals
+    in block order (:func:`_block_order`) and the stages' linear map (:func:`_stage_map`)
     (only the first unless ``pair``). With S(c) = c M - dQ/dv - dQ/dq / c, eliminating dq
     = (dv + b_q) / c from E(c) (dq, dv) = (b_q, b_v) (module docstring) gives
 
@@ -180,11 +181,61 @@ def _ode_operators(h: float, M: np.ndarray, Cv: np.ndarray, Kq: np.ndarray, pair
         E[range(n), range(n)] += 1.0 / c
         out.append(E)
     if not pair:
-        return out[0], None
+        return out[0], None, None
     TIr, TIc, T = _stage_maps(n)
     Ac = out[1] @ TIc
     L = T @ np.vstack((out[0] @ TIr, Ac.real, Ac.imag))
-    return out[0], -L
+    # (its columns in the block order that RadauStepper._newton_ode keeps the residual in)
+    return out[0], -L[:, _block_order(n)], _stage_map(h, n)
+
+
+@functools.lru_cache(maxsize=16)
+def _extrapolation(ratio: float) -> np.ndarray:
+    """X (3, 3) with Z0 = X Z_prev: the last step's collocation polynomial (dense output)
+    at the new stages, t_prev + x_j h_prev with x_j = 1 + c_j h / h_prev, less its value
+    at the step's start (x = 1): the stage increments' first guess (Hairer's). By the step
+    sizes' ratio alone (a step size kept, as it is to keep the factorisation, repeats it)."""
+    x = 1.0 + _K["c"] * ratio
+    powers = np.stack((x, x * x, x * x * x), axis=1) - 1.0
+    out = powers @ _K["P"].T
+    out.flags.writeable = False
+    return out
+
+
+@functools.cache
+def _block_order(n: int) -> np.ndarray:
+    """For each entry of the block order of three stages' (q, v) parts (every stage's q
+    part, then every stage's v part), its index in the stage-major order of Z.ravel()
+    (stage j's q part, then its v part)."""
+    j, a = np.divmod(np.arange(3 * n), n)
+    out = np.concatenate((2 * n * j + a, 2 * n * j + n + a))
+    out.flags.writeable = False
+    return out
+
+
+def _stage_map(h: float, n: int) -> np.ndarray:
+    """The linear part of an ODE's stage residuals as one matrix S (6n, 6n) on z = Z.ravel()
+    (stage-major): in block order, the velocity residuals' part D_q,j - Z_v,j and the
+    stages' accelerations D_v,j, with D_j = sum_k (A^-1)_jk Z_k / h the stages'
+    derivatives (the residual r_q,j = D_q,j - (v0 + Z_v,j))."""
+    derivatives, velocities = _stage_map_parts(n)
+    return derivatives / h + velocities
+
+
+@functools.cache
+def _stage_map_parts(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_stage_map`'s two parts, h S = (its A^-1 part) + h (its -Z_v part)."""
+    I = np.eye(n)
+    D, V = np.zeros((6 * n, 6 * n)), np.zeros((6 * n, 6 * n))
+    for j in range(3):
+        for k in range(3):
+            D[j * n:(j + 1) * n, 2 * n * k:2 * n * k + n] = _K["Ainv"][j, k] * I
+            D[3 * n + j * n:3 * n + (j + 1) * n, 2 * n * k + n:2 * n * (k + 1)] = \
+                _K["Ainv"][j, k] * I
+        V[j * n:(j + 1) * n, 2 * n * j + n:2 * n * (j + 1)] = -I
+    for a in (D, V):
+        a.flags.writeable = False
+    return D, V
 
 
 @functools.cache
@@ -329,6 +380,7 @@ class RadauStepper(Stepper):
     implicit: ClassVar[bool] = True
     redundant: ClassVar[bool] = True
     constrained: ClassVar[bool] = True
+    dense_arrays: ClassVar[bool] = True
     summary: ClassVar[str] = ("Radau IIA order 5 on the index-3 form: stiff models, redundant "
                               "constraints (sparse implicit, error-controlled)")
 
@@ -618,13 +670,15 @@ class RadauStepper(Stepper):
         test is never looser than the h-weighted one (where h > 1, or at the floor)."""
         n = self.n
         G = self._norms[3] if self._norms[3] > 0 else 1.0
-        rounding = ROUNDING * _EPS * float(np.abs(self.y[:n]).max(initial=0.0)) / h
-        dz = np.concatenate((1.0 / sc[:n], h / sc[n:]))
+        rounding = ROUNDING * _EPS * float(np.abs(self.y[:n]).max()) / h
+        inverse = 1.0 / sc
+        dz = inverse.copy()
+        dz[n:] *= h
         # (never looser than the h-weighted test: where h > 1, or the floor is above h sc_v)
-        full = np.maximum(1.0 / np.maximum(sc[n:], rounding / max(self.newton_tol, _EPS)),
-                          dz[n:])
-        return dz, h / sc[:n], h / self._mass_diag, self._hv(h) / sc[n:], \
-            1.0 / (G * sc[:n].min()), full
+        full = np.maximum(np.minimum(inverse[n:], max(self.newton_tol, _EPS) / rounding)
+                          if rounding > 0 else inverse[n:], dz[n:])
+        return dz, h * inverse[:n], h / self._mass_diag, self._hv(h) * inverse[n:], \
+            inverse[:n].max() / G if self.m else 0.0, full
 
     def _norm_stages(self, dZ: np.ndarray, w: tuple) -> tuple[float, float]:
         """sqrt(mean_j |dZ_j|^2) over the three stages, each by :meth:`_norm`, and the same
@@ -765,48 +819,73 @@ class RadauStepper(Stepper):
             dZ_norm_old = dZ_norm
         return stop.exhausted(self.max_newton, Z, rate)
 
-    def _newton_ode(self, t: float, h: float, Z: np.ndarray, sc: np.ndarray, L: np.ndarray
-                    ) -> tuple[bool, int, np.ndarray, float]:
-        """:meth:`_newton` for a small ODE (m = 0, the correction one matrix L of
-        :func:`_ode_operators`): the same iteration and tests, without the constraints'
-        terms (a third of the stiff pendulum's step went to their empty arithmetic)."""
+    def _newton_ode(self, t: float, h: float, Z: np.ndarray, sc: np.ndarray, L: np.ndarray,
+                    S: np.ndarray) -> tuple[bool, int, np.ndarray, float]:
+        """:meth:`_newton` for a small ODE (m = 0, the correction one matrix L and the
+        stages' linear part one matrix S of :func:`_ode_operators`): the same iteration and
+        tests, without the constraints' terms. The iterate is z = Z.ravel() and the residual
+        is kept in block order (the stages' velocity residuals, then their equations of
+        motion), so that an iteration is a few products of small arrays: on the stiff
+        pendulum numpy's cost per call is most of the arithmetic."""
         n = self.n
-        y0, mass_loads = self.y, self._mass_loads
-        stages = getattr(self.equations, "stage_residuals", None)
-        Dh = _K["Ainv"] / h
+        y0 = self.y
+        stages = getattr(self.equations, "stage_residuals", None) or self._ode_stages
         tj = (t + _K["c"] * h).tolist()
         w = self._stage_weights(sc, h)
+        # the norms' weights (:meth:`_norm_stages`) on the three stages' corrections:
+        # squared, h-weighted and in full, one product for both sums
+        squares = np.empty((2 * n, 2))
+        squares[:, 0] = w[0] * w[0]
+        squares[:n, 1], squares[n:, 1] = squares[:n, 0], w[5] * w[5]
+        squares = np.concatenate((squares, squares, squares))
+        count = 6 * n
         limit, tol = self.max_newton, self.newton_tol
-        r = np.empty_like(Z)
+        y0s = np.concatenate((y0, y0, y0))
+        v0s = y0s[_block_order(n)[3 * n:]]
+        z = Z.ravel()
         old = rate = None
         stop = _Stopping(tol, self._jac_current, limit)
         for k in range(limit):
-            D = Dh @ Z
-            Y = y0 + Z
-            r[:, :n] = D[:, :n] - Y[:, n:]
-            if stages is not None:  # the three stages in one call (module reduced_terms)
-                r[:, n:].flat = stages(tj, Y, D[:, n:])
-            else:
-                for j in range(3):
-                    M, Q = mass_loads(tj[j], Y[j, :n], Y[j, n:])
-                    r[j, n:] = M @ D[j, n:] - Q
+            r = S @ z
+            r[:3 * n] -= v0s
+            r[3 * n:] = stages(tj, y0s + z, r[3 * n:])
             self.nfev += 3
-            if not math.isfinite(r.sum()):
-                return stop.failed(k, Z, np.inf)
-            if k and self._residual_norm(r, w) <= self.residual_tol * tol:
-                return stop.converged(k, Z, rate)
-            dZ = (L @ r.ravel()).reshape(r.shape)
-            norm, full = self._norm_stages(dZ, w)
+            if k and self._residual_norm_ode(r, w) <= self.residual_tol * tol:
+                return stop.converged(k, z.reshape(3, 2 * n), rate)
+            dz = L @ r
+            sums = (dz * dz) @ squares
+            norm, full_norm = math.sqrt(sums[0] / count), math.sqrt(sums[1] / count)
+            if not math.isfinite(norm + full_norm):  # (a NaN or an inf in the residual)
+                return stop.failed(k, z.reshape(3, 2 * n), np.inf)
             if old is not None:
                 rate = norm / old
                 if rate >= 1 or rate ** (limit - k) / (1 - rate) * norm > tol:
-                    return stop.failed(k, Z, rate)
-            Z = Z + dZ
-            done = stop.after(k, Z, rate, norm, full)
+                    return stop.failed(k, z.reshape(3, 2 * n), rate)
+            z = z + dz
+            done = stop.after(k, z.reshape(3, 2 * n), rate, norm, full_norm)
             if done:
                 return done
             old = norm
-        return stop.exhausted(limit, Z, rate)
+        return stop.exhausted(limit, z.reshape(3, 2 * n), rate)
+
+    def _ode_stages(self, ts: list, Y: np.ndarray, A: np.ndarray) -> np.ndarray:
+        """M(Y_j) A_j - Q(t_j, Y_j) of the three stages (Y (6n,) and A (3n,) stage-major),
+        flat: for equations without ``stage_residuals``."""
+        n = self.n
+        Y, A = Y.reshape(3, 2 * n), A.reshape(3, n)
+        out = np.empty((3, n))
+        for j in range(3):
+            M, Q = self._mass_loads(ts[j], Y[j, :n], Y[j, n:])
+            out[j] = M @ A[j] - Q
+        return out.ravel()
+
+    def _residual_norm_ode(self, r: np.ndarray, w: tuple) -> float:
+        """:meth:`_residual_norm` of an ODE's residual r in block order (6n,)."""
+        rq, rv = r.reshape(2, 3, self.n)
+        dv = rv * w[2]  # h M^-1 r_v
+        eq = (rq + dv) * w[1]
+        ev = dv * w[3]
+        return math.sqrt(float(np.vdot(eq, eq) + np.vdot(ev, ev)) / (6 * self.n))
 
     def step(self) -> str | None:
         """Rule 2: one accepted step (module docstring), or the reason there is none."""
@@ -825,13 +904,7 @@ class RadauStepper(Stepper):
             if self._Z is None:
                 Z0 = np.zeros((3, N))
             else:  # extrapolate the last step's collocation polynomial (Hairer)
-                x = _ONE4.copy()  # (the last: the previous step's end, this one's start)
-                x[:3] = (t + h * _K["c"] - self.t_old) / self._h_prev
-                powers = np.empty((4, 3))
-                powers[:, 0], powers[:, 1] = x, x * x
-                powers[:, 2] = powers[:, 1] * x  # (as x * x * x: the same rounding)
-                at = powers @ (_K["P"].T @ self._Z)
-                Z0 = at[:3] - at[3]
+                Z0 = _extrapolation(h / self._h_prev) @ self._Z
             at_guess, L = None, None
             try:
                 if self._stagewise:
@@ -850,7 +923,7 @@ class RadauStepper(Stepper):
                 return f"the equations are singular at t = {t:.9g}"
             sc = self._atol + self.rtol * np.abs(y)
             if L is not None:
-                ok, k, Z, rate = self._newton_ode(t, h, Z0, sc, L)
+                ok, k, Z, rate = self._newton_ode(t, h, Z0, sc, L, self._ops[2])
             else:
                 ok, k, Z, rate = self._newton(t, h, Z0, sc, solve, at_guess)
             if not ok:
@@ -980,8 +1053,7 @@ class RadauStepper(Stepper):
             if x.ndim == 0:
                 x = float(x)
                 return y_old + x * (Q1 + x * (Q2 + x * Q3))  # (Horner)
-            powers = np.stack((x, x * x, x ** 3), axis=-1)
-            return (y_old + powers @ Qp).T
+            return (x[:, None] ** _CUBIC @ Qp + y_old).T
         return u
 
     def restart(self, y: np.ndarray) -> None:

@@ -383,6 +383,14 @@ class Reduced:
         state = self._by_code("state", y[:n], y[n:2 * n])
         return self.rel.absolute(self._full(y)) if state is None else state
 
+    def absolute_many(self, Y: np.ndarray) -> np.ndarray:
+        """(q, qd) (2N, K) of the K states (w, wd), Y (2n, K)."""
+        n = self.n
+        out = self._by_code("states", Y[:n], Y[n:2 * n])
+        if out is None:
+            return np.stack([self.absolute(col) for col in Y.T], axis=1)
+        return out
+
     def relative(self, y: np.ndarray) -> np.ndarray:
         """(w, wd) of the state (q, qd) (the eliminated coordinates are the joints')."""
         zz = self.rel.relative(y)
@@ -437,12 +445,13 @@ class Reduced:
 
     def stage_residuals(self, ts: list, Y: np.ndarray, A: np.ndarray) -> list | np.ndarray:
         """M_w(w_j) A_j - f_w(t_j, w_j, wd_j) for the rows j, Y_j = (w_j, wd_j) (an implicit
-        stepper's stages), flat, stage by stage: by the generated terms where traced
+        stepper's stages; Y and A as rows or flat, row by row), flat, stage by stage: by the generated terms where traced
         (:mod:`.reduced_terms`), else stage by stage through the map."""
         out = self._by_code("stage_residuals", ts, Y, A)
         if out is not None:
             return out
         n = self.n
+        Y, A = np.reshape(Y, (len(ts), -1)), np.reshape(A, (len(ts), n))
         out = np.empty(A.shape)
         for j, t in enumerate(ts):
             M, f = self.mass_loads(t, Y[j, :n], Y[j, n:2 * n])

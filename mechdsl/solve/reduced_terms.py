@@ -112,8 +112,8 @@ class TracedReduced:
     """:class:`ReducedCode` bound to one reduction's inputs ``p`` (the model's
     parameters, the eliminated coordinates' values, the points) and functions ``F``.
     ``terms(t, w, wd)`` -> (M_w (n, n), f_w (n,)), ``derivatives(t, w, wd)`` -> (df_w/dw,
-    df_w/dwd), ``absolute(w, wd)`` -> ((q, qd), G), ``state(w, wd)`` -> (q, qd) and
-    ``stage_residuals(ts, Y, A)``; each raises ValueError, ZeroDivisionError or
+    df_w/dwd), ``absolute(w, wd)`` -> ((q, qd), G), ``state(w, wd)`` -> (q, qd),
+    ``states(W, Wd)`` -> (q, qd) at K states and ``stage_residuals(ts, Y, A)``; each raises ValueError, ZeroDivisionError or
     OverflowError outside a function's domain (the caller then evaluates through the
     map)."""
 
@@ -138,6 +138,13 @@ class TracedReduced:
         """(q, qd) = (g(w), G wd) (2N,) alone (an output's state; by the same generated
         function: one more for the outputs alone cost more to generate than it saved)."""
         return self.absolute(w, wd)[0]
+
+    def states(self, W: np.ndarray, Wd: np.ndarray) -> np.ndarray:
+        """:meth:`state` at K states at once, W and Wd (n, K): (2N, K) (the outputs inside
+        one step: one array for them all, not one per output)."""
+        pose, p, F = self.code.pose(), self._p, self._F
+        rows = [pose(w, wd, 0.0, p, F) for w, wd in zip(W.T.tolist(), Wd.T.tolist())]
+        return np.array(rows)[:, :2 * self.N].T
 
     def stage_residuals(self, ts: list, Y: np.ndarray, A: np.ndarray) -> list:
         """M_w(w_j) A_j - f_w(t_j, w_j, wd_j) for the stages j (rows Y_j = (w_j, wd_j) and

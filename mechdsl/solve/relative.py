@@ -470,6 +470,7 @@ class Radau(Stepper):
     summary = RadauStepper.summary
     auto = RadauStepper.auto
     constrained = RadauStepper.constrained
+    dense_arrays = RadauStepper.dense_arrays
 
     def __init__(self, equations: Equations, t0: float, y0: np.ndarray, t_bound: float, *,
                  rtol: float, atol: float, scale: np.ndarray,
@@ -659,10 +660,14 @@ class Radau(Stepper):
             return u
         rel = self.relative
 
+        many = getattr(rel, "absolute_many", None)
+
         def absolute(t):
             y = np.asarray(u(t))
             if y.ndim == 1:
                 return rel.absolute(y)
+            if many is not None:
+                return many(y)
             return np.stack([rel.absolute(col) for col in y.T], axis=1)
         return absolute
 

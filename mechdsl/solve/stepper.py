@@ -26,7 +26,10 @@ The rules a stepper keeps:
 3. **dense_output()** gives a callable ``u(t) -> y`` valid on ``[t_old, t]`` (the
    interpolant of the last accepted step, as stepped: a later ``restart`` does not change
    it), of the order the method promises. The driver calls it only for steps that contain
-   an output instant, so that its extra work (stages) is done only there.
+   an output instant, so that its extra work (stages) is done only there. Where the class
+   attribute ``dense_arrays`` is true, ``u`` also takes an array of K instants and gives
+   the states as columns (len(y), K): the driver then reads all the outputs of a step in
+   one call.
 4. **restart(y)** is called by the driver after it changed the state at ``t`` (a
    projection, an event): the stepper drops whatever it carried from before (an FSAL
    derivative, a history, a Jacobian evaluated at the old state) and continues from ``y``,
@@ -149,6 +152,8 @@ class Stepper:
     constrained: ClassVar[bool] = False
     #: its states satisfy the constraints identically, not to a tolerance (rule 6)
     exact_outputs: bool = False
+    #: its dense output takes an array of instants too (rule 3)
+    dense_arrays: ClassVar[bool] = False
     #: an explicit pair whose error estimate stays reliable where the right-hand side is
     #: smooth only to a tolerance (the augmented Lagrangian's accelerations: an iteration
     #: stopped at round-off, and near a singular position the penalty's blend): the
