@@ -99,7 +99,7 @@ import numpy as np
 from ..compiled import equations as eq
 from ..compiled.kernels import Kernels
 from ..errors import MechError
-from .augmented import Factor, plan
+from .augmented import Factor, Plan, plan
 from .body_terms import BodyTerms
 from .diagnose import closed_to_roundoff, col_scale
 from ..symbolic.codegen import first_floats
@@ -141,7 +141,6 @@ class Motion:
         self.jac_rows, self.jac_cols = f.rows, f.cols
         self.mass_rows, self.mass_cols = d.rows, d.cols
         self.drive_rows = system.drive_rows
-        self.plan = plan(n, m, d.rows, d.cols, f.rows, f.cols, opts.augmented_band_from)
         # the scalar kernels of the one-state fast path (small models), shared with the
         # explicit integrators' evaluator (compiled once per model)
         scalar = kernels.scalar_kernels
@@ -166,6 +165,15 @@ class Motion:
         self._penalty(system.guess[0])
 
     # -- set-up -----------------------------------------------------------------------------
+    @functools.cached_property
+    def plan(self) -> Plan:
+        """The factorisation's plan of M + Phi_q^T W Phi_q (:func:`.augmented.plan`), made
+        at the first factorisation (a run that goes on in the joints' own coordinates
+        never factorises it)."""
+        d, f = self.kernels.dynamics, self.kernels.fused
+        return plan(self.n, self.m, d.rows, d.cols, f.rows, f.cols,
+                    self.opts.augmented_band_from)
+
     def _array_kernel(self, d) -> None:
         """One array kernel for the entries of M and Q that vary with the state, the
         constant ones stored once: a body's M is constant where its frame is at its centre

@@ -177,8 +177,7 @@ def _ode_operators(h: float, M: np.ndarray, Cv: np.ndarray, Kq: np.ndarray, pair
         Si = np.linalg.inv(c * M - Cv - Kq / c)
         SK = Si @ Kq / c
         E = np.empty((2 * n, 2 * n), dtype=SK.dtype)
-        E[:n, :n], E[:n, n:], E[n:, :n], E[n:, n:] = SK / c, Si / c, SK, Si
-        E[range(n), range(n)] += 1.0 / c
+        E[:n, :n], E[:n, n:], E[n:, :n], E[n:, n:] = (SK + _identity(n)) / c, Si / c, SK, Si
         out.append(E)
     if not pair:
         return out[0], None, None
@@ -187,6 +186,13 @@ def _ode_operators(h: float, M: np.ndarray, Cv: np.ndarray, Kq: np.ndarray, pair
     L = T @ np.vstack((out[0] @ TIr, Ac.real, Ac.imag))
     # (its columns in the block order that RadauStepper._newton_ode keeps the residual in)
     return out[0], -L[:, _block_order(n)], _stage_map(h, n)
+
+
+@functools.cache
+def _identity(n: int) -> np.ndarray:
+    out = np.eye(n)
+    out.flags.writeable = False
+    return out
 
 
 @functools.lru_cache(maxsize=16)
