@@ -342,6 +342,24 @@ def test_pendulum_against_its_angle_ode():
     assert st.njev >= 1 and st.nlu >= 2 and st.naccepted > 0
 
 
+def test_the_dense_output_takes_an_array_of_instants():
+    """Rule 3 with ``dense_arrays``: radau's collocation polynomial at an array of instants
+    of its last step gives each instant's state as a column, as one call per instant does,
+    and there the pendulum's angle ODE (to 1e-4 rad, as its outputs above)."""
+    eq, y0 = pendulum()
+    st = RadauStepper(eq, 0.0, y0, 2.0, rtol=1e-6, atol=1e-8, scale=np.ones(6))
+    assert RadauStepper.dense_arrays
+    while st.t < 1.0:
+        assert st.step() is None
+    u = st.dense_output()
+    ts = st.t_old + np.array([0.0, 0.3, 0.7, 1.0]) * (st.t - st.t_old)
+    Y = u(ts)
+    assert Y.shape == (len(y0), len(ts))
+    for j, tt in enumerate(ts):
+        np.testing.assert_allclose(Y[:, j], u(float(tt)), rtol=0, atol=1e-14)
+        assert abs(Y[2, j] - pendulum_oracle(tt)) < 1e-4
+
+
 def _stiff(k):
     eq = StiffPendulum(k)
     st, _, seconds = run(eq, stiff_y0(), 2.0)

@@ -131,8 +131,11 @@ def test_the_stiff_pendulum_runs_in_its_joint_coordinates(model):
 
 def test_the_automatic_choice_goes_on_in_joint_coordinates():
     """k = 1e6 with no method named: vern9 finds it stiff, radau goes on in the joints'
-    coordinates; theta and s within 1e-7 of the minimal ODE (2e-7 before, in relative
-    coordinates with every joint's equations)."""
+    coordinates; theta and s within 1e-7 of the minimal ODE at the end (2e-7 before, in
+    relative coordinates with every joint's equations), and at every output instant, most
+    inside steps (read off the steps' dense outputs all at once and mapped to the bodies'
+    coordinates together), theta within 1e-6 rad and its rate within 1e-5 rad/s (2.5e-7
+    and 2.1e-6 measured)."""
     k = 1e6
     res = mechdsl.loads(dm.stiff_pendulum_text(k)).simulate()
     assert res.ok, res.messages
@@ -140,6 +143,12 @@ def test_the_automatic_choice_goes_on_in_joint_coordinates():
     ref = dm.stiff_pendulum_oracle(k)
     assert abs(res["theta"][-1] - ref[0]) < 1e-7
     assert abs(res["s"][-1] - ref[1]) < 1e-7
+    t = np.asarray(res["t"], dtype=float)
+    tight = dm.stiff_pendulum_rtol(k)
+    every = dm.stiff_pendulum_solve(k, 2.0, "Radau", tight, tight / 100, t_eval=t).y
+    assert np.abs(np.asarray(res["theta"]) - every[0]).max() < 1e-6
+    assert np.abs(np.asarray(res["s"]) - every[1]).max() < 1e-6
+    assert np.abs(np.asarray(res["theta.vel"]) - every[2]).max() < 1e-5
 
 
 def test_a_skewed_slider_stays_an_equation_and_goes_through_the_trial():
