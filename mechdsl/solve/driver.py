@@ -189,7 +189,9 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
               stiff: tuple[type[Stepper], Callable[[], Equations]] | None = None,
               on_interval: Callable[[float, float, Callable], None] | None = None,
               raw_outputs: bool = False, redo_outputs: bool = True,
-              jumps_ahead: tuple = ()) -> Solution:
+              jumps_ahead: tuple = (),
+              on_outputs: Callable[[int, np.ndarray, np.ndarray, bool], None] | None = None
+              ) -> Solution:
     """Integrate y' = equations.rhs(t, y) from ``y0`` at ``t_eval[0]`` to ``t_eval[-1]``
     by steps of ``stepper``, returning the state at every instant of ``t_eval``
     (increasing). ``atol`` (times ``scale``, per component, if given) and ``rtol`` bound
@@ -197,7 +199,10 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
     is the first step (else the stepper's choice) and ``max_step`` the longest. Where
     the equations have ``project`` (and ``settle``), every state after a step and every
     output is corrected by it (see the module). ``on_output(k, t, y)`` is called with
-    each output as soon as it is known, ``on_step(t, attempts)`` after each accepted step
+    each output as soon as it is known (``on_outputs(k, ts, ys, raw)``, where given, with
+    those a step's dense output gives together, rule 3's ``dense_arrays``: instants ts
+    (K,), states ys (K, N), those of k to k + K - 1), ``on_step(t, attempts)`` after each
+    accepted step
     with the time reached and the steps taken, accepted and rejected, and
     ``on_interval(t_old, t_new, dense)`` with each accepted step's span and its dense
     output, before its outputs are emitted (a quadrature along the solution); a
@@ -266,7 +271,9 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             raw = project is not None and not s.exact_outputs
             outs_t.extend(ts.tolist())
             outs_y.extend(ys)
-            if on_output is not None:
+            if on_outputs is not None:
+                on_outputs(k_from, ts, ys, raw)
+            elif on_output is not None:
                 for i, tt in enumerate(outs_t[-len(ys):]):
                     if raw_outputs:
                         on_output(k_from + i, tt, ys[i], raw)

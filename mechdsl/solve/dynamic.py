@@ -442,6 +442,15 @@ class DynamicRun(Run):
             if self.progress is not None and motion is None:  # the variants in turn
                 self.progress((v * len(times) + k + 1) // V, len(times))
 
+        def record_all(k: int, ts: np.ndarray, ys: np.ndarray, raw: bool) -> None:
+            """The outputs k .. k + len(ts) - 1 at once (as :func:`record` each)."""
+            end = k + len(ts)
+            self.states["y"][k:end] = ys
+            self.raw[k:end] = raw
+            self.n_solved[v] = end
+            if self.progress is not None and motion is None:
+                self.progress((v * len(times) + end) // V, len(times))
+
         K = len(times)
         #: the states at the output instants, written as outputs when the variant ends
         #: ("q" and "qd" views of "y", the integrated states (q, qd): one row an instant)
@@ -473,7 +482,7 @@ class DynamicRun(Run):
                             rtol=self.rtol, atol=self.atol, scale=scale, on_output=record,
                             on_step=on_step, max_steps=budget, stiff=stiff,
                             on_interval=on_interval, raw_outputs=self._batched(),
-                            jumps_ahead=ahead)
+                            jumps_ahead=ahead, on_outputs=record_all)
             if sol.switched is not None:
                 name, at, why = sol.switched
                 self.switches.append(

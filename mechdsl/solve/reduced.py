@@ -48,6 +48,8 @@ coordinates' own Jacobian terms.
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from .reduced_terms import TracedReduced, traced
@@ -457,6 +459,23 @@ class Reduced:
             M, f = self.mass_loads(t, Y[j, :n], Y[j, n:2 * n])
             out[j] = M @ A[j] - f
         return out.ravel()
+
+    def stage_function(self) -> Callable[[list, np.ndarray, np.ndarray], list | np.ndarray]:
+        """:meth:`stage_residuals` of three stages, Y and A flat, bound to the generated
+        function where traced (an implicit stepper's Newton iteration calls it twice a
+        step: without the dispatch at each call), through the map where a state is outside
+        a function's domain."""
+        terms = self.traced
+        if terms is None:
+            return self.stage_residuals
+        fn, p, F = terms.code.stages(3), terms._p, terms._F
+
+        def residuals(ts: list, Y: np.ndarray, A: np.ndarray) -> list | np.ndarray:
+            try:
+                return fn(Y.tolist(), (), 0.0, p + ts + A.tolist(), F)
+            except _OUTSIDE:
+                return self.stage_residuals(ts, Y, A)
+        return residuals
 
     def loads(self, t: float, w: np.ndarray, wd: np.ndarray) -> np.ndarray:
         """f_w = (G^T (Q - M c))_w."""
