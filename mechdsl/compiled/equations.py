@@ -219,7 +219,9 @@ def output_values(kernels: Kernels, spec, q: np.ndarray, qd: np.ndarray | None,
     r^P = r + A s', rd^P = rd + B s' phid, rdd^P = rdd + B s' phidd - A s' phid^2.
     A named output (:class:`~mechdsl.compiled.system.ExprOutput`) is its expression evaluated on the
     params, t and the quantities it reads. The value is reported in the column's unit (times
-    ``spec.scale``: degrees for an angle where the model asks for them).
+    ``spec.scale``: degrees for an angle where the model asks for them). ``cache``: what
+    the outputs of these states share (the multipliers, the quantities the expressions
+    read), filled as they are computed.
     """
     values = _values(kernels, spec, q, qd, qdd, t, cache)
     return values * spec.scale if spec.scale != 1.0 else values
@@ -245,10 +247,14 @@ def _values(kernels: Kernels, spec, q: np.ndarray, qd: np.ndarray | None,
     if isinstance(spec, ExprOutput):
         env = dict(system.env)
         env["t"] = np.zeros(q.shape[:-1]) if t is None else t
-        for name, read in spec.inputs:  # (a reaction read shares the multipliers)
-            if isinstance(read, ReactionOutput) and cache is None:
-                cache = {}
-            env[name] = output_values(kernels, read, q, qd, qdd, t, cache)
+        cache = {} if cache is None else cache
+        for name, read in spec.inputs:
+            # a quantity read by several outputs (a distance and its rates read the same
+            # points), or a reaction's multipliers, computed once for the states given
+            key = ("read", name, getattr(read, "scale", 1.0))
+            if key not in cache:
+                cache[key] = output_values(kernels, read, q, qd, qdd, t, cache)
+            env[name] = cache[key]
         with np.errstate(all="ignore"):
             return np.broadcast_to(np.asarray(kernels.expressions[spec.label](env), dtype=float),
                                    q.shape[:-1]).copy()
