@@ -231,7 +231,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
     n, n_out = len(y), len(t_eval)
     t, t_end = float(t_eval[0]), float(t_eval[-1])
     outs_t: list[float] = []
-    outs_y: list[np.ndarray] = []
+    outs_y: list[np.ndarray] = []  # the outputs' states, one (N,) or a block (K, N) each
     s: Stepper | None = None
 
     def emit(k: int, tt: float, yy: np.ndarray, raw: bool = False) -> None:
@@ -270,7 +270,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
             ys = dense(ts).T
             raw = project is not None and not s.exact_outputs
             outs_t.extend(ts.tolist())
-            outs_y.extend(ys)
+            outs_y.append(ys)
             if on_outputs is not None:
                 on_outputs(k_from, ts, ys, raw)
             elif on_output is not None:
@@ -352,7 +352,9 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         counts = before + (0 if s is None else np.array(
             (s.naccepted, s.nrejected, s.nfev, s.njev, s.nlu)))
         counts = [int(c) for c in counts]
-        return Solution(np.array(outs_t), np.array(outs_y).reshape(len(outs_t), n), status,
+        states = np.concatenate([np.reshape(a, (-1, n)) for a in outs_y]) if outs_y else \
+            np.empty((0, n))
+        return Solution(np.array(outs_t), states, status,
                         message, *counts[:3], t, reason, *counts[3:], switched,
                         None if s is None else getattr(s, "note", None), tuple(met),
                         tuple(rough), None if s is None else np.array(s.y, dtype=float))

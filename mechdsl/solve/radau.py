@@ -846,7 +846,7 @@ class RadauStepper(Stepper):
         bound = getattr(self.equations, "stage_function", None)
         stages = bound() if bound is not None else \
             getattr(self.equations, "stage_residuals", None) or self._ode_stages
-        tj = (t + _K["c"] * h).tolist()
+        tj = [t + c * h for c in _C]
         w = self._stage_weights(sc, h)
         # the norms' weights (:meth:`_norm_stages`) on the three stages' corrections:
         # squared, h-weighted and in full, one product for both sums

@@ -393,6 +393,22 @@ class Reduced:
             return np.stack([self.absolute(col) for col in Y.T], axis=1)
         return out
 
+    def state_function(self) -> Callable[[np.ndarray], np.ndarray]:
+        """:meth:`absolute_many` bound once (the outputs of every step of a run)."""
+        terms = self.traced
+        if terms is None:
+            return self.absolute_many
+        pose, p, F, n, N2 = terms.code.pose(), terms._p, terms._F, self.n, 2 * self.N
+
+        def states(Y: np.ndarray) -> np.ndarray:
+            try:
+                rows = [pose(w, wd, 0.0, p, F) for w, wd in zip(Y[:n].T.tolist(),
+                                                                 Y[n:2 * n].T.tolist())]
+            except _OUTSIDE:
+                return self.absolute_many(Y)
+            return np.array(rows)[:, :N2].T
+        return states
+
     def relative(self, y: np.ndarray) -> np.ndarray:
         """(w, wd) of the state (q, qd) (the eliminated coordinates are the joints')."""
         zz = self.rel.relative(y)
