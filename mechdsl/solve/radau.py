@@ -659,7 +659,9 @@ class RadauStepper(Stepper):
         which the tolerance is given for."""
         if self._error_map is not None:
             y, y_new, err = self._error_map(y, y_new, err)
-        sc = self._atol_error + self.rtol * np.maximum(np.abs(y), np.abs(y_new))
+        sc = np.maximum(np.abs(y), np.abs(y_new))
+        sc *= self.rtol
+        sc += self._atol_error
         return self._norm(err, sc, self._hv(h))
 
     def _stage_weights(self, sc: np.ndarray, h: float) -> tuple:

@@ -422,7 +422,7 @@ class Reduced:
         start, end = self._pose(y), self._pose(y_new)
         if start is not None and end is not None:
             # (dq, dqd) = (G dw, G dwd): one product of G with both parts
-            mapped = (end[1] @ err[:2 * n].reshape(2, n).T).T.ravel()
+            mapped = (err[:2 * n].reshape(2, n) @ end[1].T).ravel()
             if self.m:
                 mapped = np.concatenate((mapped, err[2 * n:]))
             return start[0], end[0], mapped
