@@ -378,3 +378,30 @@ def test_the_interpolant_bounds_are_the_pairs_own():
     for name, bound in INTERPOLANT_BOUNDS.items():
         assert interpolant_extent(name) == pytest.approx(bound, abs=0.006), name
         assert 0 < bound <= stiffness_probe(name)[1] / 0.9 + 0.01
+
+
+def test_the_stability_thresholds_are_the_pairs_own():
+    """explicit.STABILITY_THRESHOLDS, written out so that no process pays the scan, are
+    what stability_threshold computes from each pair's coefficients (0.9 of the smaller of
+    the real and imaginary extents of |R(z)| <= 1 + 1e-3, at least half the real one), for
+    every explicit pair of the registry; and a bound the scan checks independently: the
+    stability polynomial R at the threshold on the axis that sets it stays within 1e-3 of
+    the unit circle's inside."""
+    from mechdsl.solve.explicit import (STABILITY_THRESHOLDS, coefficients,
+                                        stability_threshold, stiffness_probe)
+    from mechdsl.solve.integrators import INTEGRATORS
+
+    names = {cls.name for cls in INTEGRATORS.values() if not cls.implicit}
+    assert names <= set(STABILITY_THRESHOLDS)
+    for name, threshold in STABILITY_THRESHOLDS.items():
+        assert stability_threshold(name) == pytest.approx(threshold, abs=1e-9), name
+        assert stiffness_probe(name)[1] == threshold
+        pair = coefficients(name)
+        s = pair.stages
+        A = np.zeros((s, s))
+        for i in range(1, s):
+            A[i, :len(pair.a[i])] = pair.a[i]
+        # at 0.9 of the boundary on the negative real axis, |R| < 1: a stable step
+        z = -threshold
+        R = 1 + z * (pair.b[:s] @ np.linalg.solve(np.eye(s) - z * A, np.ones(s)))
+        assert abs(R) <= 1 + 1e-3, name

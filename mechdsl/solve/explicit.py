@@ -149,18 +149,34 @@ STIFF_STEPS, CALM_STEPS = 15, 6
 EARLY_STIFF = 1.5
 
 
+#: :func:`stability_threshold` of the pairs, computed once here (its scan takes 3 to 8 ms,
+#: which every process's first explicit step would pay; tests/test_explicit.py checks it)
+STABILITY_THRESHOLDS = {"dopri5": 1.65, "dop853": 5.364, "vern9": 2.637}
+
+
 @functools.cache
 def stiffness_probe(name: str) -> tuple[int | None, float, np.ndarray]:
     """The stage s of pair ``name`` at c = 1 (None if there is none), the weights w with
-    y_new - Y_s = h sum_j w_j K_j (b less the row of A of stage s), and the threshold of h rho:
-    0.9 times the stability boundary of the pair, the smaller of its extents along the
-    negative real axis and the imaginary axis (an undamped stiff spring's eigenvalues are
-    imaginary) where |R(z)| <= 1 + 1e-3, R(z) = 1 + z b^T (I - z A)^-1 1, and at least half
-    the real extent (DOPRI5 leaves the imaginary axis at 1.33: threshold 1.65; DOP853: 6.4
-    and 6.0, 5.36; Vern9: 4.5 and 2.9, 2.64)."""
+    y_new - Y_s = h sum_j w_j K_j (b less the row of A of stage s), and the threshold of h
+    rho (:data:`STABILITY_THRESHOLDS`, or for another pair :func:`stability_threshold`)."""
+    pair = coefficients(name)
+    unit = max((i for i in range(1, pair.stages) if pair.c[i] == 1.0), default=None)
+    weights = pair.b[:pair.stages].copy()
+    if unit is not None:
+        weights[:unit] -= pair.a[unit]
+    threshold = STABILITY_THRESHOLDS.get(name)
+    return unit, threshold if threshold is not None else stability_threshold(name), weights
+
+
+@functools.cache
+def stability_threshold(name: str) -> float:
+    """The threshold of h rho of pair ``name``: 0.9 times its stability boundary, the
+    smaller of its extents along the negative real axis and the imaginary axis (an
+    undamped stiff spring's eigenvalues are imaginary) where |R(z)| <= 1 + 1e-3, R(z) = 1
+    + z b^T (I - z A)^-1 1, and at least half the real extent (DOPRI5 leaves the imaginary
+    axis at 1.33: threshold 1.65; DOP853: 6.4 and 6.0, 5.36; Vern9: 4.5 and 2.9, 2.64)."""
     pair = coefficients(name)
     s = pair.stages
-    unit = max((i for i in range(1, s) if pair.c[i] == 1.0), default=None)
     A = np.zeros((s, s))
     for i in range(1, s):
         A[i, :len(pair.a[i])] = pair.a[i]
@@ -176,10 +192,7 @@ def stiffness_probe(name: str) -> tuple[int | None, float, np.ndarray]:
         return x
 
     real = extent(-1.0)
-    weights = b.copy()
-    if unit is not None:
-        weights[:unit] -= pair.a[unit]
-    return unit, max(0.9 * min(real, extent(1j)), 0.5 * real), weights
+    return max(0.9 * min(real, extent(1j)), 0.5 * real)
 
 
 class RungeKutta(Stepper):
