@@ -11,6 +11,6 @@ import sys
 if not getattr(sys.flags, "safe_path", False) and sys.path and sys.path[0] in ("", os.getcwd()):
     del sys.path[0]
 
-from mechdsl.cli import main  # noqa: E402 - after the sys.path fix
+from mechdsl.cli import entry  # noqa: E402 - after the sys.path fix
 
-sys.exit(main())
+entry()

@@ -231,12 +231,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     While a command runs, SIGTERM stops it as Ctrl-C does (:class:`~mechdsl.writing.
     SignalGuard`), and standard output is flushed before returning, so that a full disk or a
     closed pipe is reported here, not by the interpreter's shutdown."""
-    # the objects of the imports (numpy's, lark's, the language's) live as long as the
-    # process: kept out of the cyclic collector, which scanned them again and again (the
-    # stiff pendulum's whole `mechdsl run`: 375 ms, 330 ms frozen). Once a process: a host
-    # that calls main() again (the tests) freezes no garbage of its own after the first
-    if not gc.get_freeze_count():
-        gc.freeze()
     try:
         args = _parser().parse_args(argv)
     except SystemExit:  # --help, or a usage error already printed
@@ -249,6 +243,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         warnings.filterwarnings("ignore", category=RuntimeWarning, module="numpy")
         status = _command(args, signals)
         return _flush_stdout() or status
+
+
+def entry() -> None:
+    """The ``mechdsl`` command (and ``python -m mechdsl``): :func:`main` as the process.
+
+    The objects of the imports (numpy's, lark's, the language's) live as long as the
+    process, so they are kept out of the cyclic collector (``gc.freeze``), which scanned
+    them again and again: the stiff pendulum's whole ``mechdsl run`` took 375 ms, 330 ms
+    frozen. Only here, where the process is the command's own: a program that calls
+    :func:`main` keeps its garbage collectable."""
+    gc.freeze()
+    sys.exit(main())
 
 
 def _flush_stdout() -> int:

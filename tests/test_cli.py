@@ -174,6 +174,23 @@ def test_a_run_imports_only_the_plugins_and_libraries_it_needs():
         "['mechdsl_drives', 'mechdsl_prismatic', 'mechdsl_revolute']"
 
 
+def test_the_command_freezes_its_imports_and_main_leaves_a_host_collectable():
+    """The command (``python -m mechdsl``, the console script: mechdsl.cli.entry) keeps the
+    objects of its imports out of the cyclic collector (gc.freeze); main() called by a
+    program does not: a reference cycle the program dropped before it is still collected
+    after it (found in review: freezing in main() kept a test session's garbage)."""
+    code = ("import gc, sys, weakref, mechdsl.cli as c\n"
+            "class Node: pass\n"
+            "a = Node(); a.me = a; gone = weakref.ref(a); del a\n"
+            "c.main(['--version'])\n"
+            "gc.collect(); print(gc.get_freeze_count(), gone() is None, file=sys.stderr)\n"
+            "try:\n    c.entry()\nexcept SystemExit:\n    pass\n"
+            "print(gc.get_freeze_count() > 0, file=sys.stderr)\n")
+    r = subprocess.run([sys.executable, "-c", code, "--version"], capture_output=True,
+                       text=True, cwd=ROOT)
+    assert r.stderr.strip().splitlines()[-2:] == ["0 True", "True"], r.stderr[-500:]
+
+
 def test_a_small_forward_dynamics_does_not_import_scipy_sparse(tmp_path):
     """The stiff pendulum (two bodies, stiff enough that the run goes on with radau in its
     joints' coordinates) runs with no sparse matrix: scipy.sparse, 25 to 35 ms of the

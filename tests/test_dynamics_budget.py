@@ -111,6 +111,28 @@ def test_the_api_takes_the_budget_as_an_option_and_fails_the_same_way():
             SolverOptions(max_steps=bad)
 
 
+def test_the_budget_holds_across_the_switch_to_the_implicit_method():
+    """A stiff spring (the stiff pendulum at k = 1e6: vern9 for 0.09 s, then radau, about
+    70 steps in all) with a budget of 60: the steps attempted, the implicit trial's
+    included, are at most 60 (the trial was given 32 attempts whatever the budget had left,
+    61 accepted and 1 rejected, found in review); with 400 the run is whole."""
+    import importlib.util
+
+    from conftest import ROOT
+
+    spec = importlib.util.spec_from_file_location(
+        "dynamics_models", ROOT / "benchmarks" / "dynamics_models.py")
+    dm = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(dm)
+    mech = mechdsl.loads(dm.stiff_pendulum_text(1e6), "stiff.mech")
+    res = mech.simulate(options=SolverOptions(max_steps=60))
+    assert res.status == "failed" and "budget of 60 steps" in res.messages[0]
+    accepted, rejected = (int(x.replace(",", "")) for x in re.search(
+        r"\(([0-9,]+) steps accepted, ([0-9,]+) rejected\)", res.messages[0]).groups())
+    assert accepted + rejected <= 60
+    assert mech.simulate(options=SolverOptions(max_steps=400)).status == "ok"
+
+
 class _Display:
     """A progress that can show the steps: records what the dynamics feeds it."""
 

@@ -373,3 +373,27 @@ def test_a_sweeps_variants_share_the_generated_code_with_their_own_values():
             assert abs(theta[v, -1] - dm.stiff_pendulum_oracle(k)[0]) < 1e-7
     d = mech.compile().dynamics
     assert d.variant(0)._floats is d._floats
+
+
+def test_joints_that_lock_every_coordinate_leave_radau_in_absolute_ones():
+    """Two bodies each held by a pin and a slider at one point (no degree of freedom), a
+    rotary spring between them: the joints' own coordinates would be none at all, where
+    radau raised a ValueError (a traceback; found in review). It stays in absolute
+    coordinates, and the bodies stay where they are assembled."""
+    text = """gravity = (0, -9.81)
+ground { }
+body a { guess = (0, 0, 0)  mass = 1  inertia = 0.1  point E = (1, 0) }
+body b { guess = (1, 0, 0)  mass = 1  inertia = 0.1 }
+joint p: revolute(ground.origin, a.origin)
+joint l: prismatic(ground.origin, a.origin, axis = (1, 0))
+joint q: revolute(a.E, b.origin)
+joint r: prismatic(a.E, b.origin, axis = (1, 0))
+force s: rotary_spring(a, b, k = 100.0)
+simulate t = 0 .. 0.1 step 0.01
+output b.x, b.phi
+"""
+    res = mechdsl.loads(text, "locked.mech").simulate(options=SolverOptions(method="radau"))
+    assert res.ok, res.messages
+    assert "joints' own coordinates" not in res.method
+    assert np.abs(np.asarray(res["b.x"]) - 1.0).max() < 1e-12
+    assert np.abs(np.asarray(res["b.phi"])).max() < 1e-12

@@ -66,7 +66,7 @@ def test_server_command_setting_defaults_to_the_console_script():
     script, subcommand = setting["default"]
     assert script in PYPROJECT["project"]["scripts"], (
         f"{script!r} is not a console script of pyproject.toml")
-    assert PYPROJECT["project"]["scripts"][script] == "mechdsl.cli:main"
+    assert PYPROJECT["project"]["scripts"][script] == "mechdsl.cli:entry"
     # `mechdsl lsp` exists, and needs the lsp extra the README and the error message name
     assert "lsp" in PYPROJECT["project"]["optional-dependencies"]
     cli = (ROOT / "mechdsl" / "cli.py").read_text()

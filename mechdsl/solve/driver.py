@@ -75,6 +75,7 @@ and owns
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 from typing import Callable
@@ -231,7 +232,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
     n, n_out = len(y), len(t_eval)
     t, t_end = float(t_eval[0]), float(t_eval[-1])
     outs_t: list[float] = []
-    outs_y: list[np.ndarray] = []  # the outputs' states, one (N,) or a block (K, N) each
+    outs_y: list[np.ndarray] = []  # the outputs' states, one (n,) or a block (K, n) each
     s: Stepper | None = None
 
     def emit(k: int, tt: float, yy: np.ndarray, raw: bool = False) -> None:
@@ -268,9 +269,12 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                                                  or project is None):
             ts = t_eval[k_from:k_to]
             ys = dense(ts).T
+            if ys.shape != (len(ts), n):
+                raise ValueError(f"{s.name}'s dense output gave {ys.shape[::-1]} for "
+                                 f"{len(ts)} instants of a state of {n}")
             raw = project is not None and not s.exact_outputs
-            outs_t.extend(ts.tolist())
             outs_y.append(ys)
+            outs_t.extend(ts.tolist())
             if on_outputs is not None:
                 on_outputs(k_from, ts, ys, raw)
             elif on_output is not None:
@@ -354,7 +358,9 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
         counts = [int(c) for c in counts]
         states = np.concatenate([np.reshape(a, (-1, n)) for a in outs_y]) if outs_y else \
             np.empty((0, n))
-        return Solution(np.array(outs_t), states, status,
+        # (an interrupt between a block's instants and its states leaves one longer)
+        k = min(len(outs_t), len(states))
+        return Solution(np.array(outs_t[:k]), states[:k], status,
                         message, *counts[:3], t, reason, *counts[3:], switched,
                         None if s is None else getattr(s, "note", None), tuple(met),
                         tuple(rough), None if s is None else np.array(s.y, dtype=float))
@@ -503,7 +509,7 @@ def integrate(stepper: type[Stepper], equations: Equations, y0: np.ndarray,
                 if reason is not None:
                     return done("failed", reason)
             why, spent, kept = (None, None, None) if watch is None else \
-                watch.after(s, message, t_old, t, y_new)
+                watch.after(s, message, t_old, t, y_new, s.max_attempts - s.attempts)
             if spent is not None and why is None:  # a trial that said no: its work counts
                 before += spent
                 s.max_attempts = max_steps - int(before[:2].sum())
@@ -559,11 +565,11 @@ class _Watch:
         self.next_trial, self.resume_at = TRIAL_AFTER, None
         self.trial_pause = self.stiff_pause = TRIAL_AFTER
 
-    def after(self, s: Stepper, message: str | None, t_old: float, t: float, y: np.ndarray
-              ) -> tuple[str | None, np.ndarray | None, tuple | None]:
+    def after(self, s: Stepper, message: str | None, t_old: float, t: float, y: np.ndarray,
+              left: float = math.inf) -> tuple[str | None, np.ndarray | None, tuple | None]:
         """After the pair ``s`` accepted a step from t_old to (t, y) with ``message``: a
         trial where one is due, as :func:`_trial` returns it ((None, None, None) where none
-        is made)."""
+        is made), within the ``left`` attempts of the run's budget."""
         self.taken.append(t - t_old)
         if self.resume_at is not None and s.naccepted >= self.resume_at:
             s.detect_stiffness, self.resume_at = True, None
@@ -583,7 +589,8 @@ class _Watch:
             why, spent, kept = _trial(self.stiff, t, y, self.t_end,
                                       float(np.median(self.taken)), s.name,
                                       *self.tolerances, STIFF_MIN_STEPS,
-                                      max(self.ratio, TRIAL_RATIO) if first else self.ratio)
+                                      max(self.ratio, TRIAL_RATIO) if first else self.ratio,
+                                      left)
             if why is not None:
                 return f"{held}, and {why}", spent, kept
             s.detect_stiffness, self.resume_at = False, s.naccepted + self.stiff_pause
@@ -598,7 +605,7 @@ class _Watch:
             # stiffness
             why, spent, kept = _trial(self.stiff, t, y, self.t_end,
                                       (t - self.t0) / s.naccepted, s.name, *self.tolerances,
-                                      TRIAL_MIN_STEPS, self.ratio)
+                                      TRIAL_MIN_STEPS, self.ratio, left)
             if why is None:
                 self.next_trial = s.naccepted + self.trial_pause
                 if spent[:2].any():
@@ -620,7 +627,7 @@ def _moved_far(out: np.ndarray, y: np.ndarray, tol_abs, rtol: float) -> bool:
 
 
 def _trial(stiff: tuple, t: float, y: np.ndarray, t_end: float, h: float, name: str,
-           rtol: float, atol, scale, min_steps: int, ratio: float
+           rtol: float, atol, scale, min_steps: int, ratio: float, left: float = math.inf
            ) -> tuple[str | None, np.ndarray, tuple | None]:
     """The implicit stepper tried from (t, y) apart (module docstring): why the run should
     go on with it (None: it should not), the trial's counters (accepted, rejected,
@@ -629,7 +636,8 @@ def _trial(stiff: tuple, t: float, y: np.ndarray, t_end: float, h: float, name: 
     that says no leaves nothing in the run (its equations are its own); one that fails in
     any way only says no. None is tried where the rest of the span takes the pair at
     most ``min_steps`` steps of size h; it says yes where the implicit stepper's last step
-    is at least ``ratio`` times h."""
+    is at least ``ratio`` times h. It attempts at most ``left`` steps, what the run's
+    budget has left (its work counts there)."""
     spent = np.zeros(5, dtype=int)
     if not h > 0 or (t_end - t) / h <= min_steps:
         return None, spent, None
@@ -638,7 +646,7 @@ def _trial(stiff: tuple, t: float, y: np.ndarray, t_end: float, h: float, name: 
     try:
         equations = factory()
         s = implicit(equations, t, y.copy(), t_end, rtol=rtol, atol=atol, scale=scale)
-        s.max_attempts = 4 * TRIAL_STEPS
+        s.max_attempts = min(4 * TRIAL_STEPS, left)
         while s.naccepted < TRIAL_STEPS and s.t < t_end:
             t_before = s.t
             if s.step() is not None:

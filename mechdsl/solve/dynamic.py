@@ -448,8 +448,9 @@ class DynamicRun(Run):
             self.states["y"][k:end] = ys
             self.raw[k:end] = raw
             self.n_solved[v] = end
-            if self.progress is not None and motion is None:
-                self.progress((v * len(times) + end) // V, len(times))
+            if self.progress is not None and motion is None:  # (at every instant, as above)
+                for j in range(k, end):
+                    self.progress((v * len(times) + j + 1) // V, len(times))
 
         K = len(times)
         #: the states at the output instants, written as outputs when the variant ends

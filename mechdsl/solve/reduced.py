@@ -388,6 +388,8 @@ class Reduced:
     def absolute_many(self, Y: np.ndarray) -> np.ndarray:
         """(q, qd) (2N, K) of the K states (w, wd), Y (2n, K)."""
         n = self.n
+        if not Y.shape[1]:
+            return np.empty((2 * self.N, 0))
         out = self._by_code("states", Y[:n], Y[n:2 * n])
         if out is None:
             return np.stack([self.absolute(col) for col in Y.T], axis=1)
@@ -401,6 +403,8 @@ class Reduced:
         pose, p, F, n, N2 = terms.code.pose(), terms._p, terms._F, self.n, 2 * self.N
 
         def states(Y: np.ndarray) -> np.ndarray:
+            if not Y.shape[1]:
+                return np.empty((N2, 0))
             try:
                 rows = [pose(w, wd, 0.0, p, F) for w, wd in zip(Y[:n].T.tolist(),
                                                                  Y[n:2 * n].T.tolist())]

@@ -524,7 +524,9 @@ class Radau(Stepper):
         if not self._spanning:
             return None
         equations, z = self._relative_at(t0, y0, t_bound)
-        if equations.m or self._left is None:
+        if equations.m or self._left is None or not equations.n:
+            # (no coordinate left: the joints lock the bodies, whose motion, none, the
+            # absolute coordinates integrate as they are)
             self._left = None
             return None
         return equations, z
