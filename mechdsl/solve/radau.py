@@ -461,6 +461,7 @@ class RadauStepper(Stepper):
         self._lu_h = 0.0
         self._F0 = self._F(self.t, self.y, self.lam, start=True)
         self._Z: np.ndarray | None = None  # the last accepted step's stage increments
+        self._stages: Callable | None = None  # an ODE's stage residuals (_newton_ode)
         self._h_prev: float | None = None
         self._err_prev: float | None = None
         self.h_abs = float(first_step) if first_step else self._first_step()
@@ -845,9 +846,11 @@ class RadauStepper(Stepper):
         pendulum numpy's cost per call is most of the arithmetic."""
         n = self.n
         y0 = self.y
-        bound = getattr(self.equations, "stage_function", None)
-        stages = bound() if bound is not None else \
-            getattr(self.equations, "stage_residuals", None) or self._ode_stages
+        stages = self._stages
+        if stages is None:  # (the equations' stage residuals, bound once)
+            bound = getattr(self.equations, "stage_function", None)
+            stages = self._stages = bound() if bound is not None else \
+                getattr(self.equations, "stage_residuals", None) or self._ode_stages
         tj = [t + c * h for c in _C]
         w = self._stage_weights(sc, h)
         # the norms' weights (:meth:`_norm_stages`) on the three stages' corrections:
