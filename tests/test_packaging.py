@@ -226,7 +226,7 @@ def test_the_core_wheel_alone_brings_the_library_and_runs_the_slider_crank(scrat
     assert f"\nVersion: {VERSION}\n" in meta
     assert {r for r in core_requires if r.startswith("mechdsl")} \
         == {f"{n}=={VERSION}" for n in LIBRARY_NAMES}
-    assert "[console_scripts]\nmechdsl = mechdsl.cli:main" in core_entry_points
+    assert "[console_scripts]\nmechdsl = mechdsl.cli:entry" in core_entry_points
     for name in LIBRARY_NAMES:
         _, requires, entry_points = wheel_metadata(built[name])
         assert f"mechdsl=={VERSION}" in requires, name
