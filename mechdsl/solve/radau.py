@@ -194,6 +194,7 @@ def _ode_operators(h: float, M: np.ndarray, Cv: np.ndarray, Kq: np.ndarray, pair
 
 @functools.cache
 def _identity(n: int) -> np.ndarray:
+    """I_n, shared (read-only)."""
     out = np.eye(n)
     out.flags.writeable = False
     return out
@@ -208,10 +209,8 @@ def _extrapolated(Z: np.ndarray, t: float, h: float, t_old: float, h_prev: float
     at t = 12.5), which the steps that shrink at a singular position make felt (A02 under
     radau at rtol 1e-8: with the guess from the step sizes' ratio the step size underflowed
     at t = 12.52; from the instants, it passes all twenty)."""
-    rows = [[1.0, 1.0, 1.0]]
-    for c in _C:
-        x = (t + h * c - t_old) / h_prev
-        rows.insert(-1, [x, x * x, x * x * x])
+    rows = [[x, x * x, x * x * x] for x in ((t + h * c - t_old) / h_prev for c in _C)]
+    rows.append([1.0, 1.0, 1.0])  # (the step's start)
     at = np.array(rows) @ (_K["P"].T @ Z)
     return at[:3] - at[3]
 
@@ -238,7 +237,8 @@ def _stage_map(h: float, n: int) -> np.ndarray:
 
 @functools.cache
 def _stage_map_parts(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_stage_map`'s two parts, h S = (its A^-1 part) + h (its -Z_v part)."""
+    """:func:`_stage_map`'s two parts (D, V), S = D / h + V: D of the stages'
+    derivatives (A^-1 (x) I), V of the velocity residuals' -Z_v."""
     I = np.eye(n)
     D, V = np.zeros((6 * n, 6 * n)), np.zeros((6 * n, 6 * n))
     for j in range(3):
