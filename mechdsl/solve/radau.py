@@ -192,6 +192,16 @@ def _ode_operators(h: float, M: np.ndarray, Cv: np.ndarray, Kq: np.ndarray, pair
     return out[0], -L[:, _block_order(n)], _stage_map(h, n)
 
 
+def _state_residual(rq: np.ndarray, rv: np.ndarray, w: tuple) -> float:
+    """The squared sum of the stages' velocity residuals rq and force residuals rv (3, n)
+    as errors of the state in the error norm (RadauStepper._residual_norm: h M^-1 r_v
+    moves the velocities, h times that and h r_q the positions)."""
+    dv = rv * w[2]  # h M^-1 r_v
+    eq = (rq + dv) * w[1]
+    ev = dv * w[3]
+    return float(np.vdot(eq, eq) + np.vdot(ev, ev))
+
+
 @functools.cache
 def _identity(n: int) -> np.ndarray:
     """I_n, shared (read-only)."""
@@ -461,7 +471,6 @@ class RadauStepper(Stepper):
         self._lu_h = 0.0
         self._F0 = self._F(self.t, self.y, self.lam, start=True)
         self._Z: np.ndarray | None = None  # the last accepted step's stage increments
-        self._stages: Callable | None = None  # an ODE's stage residuals (_newton_ode)
         self._h_prev: float | None = None
         self._err_prev: float | None = None
         self.h_abs = float(first_step) if first_step else self._first_step()
@@ -714,10 +723,7 @@ class RadauStepper(Stepper):
         that; a constraint residual r_lambda is a position error of |r_lambda| / |Phi_q|
         (one entry per stage, its largest). ``w`` from :meth:`_stage_weights`."""
         n = self.n
-        dv = r[:, n:2 * n] * w[2]  # h M^-1 r_v
-        eq = (r[:, :n] + dv) * w[1]
-        ev = dv * w[3]
-        total = float(np.vdot(eq, eq) + np.vdot(ev, ev))
+        total = _state_residual(r[:, :n], r[:, n:2 * n], w)
         count = 6 * n
         if self.m:
             e = np.abs(r[:, 2 * n:]).max(axis=1) * w[4]
@@ -846,11 +852,7 @@ class RadauStepper(Stepper):
         pendulum numpy's cost per call is most of the arithmetic."""
         n = self.n
         y0 = self.y
-        stages = self._stages
-        if stages is None:  # (the equations' stage residuals, bound once)
-            bound = getattr(self.equations, "stage_function", None)
-            stages = self._stages = bound() if bound is not None else \
-                getattr(self.equations, "stage_residuals", None) or self._ode_stages
+        stages = getattr(self.equations, "stage_residuals", None) or self._ode_stages
         tj = [t + c * h for c in _C]
         w = self._stage_weights(sc, h)
         # the norms' weights (:meth:`_norm_stages`) on the three stages' corrections:
@@ -903,10 +905,7 @@ class RadauStepper(Stepper):
     def _residual_norm_ode(self, r: np.ndarray, w: tuple) -> float:
         """:meth:`_residual_norm` of an ODE's residual r in block order (6n,)."""
         rq, rv = r.reshape(2, 3, self.n)
-        dv = rv * w[2]  # h M^-1 r_v
-        eq = (rq + dv) * w[1]
-        ev = dv * w[3]
-        return math.sqrt(float(np.vdot(eq, eq) + np.vdot(ev, ev)) / (6 * self.n))
+        return math.sqrt(_state_residual(rq, rv, w) / (6 * self.n))
 
     def step(self) -> str | None:
         """Rule 2: one accepted step (module docstring), or the reason there is none."""

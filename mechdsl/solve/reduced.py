@@ -48,8 +48,6 @@ coordinates' own Jacobian terms.
 
 from __future__ import annotations
 
-from typing import Callable
-
 import numpy as np
 
 from .reduced_terms import TracedReduced, traced
@@ -395,24 +393,6 @@ class Reduced:
             return np.stack([self.absolute(col) for col in Y.T], axis=1)
         return out
 
-    def state_function(self) -> Callable[[np.ndarray], np.ndarray]:
-        """:meth:`absolute_many` bound once (the outputs of every step of a run)."""
-        terms = self.traced
-        if terms is None:
-            return self.absolute_many
-        pose, p, F, n, N2 = terms.code.pose(), terms._p, terms._F, self.n, 2 * self.N
-
-        def states(Y: np.ndarray) -> np.ndarray:
-            if not Y.shape[1]:
-                return np.empty((N2, 0))
-            try:
-                rows = [pose(w, wd, 0.0, p, F) for w, wd in zip(Y[:n].T.tolist(),
-                                                                 Y[n:2 * n].T.tolist())]
-            except _OUTSIDE:
-                return self.absolute_many(Y)
-            return np.array(rows)[:, :N2].T
-        return states
-
     def relative(self, y: np.ndarray) -> np.ndarray:
         """(w, wd) of the state (q, qd) (the eliminated coordinates are the joints')."""
         zz = self.rel.relative(y)
@@ -467,8 +447,9 @@ class Reduced:
 
     def stage_residuals(self, ts: list, Y: np.ndarray, A: np.ndarray) -> list | np.ndarray:
         """M_w(w_j) A_j - f_w(t_j, w_j, wd_j) for the rows j, Y_j = (w_j, wd_j) (an implicit
-        stepper's stages; Y and A as rows or flat, row by row), flat, stage by stage: by the generated terms where traced
-        (:mod:`.reduced_terms`), else stage by stage through the map."""
+        stepper's stages; Y and A as rows or flat, row by row), flat, stage by stage: by
+        the generated terms where traced (:mod:`.reduced_terms`), else stage by stage
+        through the map."""
         out = self._by_code("stage_residuals", ts, Y, A)
         if out is not None:
             return out
@@ -479,23 +460,6 @@ class Reduced:
             M, f = self.mass_loads(t, Y[j, :n], Y[j, n:2 * n])
             out[j] = M @ A[j] - f
         return out.ravel()
-
-    def stage_function(self) -> Callable[[list, np.ndarray, np.ndarray], list | np.ndarray]:
-        """:meth:`stage_residuals` of three stages, Y and A flat, bound to the generated
-        function where traced (an implicit stepper's Newton iteration calls it twice a
-        step: without the dispatch at each call), through the map where a state is outside
-        a function's domain."""
-        terms = self.traced
-        if terms is None:
-            return self.stage_residuals
-        fn, p, F = terms.code.stages(3), terms._p, terms._F
-
-        def residuals(ts: list, Y: np.ndarray, A: np.ndarray) -> list | np.ndarray:
-            try:
-                return fn(Y.tolist(), (), 0.0, p + ts + A.tolist(), F)
-            except _OUTSIDE:
-                return self.stage_residuals(ts, Y, A)
-        return residuals
 
     def loads(self, t: float, w: np.ndarray, wd: np.ndarray) -> np.ndarray:
         """f_w = (G^T (Q - M c))_w."""

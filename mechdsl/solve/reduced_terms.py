@@ -113,9 +113,9 @@ class TracedReduced:
     parameters, the eliminated coordinates' values, the points) and functions ``F``.
     ``terms(t, w, wd)`` -> (M_w (n, n), f_w (n,)), ``derivatives(t, w, wd)`` -> (df_w/dw,
     df_w/dwd), ``absolute(w, wd)`` -> ((q, qd), G), ``state(w, wd)`` -> (q, qd),
-    ``states(W, Wd)`` -> (q, qd) at K states and ``stage_residuals(ts, Y, A)``; each raises ValueError, ZeroDivisionError or
-    OverflowError outside a function's domain (the caller then evaluates through the
-    map)."""
+    ``states(W, Wd)`` -> (q, qd) at K states and ``stage_residuals(ts, Y, A)``; each
+    raises ValueError, ZeroDivisionError or OverflowError outside a function's domain (the
+    caller then evaluates through the map)."""
 
     def __init__(self, code: ReducedCode, p: list, F: tuple) -> None:
         self.code, self.n, self.N = code, code.n, code.N

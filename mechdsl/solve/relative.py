@@ -512,8 +512,6 @@ class Radau(Stepper):
             equations, y0 = start
             self.relative, self.relative_from = equations, t0
         self._from_start = start is not None
-        #: (the relative equations, their bound map of many states) for the dense outputs
-        self._many: tuple | None = None
         self.inner = RadauStepper(equations, t0, y0, t_bound, rtol=rtol, atol=atol,
                                   scale=scale, first_step=first_step, **options)
 
@@ -663,11 +661,7 @@ class Radau(Stepper):
         if self.relative is None:
             return u
         rel = self.relative
-        if self._many is None or self._many[0] is not rel:
-            bind = getattr(rel, "state_function", None)
-            self._many = (rel, bind() if bind is not None else
-                          getattr(rel, "absolute_many", None))
-        many = self._many[1]
+        many = getattr(rel, "absolute_many", None)
 
         def absolute(t):
             y = np.asarray(u(t))
