@@ -120,17 +120,20 @@ def interpolant_extent(name: str) -> float:
         at = pair.interpolant(f, K, 0.0, 1.0, y0, y_new)
         return max(float(np.linalg.norm(at(x))) for x in xs)
 
-    def extent(matrix: Callable[[float], np.ndarray]) -> float:
-        x, dx = 0.0, 0.01
-        while x < 20.0:
-            if worst(matrix(x + dx)) > 1 + 1e-3:
-                break
-            x += dx
-        return x
-
-    real = extent(lambda x: np.array([[-x]]))
-    imaginary = extent(lambda w: np.array([[0.0, -w], [w, 0.0]]))
+    real = _extent(lambda x: worst(np.array([[-x]])))
+    imaginary = _extent(lambda w: worst(np.array([[0.0, -w], [w, 0.0]])))
     return min(real, imaginary)
+
+
+def _extent(modulus: Callable[[float], float]) -> float:
+    """The last x of the scan 0, 0.01, ... up to 20 before ``modulus(x)`` exceeds 1 + 1e-3
+    (the extent of a stability region along a ray)."""
+    x, dx = 0.0, 0.01
+    while x < 20.0:
+        if modulus(x + dx) > 1 + 1e-3:
+            break
+        x += dx
+    return x
 
 
 #: Hairer's counts (DOPRI5): steps in a row with h rho above the stability boundary that
@@ -182,17 +185,11 @@ def stability_threshold(name: str) -> float:
         A[i, :len(pair.a[i])] = pair.a[i]
     b, one, eye = pair.b[:s], np.ones(s), np.eye(s)
 
-    def extent(direction: complex) -> float:
-        x, dx = 0.0, 0.01
-        while x < 20.0:
-            z = direction * (x + dx)
-            if abs(1 + z * (b @ np.linalg.solve(eye - z * A, one))) > 1 + 1e-3:
-                break
-            x += dx
-        return x
+    def modulus(z: complex) -> float:  # |R(z)|
+        return abs(1 + z * (b @ np.linalg.solve(eye - z * A, one)))
 
-    real = extent(-1.0)
-    return max(0.9 * min(real, extent(1j)), 0.5 * real)
+    real = _extent(lambda x: modulus(-x))
+    return max(0.9 * min(real, _extent(lambda x: modulus(1j * x))), 0.5 * real)
 
 
 class RungeKutta(Stepper):
